@@ -1,0 +1,56 @@
+"""Which column holds which role: the naming rule shared by every layout.
+
+A column name is split at its last ``.``, ``:`` or ``/`` into a tag and a suffix (``FIC101.PV`` ->
+tag ``FIC101``, suffix ``PV``); a name with no separator is its own suffix. Matching is
+case-insensitive.
+
+* OP (controller output): suffix ``OP``, ``OUT``, ``OUTPUT``, ``CO``, ``CV`` is *not* used (it means
+  controlled variable in some plants); a **tag-style** ``.MV`` (``FIC101.MV``) is OP too, because
+  DCSs such as Yokogawa CENTUM call the controller output the manipulated variable.
+* MV (valve stem position): a **bare** ``MV`` column, or suffix ``POS``, ``POSITION``, ``STEM``,
+  ``ZT``, ``VALVE_POSITION``, ``MV_PCT``.
+* PV: suffix ``PV``, ``MEAS``, ``MEASUREMENT``. SP: suffix ``SP``, ``SV``, ``SETPOINT``.
+* Time: ``time``, ``timestamp``, ``datetime``, ``date_time``, ``t``, ``ts``, ``_time``.
+
+Anything else needs ``--op/--pv/--sp/--mv`` (or a tag map). Two columns claiming one role is an
+error that names both.
+"""
+
+from __future__ import annotations
+
+import re
+
+OP_SUFFIXES = {"op", "out", "output", "co", "op_pct"}
+MV_SUFFIXES = {"pos", "position", "stem", "zt", "valve_position", "mv_pct", "stem_position"}
+PV_SUFFIXES = {"pv", "meas", "measurement"}
+SP_SUFFIXES = {"sp", "sv", "setpoint", "set_point"}
+TIME_NAMES = {"time", "timestamp", "datetime", "date_time", "t", "ts", "_time", "time_s", "t_s"}
+
+_SPLIT = re.compile(r"^(.*)[.:/]([^.:/]+)$")
+
+
+def split_tag(name: str) -> tuple[str, str]:
+    """``"FIC101.PV"`` -> ``("FIC101", "pv")``; ``"PV"`` -> ``("", "pv")``."""
+    name = name.strip().strip('"').strip()
+    m = _SPLIT.match(name)
+    if m:
+        return m.group(1), m.group(2).lower()
+    return "", name.lower()
+
+
+def role_of(name: str) -> str | None:
+    """The role a column name implies (``op``, ``pv``, ``sp``, ``mv``, ``time``) or None."""
+    tag, suffix = split_tag(name)
+    if not tag and suffix in TIME_NAMES:
+        return "time"
+    if suffix == "mv":
+        return "op" if tag else "mv"
+    if suffix in OP_SUFFIXES:
+        return "op"
+    if suffix in MV_SUFFIXES:
+        return "mv"
+    if suffix in PV_SUFFIXES:
+        return "pv"
+    if suffix in SP_SUFFIXES:
+        return "sp"
+    return None

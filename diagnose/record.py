@@ -1,0 +1,155 @@
+"""The loop record: one control loop's uniformly sampled data, as every stage sees it.
+
+Conventions (python-control style): time along the last axis, seconds for time, OP and MV in % of
+valve span, PV and SP in engineering units. Arrays are finite: connectors fill short gaps and split
+a record at long ones before a record is built.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import DataError
+
+ROLES = ("op", "pv", "sp", "mv")
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A data-quality (or other) finding that travels with a record into every result.
+
+    Parameters
+    ----------
+    code : str
+        Short machine-readable name, e.g. ``"gap"``, ``"compression"``, ``"quantisation"``,
+        ``"op_saturation"``, ``"manual_mode"``, ``"frozen"``, ``"bad_values"``.
+    message : str
+        One sentence for a control engineer.
+    severity : {"info", "warning", "error"}
+        ``warning`` lowers confidence in a diagnosis; ``error`` means the loop cannot be diagnosed.
+    data : mapping
+        Numbers behind the message (counts, fractions, positions), JSON-serialisable.
+    """
+
+    code: str
+    message: str
+    severity: str = "info"
+    data: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.severity not in ("info", "warning", "error"):
+            raise ValueError(f"Finding.severity must be info, warning or error, not {self.severity!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"code": self.code, "message": self.message, "severity": self.severity,
+                "data": dict(self.data)}
+
+
+def _as_series(name: str, values: Any, n: int | None) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim != 1:
+        raise DataError(f"{name} must be one-dimensional, got shape {arr.shape}")
+    if n is not None and arr.shape[0] != n:
+        raise DataError(f"{name} has {arr.shape[0]} samples but OP has {n}; all roles need the same length")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.isfinite(arr)))
+        raise DataError(f"{name} has {bad} non-finite values; fill or split gaps before building a record")
+    arr = arr.copy()
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class LoopRecord:
+    """One loop's uniformly sampled record.
+
+    Parameters
+    ----------
+    name : str
+        Loop name (tag), e.g. ``"FIC101"``.
+    ts_s : float
+        Sample period in seconds.
+    op : array of float, shape (n,)
+        Controller output in % of valve span.
+    pv : array of float, shape (n,)
+        Process variable in engineering units (``units["pv"]``).
+    sp : array of float, shape (n,), optional
+        Setpoint in PV units.
+    mv : array of float, shape (n,), optional
+        Valve stem position in % of span, where a positioner reports it.
+    start : str, optional
+        ISO 8601 time of the first sample (UTC offset included when known).
+    units : mapping role -> str
+        Engineering units per role (``"%"`` for OP and MV).
+    ranges : mapping role -> (lo, hi)
+        Value ranges used for scaling to % of span or for plots.
+    findings : tuple of Finding
+        Data-quality findings from the connector and later stages.
+    source : str, optional
+        Where the data came from (file path or device address).
+    meta : mapping
+        How the source was read (format, separator, time zone, segment index...).
+    """
+
+    name: str
+    ts_s: float
+    op: np.ndarray
+    pv: np.ndarray
+    sp: np.ndarray | None = None
+    mv: np.ndarray | None = None
+    start: str | None = None
+    units: Mapping[str, str] = field(default_factory=dict)
+    ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    findings: tuple[Finding, ...] = ()
+    source: str | None = None
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.ts_s) and self.ts_s > 0):
+            raise DataError(f"sample period ts_s must be a positive number of seconds, got {self.ts_s!r}")
+        op = _as_series("OP", self.op, None)
+        n = op.shape[0]
+        object.__setattr__(self, "op", op)
+        object.__setattr__(self, "pv", _as_series("PV", self.pv, n))
+        for role in ("sp", "mv"):
+            v = getattr(self, role)
+            if v is not None:
+                object.__setattr__(self, role, _as_series(role.upper(), v, n))
+        object.__setattr__(self, "findings", tuple(self.findings))
+        object.__setattr__(self, "ts_s", float(self.ts_s))
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.op.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return self.n * self.ts_s
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Time of each sample in seconds from the first."""
+        return np.arange(self.n) * self.ts_s
+
+    def replace(self, **changes: Any) -> "LoopRecord":
+        """A copy with some fields changed (the record itself is immutable)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_findings(self, *findings: Finding) -> "LoopRecord":
+        return self.replace(findings=self.findings + tuple(findings))
+
+    def slice(self, start: int, stop: int | None = None) -> "LoopRecord":
+        """Samples ``start:stop`` as a new record (findings kept)."""
+        sl = slice(start, stop)
+        return self.replace(op=self.op[sl], pv=self.pv[sl],
+                            sp=None if self.sp is None else self.sp[sl],
+                            mv=None if self.mv is None else self.mv[sl])
+
+    def roles(self) -> dict[str, np.ndarray]:
+        """The present series by role name."""
+        return {r: getattr(self, r) for r in ROLES if getattr(self, r) is not None}

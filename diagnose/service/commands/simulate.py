@@ -1,0 +1,48 @@
+"""`stiction simulate`: write a simulated closed loop (with the true MV) as a wide CSV."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ...errors import DataError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--S", type=float, required=True, help="deadband + stickband, %% of valve span")
+    p.add_argument("--J", type=float, required=True, help="slip jump, %% of valve span")
+    p.add_argument("--process", choices=["foptd", "soptd", "integrating"], default="foptd",
+                   help="process model (default foptd: first order plus dead time)")
+    p.add_argument("--gain", type=float, default=None,
+                   help="process gain, PV units per %% (integrating: per %% per second); default 1 (0.02)")
+    p.add_argument("--tau-s", type=float, default=20.0, help="process time constant, seconds")
+    p.add_argument("--delay-s", type=float, default=3.0, help="process dead time, seconds")
+    p.add_argument("--ts", type=float, default=1.0, help="sample period, seconds")
+    p.add_argument("--n", type=int, default=3000, help="number of samples")
+    p.add_argument("--noise", type=float, default=0.02, help="measurement noise std, PV units")
+    p.add_argument("--load", type=float, default=0.01, help="random-walk load increment std, PV units")
+    p.add_argument("--f0", type=int, choices=[-1, 1], default=1, help="valve's starting direction")
+    p.add_argument("--kc", type=float, default=None, help="controller gain (default: SIMC tuning)")
+    p.add_argument("--ti-s", type=float, default=None, help="integral time, seconds (default: SIMC)")
+    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--name", default="SIM", help="loop name (tag prefix of the columns)")
+    p.add_argument("--out", required=True, help="output CSV file")
+
+
+def run(args: argparse.Namespace) -> int:
+    from connectors.historian import write_wide
+    from ...simulate import sticky_loop
+
+    if args.S < 0 or args.J < 0:
+        raise DataError("--S and --J must be >= 0 (% of valve span)")
+    if args.n < 10:
+        raise DataError("--n must be at least 10 samples")
+    gain = args.gain if args.gain is not None else (0.02 if args.process == "integrating" else 1.0)
+    rec = sticky_loop(args.S, args.J, n=args.n, ts_s=args.ts, gain=gain, tau_s=args.tau_s,
+                      delay_s=args.delay_s, kind=args.process, noise_std=args.noise,
+                      load_walk_std=args.load, f0=args.f0, seed=args.seed, name=args.name,
+                      Kc=args.kc, Ti_s=args.ti_s)
+    write_wide(rec, args.out)
+    print(f"wrote {args.out}: {rec.n} samples at {rec.ts_s:g} s, S={args.S:g} %, J={args.J:g} %",
+          file=sys.stderr)
+    return 0
