@@ -1,0 +1,128 @@
+"""Low-order linear process models: the linear block of the Hammerstein fit.
+
+Discrete time, sample period ``ts_s``, input ``u`` the valve stem position in % of span::
+
+    u_d[k] = u[k - d]                    (u[k] = u[0] for k < 0; d = round(delay_s / ts_s))
+    z1[k]  = a1 z1[k-1] + (1 - a1) u_d[k]          a1 = exp(-ts_s / tau_s)
+    z2[k]  = a2 z2[k-1] + (1 - a2) z1[k]           a2 = exp(-ts_s / tau2_s)   (soptd only)
+    foptd / soptd:  pv[k] = bias + gain * z[k]     (z = z1 or z2, starting at u[0]: steady state)
+    integrating:    pv[k] = bias + gain * ts_s * sum_{i<=k} (z1[i] - u_balance)
+
+This is the zero-order-hold discretisation the closed-loop simulator (`diagnose.simulate`) uses, so
+a model identified from a simulated loop can be compared with the simulator's parameters directly.
+``gain`` is PV units per % of valve travel (integrating: PV units per second per %).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from .errors import DataError
+
+KINDS = ("foptd", "soptd", "integrating")
+
+
+@njit(cache=True, nogil=True)
+def _lag_filter(u, a1, a2, d, integ, ts_s):  # pragma: no cover - compiled
+    """z (see module docstring) for one input; ``a2 < 0`` means first order."""
+    n = u.shape[0]
+    z = np.empty(n)
+    u0 = u[0]
+    z1 = u0
+    z2 = u0
+    acc = 0.0
+    for k in range(n):
+        kd = k - d
+        ud = u[kd] if kd >= 0 else u0
+        z1 = a1 * z1 + (1.0 - a1) * ud
+        if a2 >= 0.0:
+            z2 = a2 * z2 + (1.0 - a2) * z1
+        else:
+            z2 = z1
+        if integ:
+            acc += ts_s * z2
+            z[k] = acc
+        else:
+            z[k] = z2
+    return z
+
+
+def lag_coefficient(tau_s: float, ts_s: float) -> float:
+    """Discrete pole ``exp(-ts/tau)`` of a lag (0 for tau = 0: no lag)."""
+    return math.exp(-ts_s / tau_s) if tau_s > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """A first/second-order-plus-dead-time or integrating process.
+
+    Parameters
+    ----------
+    kind : {"foptd", "soptd", "integrating"}
+    gain : float
+        PV units per % of valve travel (integrating: PV units per second per %).
+    tau_s : float
+        (First) time constant, seconds (integrating: the input lag, may be 0).
+    delay_s : float
+        Dead time, seconds (a whole number of samples).
+    bias : float
+        PV offset (self-regulating: PV at 0 % valve travel; integrating: PV at the first sample).
+    tau2_s : float
+        Second time constant (soptd), seconds.
+    u_balance_pct : float, optional
+        Integrating only: valve position at which PV holds still (None: the first input).
+    """
+
+    kind: str
+    gain: float
+    tau_s: float
+    delay_s: float
+    bias: float
+    tau2_s: float = 0.0
+    u_balance_pct: float | None = None
+    meta: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise DataError(f"unknown process kind {self.kind!r}; use foptd, soptd or integrating")
+        if not (self.tau_s >= 0 and self.tau2_s >= 0 and self.delay_s >= 0):
+            raise DataError("process time constants and dead time must be >= 0 seconds")
+
+    def regressor(self, u_pct, ts_s: float) -> np.ndarray:
+        """The unit-gain response ``z`` of the lags (and integrator) to ``u_pct``."""
+        u = np.ascontiguousarray(u_pct, dtype=np.float64)
+        if u.ndim != 1 or u.shape[0] == 0:
+            raise DataError(f"u_pct must be a non-empty 1-D series, got shape {u.shape}")
+        a1 = lag_coefficient(self.tau_s, ts_s)
+        a2 = lag_coefficient(self.tau2_s, ts_s) if self.kind == "soptd" else -1.0
+        d = int(round(self.delay_s / ts_s))
+        return _lag_filter(u, a1, a2, d, self.kind == "integrating", float(ts_s))
+
+    def simulate(self, u_pct, ts_s: float) -> np.ndarray:
+        """PV for valve position ``u_pct`` (% of span), starting at steady state at ``u_pct[0]``."""
+        z = self.regressor(u_pct, ts_s)
+        if self.kind == "integrating":
+            u0 = float(np.asarray(u_pct, dtype=float)[0])
+            ub = u0 if self.u_balance_pct is None else self.u_balance_pct
+            t = ts_s * np.arange(1, z.shape[0] + 1)
+            return self.bias + self.gain * (z - ub * t)
+        return self.bias + self.gain * z
+
+    @property
+    def time_constant_s(self) -> float:
+        """Sum of lags plus dead time: a rough settling scale."""
+        return self.tau_s + self.tau2_s + self.delay_s
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"kind": self.kind, "gain": float(self.gain), "tau_s": float(self.tau_s),
+                               "delay_s": float(self.delay_s), "bias": float(self.bias)}
+        if self.kind == "soptd":
+            out["tau2_s"] = float(self.tau2_s)
+        if self.kind == "integrating":
+            out["u_balance_pct"] = None if self.u_balance_pct is None else float(self.u_balance_pct)
+        return out

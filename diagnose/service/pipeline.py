@@ -1,0 +1,400 @@
+"""One loop from record to result: identify, NARX-SP selection, data quality, [explain], severity.
+
+`diagnose(record)` returns a `Diagnosis` (the JSON-ready result plus the objects the figures need);
+`diagnose_record(record)` returns only the result dict, the object batch, monitor and demo store.
+
+Optional stages (the NARX-SP bank, the missing-physics explanation) degrade gracefully: when one is
+not installed or fails, the result carries a warning (``service.narx_unavailable``,
+``service.explain_unavailable``) and the rest of the diagnosis stands. Identification itself is
+required: its failure raises (a `DataError` for unusable data) and the batch records the loop as
+failed.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import StictionError
+from ..record import LoopRecord
+
+#: Bump when the result layout or the service's own logic changes: it is part of the input hash,
+#: so a nightly re-run after an upgrade re-diagnoses every loop.
+PIPELINE_REVISION = "1"
+
+SCHEMA = "stiction.loop/1"
+
+#: Stiction size (S, % of span) at which the size part of the severity saturates.
+S_SATURATION_PCT = 5.0
+#: S below this (% of span) is reported as minor.
+S_MINOR_PCT = 1.0
+
+
+@functools.lru_cache(maxsize=1)
+def tool_version() -> str:
+    """The installed package version plus the pipeline revision, e.g. ``"0.1.0+p1"``."""
+    try:
+        from importlib.metadata import version
+
+        v = version("stiction")
+    except Exception:  # pragma: no cover - not installed
+        v = "0+unknown"
+    return f"{v}+p{PIPELINE_REVISION}"
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnosis:
+    """Everything one loop's report needs.
+
+    Attributes
+    ----------
+    record : LoopRecord
+    result : dict
+        The JSON-ready result (what ``LOOP.json`` holds).
+    identification : object or None
+        `diagnose.identify.Identification` (its ``.fit`` gives the model path and error surface).
+    selection : object or None
+        `diagnose.narx.bank.Selection` of the NARX-SP model nearest to (S, J).
+    narx_mv_hat_pct : array or None
+        NARX-SP free-run valve position over the whole record.
+    narx_pv_hat : array or None
+        That valve path pushed through the fitted process model (compared with the recorded PV when
+        the record has no MV).
+    explanation : object or None
+        `diagnose.physics.Explanation` when requested and available.
+    """
+
+    record: LoopRecord
+    result: dict
+    identification: Any = None
+    selection: Any = None
+    narx_mv_hat_pct: np.ndarray | None = None
+    narx_pv_hat: np.ndarray | None = None
+    explanation: Any = None
+    timings_s: Mapping[str, float] = field(default_factory=dict)
+
+
+def _optional(module: str) -> Any | None:
+    """Import an optional stage; None when it is not installed (not when it is broken)."""
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name and (module == exc.name or module.startswith(exc.name + ".")):
+            return None
+        raise
+
+
+@functools.lru_cache(maxsize=1)
+def _bank() -> Any:
+    """The NARX-SP bank, loaded once per process (None when the narx package is absent)."""
+    mod = _optional("diagnose.narx.bank")
+    if mod is None:
+        return None
+    return mod.load_bank()
+
+
+def _jsonable(obj: Any) -> Any:
+    """Numpy scalars/arrays and tuples into plain JSON types; NaN/inf into None."""
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    return obj
+
+
+def _warning(code: str, message: str, **extra: Any) -> dict[str, Any]:
+    return {"code": code, "message": message, **extra}
+
+
+def _num(value: Any) -> float | None:
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _interval(value: Any) -> tuple[float | None, float | None]:
+    if isinstance(value, Mapping):
+        return _num(value.get("lo", value.get("low"))), _num(value.get("hi", value.get("high")))
+    if isinstance(value, (list, tuple)) and len(value) == 2:
+        return _num(value[0]), _num(value[1])
+    return None, None
+
+
+def stiction_present(result: Mapping[str, Any]) -> bool | None:
+    """Whether the result says the valve is sticky (None when it does not say)."""
+    st = result.get("stiction")
+    if isinstance(st, Mapping):
+        st = st.get("present", st.get("detected", st.get("verdict")))
+    if isinstance(st, bool):
+        return st
+    if isinstance(st, str):
+        s = st.lower()
+        if s in ("yes", "true", "stiction", "present", "likely", "detected"):
+            return True
+        if s in ("no", "false", "none", "absent", "not detected"):
+            return False
+        return None
+    cls = str(result.get("class") or "").lower()
+    if cls:
+        return cls not in ("none", "no stiction", "no_stiction")
+    return None
+
+
+def oscillation_info(result: Mapping[str, Any]) -> dict[str, Any]:
+    """Period (s), regularity/strength and whether the loop oscillates, from the result."""
+    osc = result.get("oscillation") or {}
+    if not isinstance(osc, Mapping):
+        return {"present": None, "period_s": None, "strength": None}
+    period = _num(osc.get("period_s", osc.get("period")))
+    strength = None
+    for key in ("regularity", "strength", "score", "power_fraction"):
+        if _num(osc.get(key)) is not None:
+            strength = _num(osc.get(key))
+            break
+    present = osc.get("present", osc.get("oscillating", osc.get("detected")))
+    if not isinstance(present, bool):
+        present = None if period is None else (strength is None or strength >= 0.5)
+    return {"present": present, "period_s": period, "strength": strength,
+            "amplitude": _num(osc.get("amplitude", osc.get("amplitude_pv")))}
+
+
+def severity(result: Mapping[str, Any]) -> dict[str, Any]:
+    """Rank score 0-100 from stiction size, confidence, oscillation and data quality.
+
+    * size: up to 50 points, ``50 * min(S / 5 %, 1)``, scaled by the confidence (0-1), only when
+      the result says the valve is sticky;
+    * oscillation: up to 25 points, 25 when the loop oscillates (scaled by the regularity when
+      given);
+    * data quality: 5 points per data-quality warning, at most 15 (a loop whose data cannot be
+      trusted needs someone to look at it too);
+    * robustness: 10 points when the selected NARX-SP model is not robust at this (S, J).
+    """
+    S = _num(result.get("S")) or 0.0
+    conf = _num(result.get("confidence"))
+    conf = 1.0 if conf is None else min(max(conf, 0.0), 1.0)
+    sticky = stiction_present(result)
+    size = 50.0 * min(S / S_SATURATION_PCT, 1.0) * conf if sticky else 0.0
+    osc = oscillation_info(result)
+    if osc["present"]:
+        strength = osc["strength"]
+        osc_pts = 25.0 * (1.0 if strength is None else min(max(strength, 0.0), 1.0))
+    else:
+        osc_pts = 0.0
+    dq = sum(1 for w in result.get("warnings", ()) if str(w.get("code", "")).startswith("data_quality."))
+    dq_pts = min(5.0 * dq, 15.0)
+    narx = result.get("narx") or {}
+    rob_pts = 10.0 if isinstance(narx, Mapping) and narx.get("robust") is False else 0.0
+    score = size + osc_pts + dq_pts + rob_pts
+    return {"score": round(score, 2), "size": round(size, 2), "oscillation": round(osc_pts, 2),
+            "data_quality": round(dq_pts, 2), "robustness": round(rob_pts, 2)}
+
+
+def verdict(result: Mapping[str, Any]) -> str:
+    """One line for a control engineer: sticky or not, how much, how sure."""
+    sticky = stiction_present(result)
+    S, J = _num(result.get("S")), _num(result.get("J"))
+    conf = _num(result.get("confidence"))
+    hedged = any(str(w.get("code", "")) == "data_quality.compression" for w in result.get("warnings", ()))
+    sure = "" if conf is None else f" (confidence {conf:.0%})"
+    if sticky is None:
+        return "Inconclusive: the data did not allow a stiction verdict" + sure + "."
+    if not sticky:
+        return "No stiction found: the valve follows the controller output" + sure + "."
+    size = f"S = {S:.2f} %, J = {J:.2f} % of valve span" if S is not None and J is not None else ""
+    word = "Possible stiction" if hedged or (conf is not None and conf < 0.5) else "Stiction"
+    minor = " (minor)" if S is not None and S < S_MINOR_PCT else ""
+    return f"{word}{minor}: {size}, class {result.get('class', '?')}{sure}."
+
+
+def recommended_action(result: Mapping[str, Any]) -> str:
+    """A plain-words next step, from the verdict, size, oscillation and data quality."""
+    sticky = stiction_present(result)
+    S = _num(result.get("S")) or 0.0
+    J = _num(result.get("J")) or 0.0
+    conf = _num(result.get("confidence"))
+    osc = oscillation_info(result)
+    codes = {str(w.get("code", "")) for w in result.get("warnings", ())}
+    period = f" of period {osc['period_s']:.0f} s" if osc["period_s"] else ""
+    parts: list[str] = []
+    if "data_quality.compression" in codes:
+        parts.append("The historian data look compressed, which can fake stiction: export the "
+                     "loop again with compression off (or raw archive values) before acting.")
+    if sticky is None:
+        parts.append("Collect a longer record in automatic mode with the loop moving (a few "
+                     "set-point steps help) and run the diagnosis again.")
+    elif sticky and (conf is None or conf >= 0.5) and S >= S_MINOR_PCT:
+        parts.append(f"Have the valve inspected at the next opportunity: it sticks by about {S:.1f} % of "
+                     f"its span{' and jumps by ' + format(J, '.1f') + ' %' if J > 0 else ''}. Check the "
+                     "packing (over-tightened or worn), the actuator and the positioner.")
+        if osc["present"]:
+            parts.append(f"Until then the stick-slip cycle{period} can be eased by reducing the "
+                         "controller's integral action (longer integral time) or by a stiction "
+                         "compensator; do not simply raise the gain.")
+    elif sticky:
+        parts.append(f"Stiction is small or uncertain (S about {S:.1f} % of span): keep the loop on "
+                     "the watch list and compare with the next nightly run before acting.")
+    else:
+        if osc["present"]:
+            parts.append(f"The loop oscillates{period} but the valve is not the cause: check the "
+                         "controller tuning and look for an oscillating disturbance upstream.")
+        else:
+            parts.append("No action needed on the valve.")
+    if any(c.startswith("data_quality.") for c in codes - {"data_quality.compression"}):
+        parts.append("See the data-quality warnings: they limit how far this result can be trusted.")
+    return " ".join(parts)
+
+
+def _identify(record: LoopRecord, **opts: Any) -> Any:
+    from ..identify import identify  # required stage
+
+    return identify(record, **opts)
+
+
+def _narx_stage(record: LoopRecord, ident: Any, result: dict, warns: list) -> tuple[Any, Any, Any]:
+    S, J = _num(result.get("S")), _num(result.get("J"))
+    if S is None or J is None:
+        return None, None, None
+    try:
+        bank = _bank()
+    except Exception as exc:  # a broken bank must not sink the diagnosis
+        warns.append(_warning("service.narx_unavailable", f"the NARX-SP bank could not be loaded: {exc}"))
+        return None, None, None
+    if bank is None:
+        warns.append(_warning("service.narx_unavailable",
+                              "the NARX-SP bank is not installed; no NARX-SP free run in this report"))
+        return None, None, None
+    try:
+        sel = bank.select(S, J)
+        result["narx"] = _jsonable(sel.to_dict())
+        mv_hat = np.asarray(bank.free_run(sel, record.op), dtype=float)
+    except Exception as exc:
+        warns.append(_warning("service.narx_failed", f"NARX-SP selection/free run failed: {exc}"))
+        return None, None, None
+    if not getattr(sel, "robust", True):
+        warns.append(_warning("narx.not_robust",
+                              f"the NARX-SP model nearest to S = {S:.2f} %, J = {J:.2f} % is outside its "
+                              "robustness margin: treat its free run with caution"))
+    pv_hat = None
+    fit = getattr(ident, "fit", None)
+    if fit is not None and getattr(fit, "process", None) is not None:
+        try:
+            pv_hat = np.asarray(fit.process.simulate(mv_hat, record.ts_s), dtype=float)
+        except Exception:  # the figure just omits the PV comparison
+            pv_hat = None
+    target = record.mv if record.mv is not None else None
+    if target is not None and target.shape == mv_hat.shape:
+        result["narx"]["free_run_rmse_record"] = _num(np.sqrt(np.mean((mv_hat - target) ** 2)))
+        result["narx"]["free_run_against"] = "mv"
+    elif pv_hat is not None and pv_hat.shape == record.pv.shape:
+        result["narx"]["free_run_rmse_record"] = _num(np.sqrt(np.mean((pv_hat - record.pv) ** 2)))
+        result["narx"]["free_run_against"] = "pv"
+    return sel, mv_hat, pv_hat
+
+
+def _explain_stage(record: LoopRecord, result: dict, warns: list) -> Any:
+    mod = _optional("diagnose.physics")
+    if mod is None or not hasattr(mod, "explain"):
+        warns.append(_warning("service.explain_unavailable",
+                              "the missing-physics stage is not installed; no explanation section"))
+        return None
+    try:
+        expl = mod.explain(record)
+    except StictionError as exc:
+        warns.append(_warning("service.explain_failed", f"missing-physics explanation failed: {exc}"))
+        return None
+    except Exception as exc:
+        warns.append(_warning("service.explain_failed",
+                              f"missing-physics explanation failed ({type(exc).__name__}: {exc})"))
+        return None
+    result["explanation"] = _jsonable(expl.to_dict())
+    return expl
+
+
+def _record_info(record: LoopRecord) -> dict[str, Any]:
+    return {"n": record.n, "ts_s": record.ts_s, "duration_s": record.duration_s, "start": record.start,
+            "roles": sorted(record.roles()), "source": record.source,
+            "segment": record.meta.get("segment"), "n_segments": record.meta.get("n_segments"),
+            "format": record.meta.get("format")}
+
+
+def diagnose(record: LoopRecord, *, explain: bool = False, narx: bool = True,
+             identify_options: Mapping[str, Any] | None = None) -> Diagnosis:
+    """Diagnose one loop: everything a report needs.
+
+    Parameters
+    ----------
+    record : LoopRecord
+    explain : bool
+        Run the missing-physics stage (`diagnose.physics.explain`) when it is installed.
+    narx : bool
+        Select the NARX-SP model nearest to the identified (S, J) and free-run it over the record.
+    identify_options : mapping, optional
+        Passed to `diagnose.identify.identify`.
+
+    Raises
+    ------
+    StictionError
+        When identification fails (unusable data); optional stages only add warnings.
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ident = _identify(record, **dict(identify_options or {}))
+    timings["identify"] = time.perf_counter() - t0
+    result: dict[str, Any] = _jsonable(ident.to_dict())
+    warns: list[dict[str, Any]] = list(result.get("warnings") or [])
+    known = {(w.get("code"), w.get("message")) for w in warns}
+    for w in caught:
+        code = f"runtime.{w.category.__name__}"
+        msg = str(w.message)
+        if (code, msg) not in known and not any(m == msg for _, m in known):
+            warns.append(_warning(code, msg))
+            known.add((code, msg))
+    result.setdefault("loop", record.name)
+    result.setdefault("data_quality", [f.to_dict() for f in record.findings])
+    t1 = time.perf_counter()
+    sel = mv_hat = pv_hat = None
+    if narx:
+        sel, mv_hat, pv_hat = _narx_stage(record, ident, result, warns)
+    timings["narx"] = time.perf_counter() - t1
+    expl = None
+    if explain:
+        t2 = time.perf_counter()
+        expl = _explain_stage(record, result, warns)
+        timings["explain"] = time.perf_counter() - t2
+    result.setdefault("narx", None)
+    result.setdefault("explanation", None)
+    result["warnings"] = _jsonable(warns)
+    result["record"] = _jsonable(_record_info(record))
+    result["severity"] = severity(result)
+    result["verdict"] = verdict(result)
+    result["action"] = recommended_action(result)
+    result["schema"] = SCHEMA
+    result["tool_version"] = tool_version()
+    result["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
+    return Diagnosis(record=record, result=result, identification=ident, selection=sel,
+                     narx_mv_hat_pct=mv_hat, narx_pv_hat=pv_hat, explanation=expl, timings_s=timings)
+
+
+def diagnose_record(record: LoopRecord, *, explain: bool = False, **options: Any) -> dict:
+    """The JSON-ready result of `diagnose` (the contract batch, monitor and demo use)."""
+    return diagnose(record, explain=explain, **options).result
