@@ -1,19 +1,131 @@
-"""Connectors: historian exports and Modbus/TCP devices into `diagnose.record.LoopRecord`s."""
+"""Connectors: historian exports and Modbus/TCP devices into `diagnose.record.LoopRecord`s.
+
+`read_records` is the one entry point for files: it detects the layout (see
+`connectors.layouts`), finds the loops (naming rule in `connectors.columns`, or a tag map, or
+explicit column names), puts every loop on a uniform time grid (`connectors.timebase`), splits it
+at long gaps and attaches data-quality findings (`diagnose.quality.assess`). Modbus polling lives
+in `connectors.modbus` (imported on demand: it pulls in pymodbus).
+"""
 
 from __future__ import annotations
 
 import os
 from typing import IO, Any
 
+from diagnose.errors import ConnectorError
 from diagnose.record import LoopRecord
 
+FILE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".prn")
+OPTIONS = ("op", "pv", "sp", "mv", "mode", "ts", "ts_s", "name", "fmt", "format", "tags", "tz", "dst",
+           "loop", "max_gap_s", "min_samples")
 
-def read_records(source: str | os.PathLike | IO[str], **options: Any) -> list[LoopRecord]:
-    """Read every loop in a historian export (one file or file object) into records.
 
-    ``options`` are the column overrides (``op``, ``pv``, ``sp``, ``mv``, ``ts``), ``ts_s`` and
-    ``name``. Raises `diagnose.errors.ConnectorError` with a one-line message on bad input.
+def list_sources(path: str | os.PathLike) -> list[str]:
+    """The export files of a folder (sorted; hidden files skipped), or ``[path]`` for a file."""
+    path = os.fspath(path)
+    if not os.path.isdir(path):
+        return [path]
+    out = []
+    for entry in sorted(os.listdir(path)):
+        full = os.path.join(path, entry)
+        if entry.startswith(".") or not os.path.isfile(full):
+            continue
+        if entry.lower().endswith(FILE_SUFFIXES):
+            out.append(full)
+    return out
+
+
+def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[LoopRecord]:
+    """Read every loop in a historian export (file, folder of files, or file object) into records.
+
+    Parameters
+    ----------
+    source : path, folder or file object (text or binary)
+    op, pv, sp, mv, mode : str, optional
+        Column (tag) names that override the naming rule; OP/PV given -> one loop.
+    ts : str, optional
+        Name of the time column.
+    ts_s : float, optional
+        Sample period in seconds (default: median spacing of the timestamps; the DCS export's own).
+    name : str, optional
+        Loop name when the file holds one loop.
+    fmt : {"auto", "wide", "long", "ragged", "influx", "dcs"}, optional
+        Layout override (default auto-detect).
+    tags : path or `connectors.tagmap.TagMap`, optional
+        Tag map (TOML): loops, roles, ranges for scaling OP/MV to % of span.
+    tz : str, optional
+        Time zone of naive timestamps (IANA name or ``+hh:mm``; default UTC).
+    dst : {"infer", "earliest", "latest", "raise"}
+        Policy for ambiguous/missing local times at DST changes (default ``infer``).
+    loop : str, optional
+        Keep only this loop (by name).
+    max_gap_s : float, optional
+        Longest gap filled by linear interpolation (default 10 sample periods); longer gaps split
+        the record into segments.
+    min_samples : int, optional
+        Shortest usable segment (default 20 samples).
+
+    Returns
+    -------
+    list of LoopRecord
+        One per loop per contiguous segment (``meta["segment"]``, ``meta["n_segments"]``), with the
+        connector's and `diagnose.quality.assess`'s findings and ``meta["quality_checked"] = True``.
+
+    Raises
+    ------
+    diagnose.errors.ConnectorError
+        One line naming the file (line, column) and the problem.
     """
-    from .historian import read_wide
+    from .layouts import parse
+    from .records import build_records, merge_specs, specs_from_table
+    from .tagmap import TagMap, load_tagmap
+    from .textio import load_text
 
-    return [read_wide(source, **options)]
+    unknown = set(options) - set(OPTIONS)
+    if unknown:
+        raise ConnectorError(f"unknown read options {sorted(unknown)}; allowed: {', '.join(OPTIONS)}")
+    options = {k: v for k, v in options.items() if v is not None}
+    tags = options.pop("tags", None)
+    tagmap = None
+    if tags is not None:
+        tagmap = tags if isinstance(tags, TagMap) else load_tagmap(tags)
+        for k, v in tagmap.options.items():
+            options.setdefault("fmt" if k == "format" else k, v)
+    if "format" in options:
+        options.setdefault("fmt", options.pop("format"))
+    if hasattr(source, "read"):
+        sources: list[Any] = [source]
+        folder = False
+    else:
+        path = os.fspath(source)
+        if not os.path.exists(path):
+            raise ConnectorError("file not found", path=path)
+        folder = os.path.isdir(path)
+        sources = list_sources(path)
+        if folder and not sources:
+            raise ConnectorError(f"folder has no export files ({', '.join(FILE_SUFFIXES)})", path=path)
+    specs = []
+    for src in sources:
+        table = parse(load_text(src), options)
+        found = specs_from_table(table, options, tagmap)
+        if not found and tagmap is not None and not folder:
+            wanted = ", ".join(f"{lm.roles['op'].tag}/{lm.roles['pv'].tag}" for lm in list(tagmap.loops.values())[:5])
+            cols = ", ".join([s.name for s in table.series][:12])
+            raise ConnectorError(f"none of the tag map's loops ({wanted}) has its OP and PV tags in the file "
+                                 f"(columns: {cols})", path=table.label)
+        specs.extend(found)
+    if not specs:
+        raise ConnectorError("no loop of the tag map was found in any file", path=os.fspath(source)
+                             if not hasattr(source, "read") else None)
+    specs = merge_specs(specs)
+    if options.get("loop"):
+        want = str(options["loop"])
+        sel = [s for s in specs if s.name == want or s.name.lower() == want.lower()]
+        if not sel:
+            raise ConnectorError(f"no loop named {want!r} (loops: {', '.join(s.name for s in specs)})",
+                                 path=None if hasattr(source, "read") else os.fspath(source))
+        specs = sel
+    records: list[LoopRecord] = []
+    for spec in specs:
+        records.extend(build_records(spec, options))
+    return records

@@ -10,6 +10,8 @@ case-insensitive.
 * MV (valve stem position): a **bare** ``MV`` column, or suffix ``POS``, ``POSITION``, ``STEM``,
   ``ZT``, ``VALVE_POSITION``, ``MV_PCT``.
 * PV: suffix ``PV``, ``MEAS``, ``MEASUREMENT``. SP: suffix ``SP``, ``SV``, ``SETPOINT``.
+* Mode: suffix ``MODE``, ``MD``, ``AM`` (controller mode: text ``AUTO``/``CAS``/``MAN``..., or a
+  number where 0 = manual and any other value = automatic; the DCS export's ``.MODE`` 1 = auto).
 * Time: ``time``, ``timestamp``, ``datetime``, ``date_time``, ``t``, ``ts``, ``_time``.
 
 Anything else needs ``--op/--pv/--sp/--mv`` (or a tag map). Two columns claiming one role is an
@@ -24,6 +26,7 @@ OP_SUFFIXES = {"op", "out", "output", "co", "op_pct"}
 MV_SUFFIXES = {"pos", "position", "stem", "zt", "valve_position", "mv_pct", "stem_position"}
 PV_SUFFIXES = {"pv", "meas", "measurement"}
 SP_SUFFIXES = {"sp", "sv", "setpoint", "set_point"}
+MODE_SUFFIXES = {"mode", "md", "am", "ctrl_mode", "auto_manual"}
 TIME_NAMES = {"time", "timestamp", "datetime", "date_time", "t", "ts", "_time", "time_s", "t_s"}
 
 _SPLIT = re.compile(r"^(.*)[.:/]([^.:/]+)$")
@@ -39,7 +42,7 @@ def split_tag(name: str) -> tuple[str, str]:
 
 
 def role_of(name: str) -> str | None:
-    """The role a column name implies (``op``, ``pv``, ``sp``, ``mv``, ``time``) or None."""
+    """The role a column name implies (``op``, ``pv``, ``sp``, ``mv``, ``mode``, ``time``) or None."""
     tag, suffix = split_tag(name)
     if not tag and suffix in TIME_NAMES:
         return "time"
@@ -53,4 +56,6 @@ def role_of(name: str) -> str | None:
         return "pv"
     if suffix in SP_SUFFIXES:
         return "sp"
+    if suffix in MODE_SUFFIXES:
+        return "mode"
     return None

@@ -1,7 +1,8 @@
 """Historian exports: read a file into loop records, write a record as a wide CSV.
 
-This module starts with the common *wide* layout (a header row, a timestamp column, one column per
-signal); other layouts are added beside it.
+`read_wide` reads the common *wide* layout (through `connectors.read_records`, which handles every
+layout); `format_wide`/`write_wide` write a record as ``time,<loop>.OP,<loop>.PV[,<loop>.SP][,<loop>.POS]``
+with ISO 8601 UTC times, and `atomic_write_text` is the atomic-write helper every output uses.
 """
 
 from __future__ import annotations
@@ -25,23 +26,13 @@ from .columns import role_of, split_tag
 EPOCH = datetime(2026, 1, 1, tzinfo=timezone.utc)
 
 
-def _parse_time(text: str) -> float:
-    """Seconds since an arbitrary origin from ISO 8601 or a plain number of seconds."""
-    text = text.strip()
-    try:
-        return float(text)
-    except ValueError:
-        pass
-    dt = datetime.fromisoformat(text.replace("Z", "+00:00"))
-    if dt.tzinfo is None:
-        dt = dt.replace(tzinfo=timezone.utc)
-    return dt.timestamp()
-
-
 def read_wide(source: str | os.PathLike | IO[str], *, op: str | None = None, pv: str | None = None,
               sp: str | None = None, mv: str | None = None, ts: str | None = None,
-              ts_s: float | None = None, name: str | None = None) -> LoopRecord:
-    """Read a wide CSV (header row, timestamp column, OP/PV[/SP/MV] columns) into a record.
+              ts_s: float | None = None, name: str | None = None, **options) -> LoopRecord:
+    """Read a wide CSV (header row, timestamp column, OP/PV[/SP/MV] columns) into one record.
+
+    A thin wrapper over `connectors.read_records` with ``fmt="wide"`` that returns the longest
+    segment of the first loop; see `read_records` for the options.
 
     Parameters
     ----------
@@ -55,85 +46,12 @@ def read_wide(source: str | os.PathLike | IO[str], *, op: str | None = None, pv:
     name : str, optional
         Loop name; defaults to the tag prefix of the OP/PV columns or the file stem.
     """
-    path = None if hasattr(source, "read") else str(source)
-    label = path or getattr(source, "name", "<stream>")
-    if path is not None:
-        if not os.path.exists(path):
-            raise ConnectorError("file not found", path=label)
-        fh: IO[str] = open(path, newline="", encoding="utf-8-sig")
-    else:
-        fh = source  # type: ignore[assignment]
-    try:
-        rows = list(csv.reader(fh))
-    finally:
-        if path is not None:
-            fh.close()
-    if not rows:
-        raise ConnectorError("file is empty", path=label)
-    header = [h.strip() for h in rows[0]]
-    body = [r for r in rows[1:] if any(c.strip() for c in r)]
-    if not body:
-        raise ConnectorError("header only, no data rows", path=label, line=1)
-    overrides = {"op": op, "pv": pv, "sp": sp, "mv": mv, "time": ts}
-    cols: dict[str, int] = {}
-    for role, col in overrides.items():
-        if col is not None:
-            if col not in header:
-                raise ConnectorError(f"no column named {col!r} for {role.upper()} (columns: {', '.join(header)})",
-                                     path=label, line=1)
-            cols[role] = header.index(col)
-    for i, h in enumerate(header):
-        role = role_of(h)
-        if role is None or overrides.get(role) is not None or i in cols.values():
-            continue
-        if role in cols:
-            raise ConnectorError(f"columns {header[cols[role]]!r} and {h!r} both look like {role.upper()}; "
-                                 f"choose one with --{role if role != 'time' else 'ts'}", path=label, line=1)
-        cols[role] = i
-    for role in ("op", "pv"):
-        if role not in cols:
-            raise ConnectorError(f"no {role.upper()} column found (columns: {', '.join(header)}); "
-                                 f"name it with --{role}", path=label, line=1)
-    data: dict[str, np.ndarray] = {}
-    for role, idx in cols.items():
-        if role == "time":
-            continue
-        vals = np.empty(len(body))
-        for k, row in enumerate(body):
-            try:
-                vals[k] = float(row[idx])
-            except (ValueError, IndexError):
-                vals[k] = math.nan
-        data[role] = vals
-    times = None
-    if "time" in cols:
-        times = np.empty(len(body))
-        for k, row in enumerate(body):
-            try:
-                times[k] = _parse_time(row[cols["time"]])
-            except (ValueError, IndexError):
-                raise ConnectorError(f"cannot read timestamp {row[cols['time']] if len(row) > cols['time'] else ''!r}",
-                                     path=label, line=k + 2, column=header[cols["time"]]) from None
-    if ts_s is None:
-        if times is None or len(times) < 2:
-            raise ConnectorError("no timestamp column and no sample period; give --ts SECONDS", path=label)
-        ts_s = float(np.median(np.abs(np.diff(times))))
-        if not ts_s > 0:
-            raise ConnectorError("timestamps do not advance; give --ts SECONDS", path=label)
-    finite = np.all(np.isfinite(np.vstack(list(data.values()))), axis=0)
-    if not finite.any():
-        raise ConnectorError("no row has numeric values in every role column", path=label)
-    keep = finite
-    tag = split_tag(header[cols["op"]])[0] or split_tag(header[cols["pv"]])[0]
-    loop = name or tag or (Path(path).stem if path else "LOOP")
-    start = None
-    if times is not None and abs(times[0]) > 1e8:
-        start = datetime.fromtimestamp(times[0], tz=timezone.utc).isoformat()
-    return LoopRecord(name=loop, ts_s=ts_s, op=data["op"][keep], pv=data["pv"][keep],
-                      sp=data["sp"][keep] if "sp" in data else None,
-                      mv=data["mv"][keep] if "mv" in data else None, start=start,
-                      units={"op": "%", "mv": "%"}, source=label,
-                      meta={"format": "wide", "columns": {r: header[i] for r, i in cols.items()}})
+    from . import read_records
+
+    options.setdefault("fmt", "wide")
+    recs = read_records(source, op=op, pv=pv, sp=sp, mv=mv, ts=ts, ts_s=ts_s, name=name, **options)
+    first = recs[0].name
+    return max((r for r in recs if r.name == first), key=lambda r: r.n)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
@@ -176,4 +94,5 @@ def write_wide(record: LoopRecord, path: str | os.PathLike) -> None:
 
 
 def read_many(paths: Iterable[str | os.PathLike], **kwargs) -> list[LoopRecord]:
+    """`read_wide` over several files."""
     return [read_wide(p, **kwargs) for p in paths]

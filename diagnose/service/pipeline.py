@@ -35,6 +35,8 @@ SCHEMA = "stiction.loop/1"
 S_SATURATION_PCT = 5.0
 #: S below this (% of span) is reported as minor.
 S_MINOR_PCT = 1.0
+#: ``explain="auto"`` runs the missing-physics stage when the fit's free-run r2 on PV is below this.
+EXPLAIN_AUTO_R2 = 0.8
 
 
 @functools.lru_cache(maxsize=1)
@@ -181,8 +183,8 @@ def severity(result: Mapping[str, Any]) -> dict[str, Any]:
 
     * size: up to 50 points, ``50 * min(S / 5 %, 1)``, scaled by the confidence (0-1), only when
       the result says the valve is sticky;
-    * oscillation: up to 25 points, 25 when the loop oscillates (scaled by the regularity when
-      given);
+    * oscillation: up to 25 points when the loop oscillates, ``25 * clip(r / 2, 0.5, 1)`` with r
+      Thornhill's regularity (a regular oscillation has r > 1);
     * data quality: 5 points per data-quality warning, at most 15 (a loop whose data cannot be
       trusted needs someone to look at it too);
     * robustness: 10 points when the selected NARX-SP model is not robust at this (S, J).
@@ -194,8 +196,8 @@ def severity(result: Mapping[str, Any]) -> dict[str, Any]:
     size = 50.0 * min(S / S_SATURATION_PCT, 1.0) * conf if sticky else 0.0
     osc = oscillation_info(result)
     if osc["present"]:
-        strength = osc["strength"]
-        osc_pts = 25.0 * (1.0 if strength is None else min(max(strength, 0.0), 1.0))
+        strength = osc["strength"]  # Thornhill's regularity: > 1 regular, >= 2 very regular
+        osc_pts = 25.0 * (1.0 if strength is None else min(max(strength / 2.0, 0.5), 1.0))
     else:
         osc_pts = 0.0
     dq = sum(1 for w in result.get("warnings", ()) if str(w.get("code", "")).startswith("data_quality."))
@@ -289,9 +291,10 @@ def _narx_stage(record: LoopRecord, ident: Any, result: dict, warns: list) -> tu
         warns.append(_warning("service.narx_failed", f"NARX-SP selection/free run failed: {exc}"))
         return None, None, None
     if not getattr(sel, "robust", True):
-        warns.append(_warning("narx.not_robust",
-                              f"the NARX-SP model nearest to S = {S:.2f} %, J = {J:.2f} % is outside its "
-                              "robustness margin: treat its free run with caution"))
+        w = sel.warning() if hasattr(sel, "warning") else None
+        warns.append(dict(w) if w else _warning(
+            "narx.not_robust", f"the NARX-SP model nearest to S = {S:.2f} %, J = {J:.2f} % is outside its "
+                               "robustness margin: treat its free run with caution"))
     pv_hat = None
     fit = getattr(ident, "fit", None)
     if fit is not None and getattr(fit, "process", None) is not None:
@@ -328,6 +331,24 @@ def _explain_stage(record: LoopRecord, result: dict, warns: list) -> Any:
     return expl
 
 
+def _explain_wanted(ident: Any, result: Mapping[str, Any]) -> tuple[bool, str]:
+    """``explain="auto"``: run the missing-physics stage only where the model leaves a mismatch.
+
+    The stage costs several times the identification, so a nightly batch runs it where it has
+    something to explain: the Hammerstein fit's free-run r2 on PV is below `EXPLAIN_AUTO_R2`, or
+    identification warned of a poor fit.
+    """
+    fit = getattr(ident, "fit", None)
+    r2 = _num(getattr(fit, "r2", None)) if fit is not None else _num((result.get("fit") or {}).get("r2"))
+    if any(w.get("code") == "poor_fit" for w in result.get("warnings") or ()):
+        return True, "identification warned of a poor fit"
+    if r2 is None:
+        return True, "no fit quality to judge by"
+    if r2 < EXPLAIN_AUTO_R2:
+        return True, f"the fitted model explains {r2:.0%} of PV (< {EXPLAIN_AUTO_R2:.0%})"
+    return False, f"the fitted model explains {r2:.0%} of PV: no mismatch worth explaining"
+
+
 def _record_info(record: LoopRecord) -> dict[str, Any]:
     return {"n": record.n, "ts_s": record.ts_s, "duration_s": record.duration_s, "start": record.start,
             "roles": sorted(record.roles()), "source": record.source,
@@ -335,15 +356,16 @@ def _record_info(record: LoopRecord) -> dict[str, Any]:
             "format": record.meta.get("format")}
 
 
-def diagnose(record: LoopRecord, *, explain: bool = False, narx: bool = True,
+def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = True,
              identify_options: Mapping[str, Any] | None = None) -> Diagnosis:
     """Diagnose one loop: everything a report needs.
 
     Parameters
     ----------
     record : LoopRecord
-    explain : bool
-        Run the missing-physics stage (`diagnose.physics.explain`) when it is installed.
+    explain : bool or "auto"
+        Run the missing-physics stage (`diagnose.physics.explain`) when it is installed; ``"auto"``
+        only where the identified model leaves a mismatch (see `_explain_wanted`).
     narx : bool
         Select the NARX-SP model nearest to the identified (S, J) and free-run it over the record.
     identify_options : mapping, optional
@@ -377,6 +399,9 @@ def diagnose(record: LoopRecord, *, explain: bool = False, narx: bool = True,
         sel, mv_hat, pv_hat = _narx_stage(record, ident, result, warns)
     timings["narx"] = time.perf_counter() - t1
     expl = None
+    if explain == "auto":
+        explain, why = _explain_wanted(ident, result)
+        result["explain_auto"] = why
     if explain:
         t2 = time.perf_counter()
         expl = _explain_stage(record, result, warns)
@@ -395,6 +420,6 @@ def diagnose(record: LoopRecord, *, explain: bool = False, narx: bool = True,
                      narx_mv_hat_pct=mv_hat, narx_pv_hat=pv_hat, explanation=expl, timings_s=timings)
 
 
-def diagnose_record(record: LoopRecord, *, explain: bool = False, **options: Any) -> dict:
+def diagnose_record(record: LoopRecord, *, explain: bool | str = False, **options: Any) -> dict:
     """The JSON-ready result of `diagnose` (the contract batch, monitor and demo use)."""
     return diagnose(record, explain=explain, **options).result

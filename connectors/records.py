@@ -1,0 +1,368 @@
+"""From parsed series to loop records: roles, tag maps, uniform grid, segments, findings."""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from diagnose.errors import ConnectorError, DataError
+from diagnose.record import Finding, LoopRecord
+
+from .columns import role_of, split_tag
+from .layouts import Series, Table
+from .tagmap import TagMap
+from .timebase import clean_series, estimate_period, irregularity, iso_utc, runs, to_grid
+
+ROLES = ("op", "pv", "sp", "mv", "mode")
+DEFAULT_MIN_SAMPLES = 20
+DEFAULT_MAX_GAP_SAMPLES = 10
+_MANUAL_TEXT = {"man", "manual", "m", "oos", "iman", "lo", "local", "hand", "h", "off"}
+_AUTO_TEXT = {"auto", "a", "cas", "cascade", "rcas", "rout", "aut", "automatic", "remote", "on"}
+
+
+@dataclass
+class LoopSpec:
+    name: str
+    roles: dict[str, Series]
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+    mode_auto: tuple[float, ...] | None = None
+    table: Table | None = None
+
+
+def _loop_name_for_bare(table: Table, options: dict) -> str:
+    if options.get("name"):
+        return str(options["name"])
+    if table.label and not table.label.startswith("<"):
+        return Path(table.label).stem
+    return "LOOP"
+
+
+def _columns_hint(table: Table) -> str:
+    cols = table.raw_columns or [s.name for s in table.series]
+    shown = ", ".join(cols[:12]) + (" ..." if len(cols) > 12 else "")
+    return shown
+
+
+def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list[LoopSpec]:
+    """Which series make which loops in one file."""
+    by_name = {s.name: s for s in table.series}
+    by_lower = {s.name.lower(): s for s in table.series}
+    overrides = {r: options.get(r) for r in ("op", "pv", "sp", "mv", "mode") if options.get(r)}
+    if tagmap is not None and not overrides:
+        specs = []
+        for lm in tagmap.loops.values():
+            if lm.roles["op"].tag.lower() not in by_lower or lm.roles["pv"].tag.lower() not in by_lower:
+                continue
+            sp = LoopSpec(lm.name, {})
+            for role, rm in lm.roles.items():
+                s = by_lower.get(rm.tag.lower())
+                if s is None:
+                    continue
+                sp.roles[role] = s
+                if rm.range is not None:
+                    sp.ranges[role] = rm.range
+                if rm.units:
+                    sp.units[role] = rm.units
+                if role == "mode":
+                    sp.mode_auto = rm.auto
+            sp.table = table
+            specs.append(sp)
+        return specs
+    if overrides:
+        roles: dict[str, Series] = {}
+        for role, col in overrides.items():
+            s = by_name.get(col) or by_lower.get(str(col).lower())
+            if s is None:
+                raise ConnectorError(f"no column named {col!r} for {role.upper()} (columns: {_columns_hint(table)})",
+                                     path=table.label)
+            roles[role] = s
+        for role in ("op", "pv"):
+            if role not in roles:
+                # take the naming rule's column for the missing role, from the same tag if possible
+                tag = split_tag(next(iter(roles.values())).name)[0]
+                cands = [s for s in table.series if role_of(s.name) == role and s not in roles.values()]
+                same = [s for s in cands if split_tag(s.name)[0] == tag] or cands
+                if len(same) != 1:
+                    raise ConnectorError(f"no {role.upper()} column found (columns: {_columns_hint(table)}); "
+                                         f"name it with --{role}", path=table.label)
+                roles[role] = same[0]
+        tag = split_tag(roles["op"].name)[0] or split_tag(roles["pv"].name)[0]
+        for role in ("sp", "mv", "mode"):
+            if role not in roles:
+                same = [s for s in table.series if role_of(s.name) == role and split_tag(s.name)[0] == tag]
+                if len(same) == 1:
+                    roles[role] = same[0]
+        name = options.get("name") or tag or _loop_name_for_bare(table, options)
+        return [LoopSpec(str(name), roles, table=table)]
+    groups: dict[str, dict[str, Series]] = {}
+    for s in table.series:
+        role = role_of(s.name)
+        if role is None or role == "time":
+            continue
+        tag = split_tag(s.name)[0]
+        g = groups.setdefault(tag, {})
+        if role in g:
+            raise ConnectorError(f"columns {g[role].name!r} and {s.name!r} both look like {role.upper()}; "
+                                 f"choose one with --{role}", path=table.label)
+        g[role] = s
+    # a bare loop missing a role: take a unique column starting with the role word ("PV_flow_t_h")
+    bare = groups.get("")
+    if bare is not None:
+        for role in ("op", "pv"):
+            if role in bare:
+                continue
+            cands = [s for s in table.series if role_of(s.name) is None and s.name.lower().startswith(role + "_")]
+            if len(cands) == 1:
+                bare[role] = cands[0]
+    specs = []
+    for tag, g in groups.items():
+        if "op" in g and "pv" in g:
+            name = tag or _loop_name_for_bare(table, options)
+            specs.append(LoopSpec(name, g, table=table))
+    if not specs:
+        have = {r for g in groups.values() for r in g}
+        missing = [r.upper() for r in ("op", "pv") if r not in have] or ["OP+PV of one tag"]
+        raise ConnectorError(f"no {' or '.join(missing)} column found (columns: {_columns_hint(table)}); "
+                             "name the columns with --op/--pv or give a tag map with --tags"
+                             + _isa_hint(table), path=table.label)
+    if len(specs) == 1 and options.get("name"):
+        specs[0].name = str(options["name"])
+    return specs
+
+
+_ISA = re.compile(r"^([A-Za-z])([VTvt])[-_]?(\w+)$")
+
+
+def _isa_hint(table: Table) -> str:
+    """``FV_211`` (valve) and ``FT_211`` (transmitter) of one loop: suggest them as OP and PV."""
+    found: dict[tuple[str, str], dict[str, str]] = {}
+    for s in table.series:
+        m = _ISA.match(s.name.strip())
+        if m:
+            found.setdefault((m.group(1).upper(), m.group(3)), {})[m.group(2).upper()] = s.name
+    for pair in found.values():
+        if "V" in pair and "T" in pair:
+            return f" (for example --op {pair['V']} --pv {pair['T']}, if {pair['V']} is the valve output in %)"
+    return ""
+
+
+def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
+    """1 = automatic, 0 = manual, NaN = unknown, from numbers or text states."""
+    x = s.x
+    out = np.where(np.isfinite(x), 1.0, np.nan)
+    fin = np.isfinite(x)
+    if auto is not None:
+        out[fin] = np.isin(x[fin], np.asarray(auto)).astype(float)
+    else:
+        out[fin] = (x[fin] != 0).astype(float)
+    if s.n_text and s.cells is not None:
+        for k, c in enumerate(s.cells):
+            c = c.strip().lower()
+            if c in _MANUAL_TEXT:
+                out[k] = 0.0
+            elif c in _AUTO_TEXT:
+                out[k] = 1.0
+    return out
+
+
+def _bad_finding(role: str, s: Series, n_rows: int) -> Finding | None:
+    n_bad = s.n_text + s.n_nonfinite + s.n_bad_quality
+    if n_bad == 0:
+        return None
+    frac = n_bad / max(1, n_rows)
+    parts = []
+    if s.n_text:
+        parts.append(f"{s.n_text} text states" + (f" ({', '.join(repr(e) for e in s.examples[:3])})"
+                                                   if s.examples else ""))
+    if s.n_nonfinite:
+        parts.append(f"{s.n_nonfinite} NaN/inf")
+    if s.n_bad_quality:
+        parts.append(f"{s.n_bad_quality} with bad quality codes")
+    return Finding("bad_values", f"{role.upper()} column {s.name!r}: {'; '.join(parts)} turned into gaps",
+                   "warning" if frac > 0.01 else "info",
+                   {"role": role, "column": s.name, "text": s.n_text, "nonfinite": s.n_nonfinite,
+                    "bad_quality": s.n_bad_quality, "examples": list(s.examples[:3]), "frac": round(frac, 4)})
+
+
+def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
+    """One record per contiguous segment of one loop."""
+    table = spec.table
+    label = table.label if table else None
+    min_samples = int(options.get("min_samples") or DEFAULT_MIN_SAMPLES)
+    findings: list[Finding] = []
+    cleaned = {}
+    ts_opt = options.get("ts_s")
+    n_dups = 0
+    reversed_any = False
+    for role, s in spec.roles.items():
+        n_valid = int(np.count_nonzero(np.isfinite(s.x))) if role != "mode" else 1
+        if role in ("op", "pv") and n_valid == 0:
+            if s.n_text and s.n_text + s.n_blank >= s.x.size:
+                what = f"only text values (e.g. {s.examples[0]!r})" if s.examples else "only text values"
+            elif s.n_bad_quality:
+                what = "no value with good quality"
+            elif s.n_nonfinite:
+                what = "only NaN/inf values"
+            else:
+                what = "no numeric values"
+            raise ConnectorError(f"{role.upper()} column has {what}; nothing to diagnose",
+                                 path=label, line=s.first_line, column=s.name)
+        t = s.t
+        if t is None:
+            if not ts_opt:
+                raise ConnectorError("no time column; give the sample period with --ts-s SECONDS or add "
+                                     "a time column", path=label)
+            t = np.arange(s.x.size) * float(ts_opt)
+        x = _mode_values(s, spec.mode_auto) if role == "mode" else s.x
+        c = clean_series(np.asarray(t, float), x)
+        n_dups = max(n_dups, c.n_duplicates)
+        reversed_any |= c.reversed
+        cleaned[role] = c
+    if n_dups:
+        findings.append(Finding("duplicates", f"{n_dups} duplicated timestamps; the first value of each was kept",
+                                "info", {"count": n_dups}))
+    ts_s = float(ts_opt) if ts_opt else (table.ts_s if table and table.ts_s else None)
+    if ts_s is None:
+        ts_s = estimate_period([cleaned["op"].t, cleaned["pv"].t])
+    if not (np.isfinite(ts_s) and ts_s > 0):
+        raise ConnectorError("cannot tell the sample period (fewer than two distinct times); give --ts-s SECONDS",
+                             path=label)
+    max_gap_s = float(options.get("max_gap_s") or DEFAULT_MAX_GAP_SAMPLES * ts_s)
+    starts = [c.t[np.isfinite(c.x)][0] for r, c in cleaned.items() if r in ("op", "pv")]
+    ends = [c.t[np.isfinite(c.x)][-1] for r, c in cleaned.items() if r in ("op", "pv")]
+    t0, t1 = max(starts), min(ends)
+    if t1 < t0:
+        raise ConnectorError("OP and PV do not overlap in time", path=label)
+    n_grid = int(np.floor((t1 - t0) / ts_s + 1e-6)) + 1
+    if n_grid > 50_000_000:
+        raise ConnectorError(f"{n_grid} samples at {ts_s:g} s is too many; give a larger --ts-s", path=label)
+    grid = t0 + np.arange(n_grid) * ts_s
+    irr = irregularity(cleaned["op"].t, ts_s, max_gap_s)
+    if irr > 0.05:
+        findings.append(Finding("irregular_sampling", f"{100 * irr:.0f} % of sample intervals differ from "
+                                f"{ts_s:g} s by more than 10 %; resampled to a uniform {ts_s:g} s grid",
+                                "info" if irr < 0.3 else "warning", {"frac": round(irr, 4), "ts_s": ts_s}))
+    gridded: dict[str, np.ndarray] = {}
+    filled_total = 0
+    for role, c in cleaned.items():
+        g, filled = to_grid(c.t, c.x, grid, max_gap_s)
+        gridded[role] = g
+        own = estimate_period([c.t])
+        if role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
+            filled_total = max(filled_total, filled)
+        s = spec.roles[role]
+        if role != "mode":
+            f = _bad_finding(role, s, s.x.size)
+            if f:
+                findings.append(f)
+    for role in ("op", "mv"):
+        if role in gridded and role in spec.ranges:
+            lo, hi = spec.ranges[role]
+            gridded[role] = 100.0 * (gridded[role] - lo) / (hi - lo)
+    ok = np.isfinite(gridded["op"]) & np.isfinite(gridded["pv"])
+    segs = runs(ok)
+    long_gaps = max(0, len(segs) - 1) + int(not ok[0]) + int(not ok[-1]) if segs else 0
+    if filled_total:
+        findings.append(Finding("gap", f"{filled_total} missing or bad samples inside gaps up to "
+                                f"{max_gap_s:g} s were filled by linear interpolation",
+                                "info" if filled_total < 0.01 * n_grid else "warning",
+                                {"filled": filled_total, "max_gap_s": max_gap_s}))
+    usable = [(a, b) for a, b in segs if b - a >= min_samples]
+    dropped = len(segs) - len(usable)
+    if not usable:
+        best = max((b - a for a, b in segs), default=0)
+        raise ConnectorError(f"too few samples: the longest stretch without a gap has {best} samples "
+                             f"(need at least {min_samples})", path=label)
+    if len(segs) > 1 or long_gaps:
+        gap_s = [float(grid[segs[i + 1][0]] - grid[segs[i][1] - 1]) for i in range(len(segs) - 1)]
+        findings.append(Finding("segment", f"split into {len(usable)} segment(s) at gaps longer than "
+                                f"{max_gap_s:g} s (longest gap {max(gap_s, default=0):g} s"
+                                + (f"; {dropped} stretch(es) under {min_samples} samples dropped" if dropped else "")
+                                + "); each segment is diagnosed on its own",
+                                "warning", {"segments": len(usable), "dropped": dropped,
+                                            "gaps_s": [round(g, 3) for g in gap_s][:50],
+                                            "max_gap_s": max_gap_s}))
+    op_all = gridded["op"][ok]
+    if not spec.ranges.get("op") and op_all.size and (np.min(op_all) < -5 or np.max(op_all) > 105):
+        findings.append(Finding("op_range", f"OP ranges from {np.min(op_all):.4g} to {np.max(op_all):.4g}, "
+                                "outside 0-100 %; if it is in engineering units give its range in a tag map",
+                                "warning", {"min": float(np.min(op_all)), "max": float(np.max(op_all))}))
+    from diagnose.quality import assess
+
+    meta_base: dict[str, Any] = dict(table.meta if table else {})
+    meta_base.update({"columns": {r: s.name for r, s in spec.roles.items()},
+                      "order": "newest_first" if cleaned["op"].reversed else "oldest_first",
+                      "absolute_time": bool(table.absolute) if table else False,
+                      "tz": options.get("tz") or ("UTC" if table and table.absolute else None),
+                      "dst": options.get("dst", "infer"), "max_gap_s": max_gap_s,
+                      "n_segments": len(usable), "quality_checked": True})
+    units = {"op": "%", "mv": "%"}
+    units.update({k: v for k, v in spec.units.items() if k in ("pv", "sp")})
+    mode = None
+    if "mode" in spec.roles:
+        mode, _ = to_grid(cleaned["mode"].t, cleaned["mode"].x, grid, max_gap_s)
+    records = []
+    for i, (a, b) in enumerate(usable):
+        roles = {}
+        extra: list[Finding] = []
+        for role in ("sp", "mv"):
+            if role not in gridded:
+                continue
+            v = gridded[role][a:b]
+            fin = np.isfinite(v)
+            if fin.all():
+                roles[role] = v
+            elif fin.mean() >= 0.9:
+                idx = np.arange(v.size)
+                roles[role] = np.interp(idx, idx[fin], v[fin])
+            else:
+                extra.append(Finding("gap", f"{role.upper()} has {int((~fin).sum())} missing samples in this "
+                                     "segment and was left out", "info", {"role": role}))
+        meta = dict(meta_base)
+        meta["segment"] = i
+        meta["segment_samples"] = [int(a), int(b)]
+        if mode is not None:
+            m = mode[a:b]
+            manual = np.isfinite(m) & (m < 0.5)
+            meta["manual_intervals"] = [[int(x), int(y)] for x, y in runs(manual)]
+            meta["has_mode"] = True
+        start = iso_utc(float(grid[a])) if (table and table.absolute) else None
+        try:
+            rec = LoopRecord(name=spec.name, ts_s=ts_s, op=gridded["op"][a:b], pv=gridded["pv"][a:b],
+                             sp=roles.get("sp"), mv=roles.get("mv"), start=start, units=units,
+                             ranges={k: v for k, v in spec.ranges.items() if k in ("op", "mv", "pv", "sp")},
+                             findings=tuple(findings + extra), source=label, meta=meta)
+        except DataError as exc:  # pragma: no cover - arrays are finite by construction
+            raise ConnectorError(str(exc), path=label) from None
+        records.append(rec.with_findings(*assess(rec)))
+    return records
+
+
+def merge_specs(specs: list[LoopSpec]) -> list[LoopSpec]:
+    """Join the same loop found in several files (absolute times only) into one spec."""
+    out: dict[str, LoopSpec] = {}
+    order: list[str] = []
+    for sp in specs:
+        key = sp.name
+        if key in out and sp.table is not None and sp.table.absolute and out[key].table.absolute \
+                and set(sp.roles) == set(out[key].roles):
+            base = out[key]
+            for role, s in sp.roles.items():
+                b = base.roles[role]
+                base.roles[role] = Series(b.name, np.concatenate([b.t, s.t]), np.concatenate([b.x, s.x]),
+                                          b.n_text + s.n_text, b.n_nonfinite + s.n_nonfinite,
+                                          b.n_bad_quality + s.n_bad_quality, b.n_blank + s.n_blank,
+                                          (b.examples + s.examples)[:4], b.first_line, b.column,
+                                          None)
+            continue
+        if key in out:
+            key = f"{sp.name}@{os.path.basename(sp.table.label) if sp.table else len(order)}"
+        out[key] = sp
+        order.append(key)
+    return [out[k] for k in order]

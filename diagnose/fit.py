@@ -1,0 +1,1238 @@
+"""Hammerstein identification of valve stiction from routine closed-loop data.
+
+Model: controller output OP --[two-parameter stiction valve (S, J, f0)]--> stem position MV
+--[low-order linear process: FOPTD / SOPTD / integrating, dead time searched]--> PV, plus a constant
+and a slow load (low-order Legendre polynomial in time). Candidates are scored by **simulation
+(output) error**: PV is simulated from OP alone, never from measured PV, so the linear block cannot
+explain PV through the controller. For fixed valve parameters, lags and dead time, the gain, the bias
+and the load coefficients are linear and solved by least squares inside one compiled pass
+(separable least squares); the valve and the lags are searched:
+
+1. linear-only fit (S = J = 0) over the whole grid of lags and dead times;
+2. global grid over (S, J, f0) with a few process structures around the linear one;
+3. alternating refinement: process structure for the best valve, then a zooming local (S, J) grid
+   for the best process, twice;
+4. the error surface on the global grid at the final process, and intervals from it.
+
+The linear block is kept low order and strictly causal with positive lags on purpose: in closed
+loop an unconstrained linear model can reproduce PV from OP through the inverse of the controller
+and return S = J = 0 (see docs/fitting.md).
+
+Intervals: the set of (S, J) whose output-error cost is within the F-test bound
+``cost <= cost_min * 0.05 ** (-2 / nu)`` of the minimum (exact 95 % quantile of F(2, nu) for two
+parameters), with ``nu`` the effective number of independent residuals, ``n (1 - rho1) / (1 + rho1)``
+from the residuals' lag-one autocorrelation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from .errors import DataError, NotFittedError
+from .process_model import ProcessModel, lag_coefficient
+from .stiction_model import _batch_kernel, stiction_batch
+
+MIN_SAMPLES = 50
+#: Default noise prefilter time constant, in samples (see `fit_hammerstein`, ``hp_tau_s``).
+AUTO_HP_SAMPLES = 10.0
+#: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
+AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
+
+
+# --------------------------------------------------------------------------------------------------
+# compiled scoring kernel
+# --------------------------------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True)
+def _valve_smooth(x, s, j, f0, out):  # pragma: no cover - compiled
+    """The stiction model with the slip instant interpolated inside the sample.
+
+    Identical to `diagnose.stiction_model.stiction_batch` except on the sample where a slip
+    happens: there the output is the *time average* over the sample of a valve that jumps when the
+    linearly interpolated input crosses the threshold (the zero-order-hold input the process sees).
+    The output is then continuous in S and J, which turns the cost's needle-shaped minimum
+    (slips moving by whole samples) into a smooth valley for the search; the final answer is
+    polished with the exact model.
+    """
+    n = x.shape[0]
+    half = (s - j) / 2.0
+    f = f0
+    xp = min(max(x[0], 0.0), 100.0)
+    up = False
+    yp = xp
+    xss = xp
+    stuck = True
+    out[0] = yp
+    for k in range(1, n):
+        xk = min(max(x[k], 0.0), 100.0)
+        v = xk - xp
+        up_k = v > 0.0
+        if not stuck and (v == 0.0 or up_k != up):
+            stuck = True
+            xss = xp
+        if stuck:
+            d = xk - xss
+            thr = 0.0
+            moved = False
+            if -f * d > s:
+                f = -f
+                stuck = False
+                thr = xss + f * s
+                moved = True
+            elif f * d > j:
+                stuck = False
+                thr = xss + f * j
+                moved = True
+            if moved:
+                ynew = min(max(xk - f * half, 0.0), 100.0)
+                frac = (xk - thr) / v if v != 0.0 else 1.0
+                frac = min(max(frac, 0.0), 1.0)
+                out[k] = yp + frac * (ynew - yp)
+                yp = ynew
+            else:
+                out[k] = yp
+        else:
+            yp = min(max(xk - f * half, 0.0), 100.0)
+            out[k] = yp
+        xp = xk
+        up = up_k
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _one_structure(u, u0, A1, a2, D, integ, ts, ahp, w, yw, Qw, out):  # pragma: no cover - compiled
+    """Normal-equation sums of one structure: out[:K] = Q'z, out[K] = z'z, out[K+1] = z'y."""
+    n = u.shape[0]
+    K = Qw.shape[1]
+    A2 = max(a2, 0.0)
+    B1 = 1.0 - A1
+    B2 = 1.0 - A2
+    I = ts if integ else 0.0
+    N = 0.0 if integ else 1.0
+    z1 = 0.0
+    z2 = 0.0
+    acc = 0.0
+    prv = 0.0
+    f = 0.0
+    for j in range(K + 2):
+        out[j] = 0.0
+    hp = ahp >= 0.0
+    for k in range(n):
+        kd = k - D
+        ud = (u[kd] - u0) if kd >= 0 else 0.0
+        z1 = A1 * z1 + B1 * ud
+        z2 = A2 * z2 + B2 * z1
+        acc += I * z2
+        v = N * z2 + acc
+        if hp:
+            f = ahp * f + v - prv
+            prv = v
+            v = f
+        wk = w[k]
+        if wk != 0.0:
+            out[K] += wk * v * v
+            out[K + 1] += yw[k] * v
+            for j in range(K):
+                out[j] += Qw[k, j] * v
+
+
+@njit(cache=True, nogil=True)
+def _ham_sse(x, S, J, F, a1, a2, d, integ, ts, ahp, w, yw, Qw, Qty, yyp, sse, gain, smooth, gfix):  # pragma: no cover
+    """Output-error SSE of every (valve candidate i, process structure p).
+
+    For each candidate the valve output is computed once; four process structures at a time then
+    filter it (lags, dead time, integrator, noise prefilter) and accumulate the weighted normal
+    equations against the orthonormal load basis ``Qw`` and the data ``yw``; the residual SSE after
+    projecting out the basis and fitting the gain follows in closed form. Four structures per pass
+    keep four independent recursions in flight (about twice as fast as one).
+    """
+    m = S.shape[0]; P = a1.shape[0]; n = x.shape[0]; K = Qw.shape[1]
+    mv = np.empty((1, n))
+    szq = np.zeros((4, K))
+    szq1 = np.zeros(K + 2)
+    for i in range(m):
+        if smooth:
+            _valve_smooth(x, S[i], J[i], F[i], mv[0])
+        else:
+            _batch_kernel(x, S[i:i + 1], J[i:i + 1], F[i:i + 1], mv)
+        u = mv[0]
+        u0 = u[0]
+        p_single = P - (P % 4) if P % 4 != 0 else P
+        for p in range(p_single, P):
+            # leftover structures one at a time
+            _one_structure(u, u0, a1[p], a2[p], d[p], integ[p], ts, ahp, w, yw, Qw, szq1)
+            szz = szq1[K]
+            szy = szq1[K + 1]
+            zzp = szz
+            zyp = szy
+            for j in range(K):
+                zzp -= szq1[j] * szq1[j]
+                zyp -= szq1[j] * Qty[j]
+            if gfix == gfix:
+                sse[i, p] = yyp - 2.0 * gfix * zyp + gfix * gfix * max(zzp, 0.0)
+                gain[i, p] = gfix
+            elif zzp > 1e-10 * (szz + 1e-300) and zzp > 1e-300:
+                sse[i, p] = yyp - zyp * zyp / zzp
+                gain[i, p] = zyp / zzp
+            else:
+                sse[i, p] = yyp
+                gain[i, p] = 0.0
+        for p0 in range(0, p_single, 4):
+            # four structures at once
+            pa = p0; pb = min(p0 + 1, P - 1); pc = min(p0 + 2, P - 1); pd = min(p0 + 3, P - 1)
+            A1a = a1[pa]; A1b = a1[pb]; A1c = a1[pc]; A1d = a1[pd]
+            B1a = 1.0 - A1a; B1b = 1.0 - A1b; B1c = 1.0 - A1c; B1d = 1.0 - A1d
+            A2a = max(a2[pa], 0.0); A2b = max(a2[pb], 0.0); A2c = max(a2[pc], 0.0); A2d = max(a2[pd], 0.0)
+            B2a = 1.0 - A2a; B2b = 1.0 - A2b; B2c = 1.0 - A2c; B2d = 1.0 - A2d
+            Ia = ts if integ[pa] else 0.0; Ib = ts if integ[pb] else 0.0
+            Ic = ts if integ[pc] else 0.0; Id = ts if integ[pd] else 0.0
+            Na = 0.0 if integ[pa] else 1.0; Nb = 0.0 if integ[pb] else 1.0
+            Nc = 0.0 if integ[pc] else 1.0; Nd = 0.0 if integ[pd] else 1.0
+            Da = d[pa]; Db = d[pb]; Dc = d[pc]; Dd = d[pd]
+            za1 = zb1 = zc1 = zd1 = 0.0
+            za2 = zb2 = zc2 = zd2 = 0.0
+            aca = acb = acc_ = acd = 0.0
+            pra = prb = prc = prd = 0.0
+            fa = fb = fc = fd = 0.0
+            sza = szb = szc = szd = 0.0
+            sya = syb = syc = syd = 0.0
+            szq[:, :] = 0.0
+            hp = ahp >= 0.0
+            for k in range(n):
+                ka = k - Da; kb = k - Db; kc = k - Dc; kd = k - Dd
+                ua = (u[ka] - u0) if ka >= 0 else 0.0
+                ub = (u[kb] - u0) if kb >= 0 else 0.0
+                uc = (u[kc] - u0) if kc >= 0 else 0.0
+                ud = (u[kd] - u0) if kd >= 0 else 0.0
+                za1 = A1a * za1 + B1a * ua; zb1 = A1b * zb1 + B1b * ub
+                zc1 = A1c * zc1 + B1c * uc; zd1 = A1d * zd1 + B1d * ud
+                za2 = A2a * za2 + B2a * za1; zb2 = A2b * zb2 + B2b * zb1
+                zc2 = A2c * zc2 + B2c * zc1; zd2 = A2d * zd2 + B2d * zd1
+                aca += Ia * za2; acb += Ib * zb2; acc_ += Ic * zc2; acd += Id * zd2
+                va = Na * za2 + aca; vb = Nb * zb2 + acb; vc = Nc * zc2 + acc_; vd = Nd * zd2 + acd
+                if hp:
+                    fa = ahp * fa + va - pra; pra = va; va = fa
+                    fb = ahp * fb + vb - prb; prb = vb; vb = fb
+                    fc = ahp * fc + vc - prc; prc = vc; vc = fc
+                    fd = ahp * fd + vd - prd; prd = vd; vd = fd
+                wk = w[k]
+                if wk != 0.0:
+                    yk = yw[k]
+                    sza += wk * va * va; szb += wk * vb * vb; szc += wk * vc * vc; szd += wk * vd * vd
+                    sya += yk * va; syb += yk * vb; syc += yk * vc; syd += yk * vd
+                    for j in range(K):
+                        q = Qw[k, j]
+                        szq[0, j] += q * va; szq[1, j] += q * vb; szq[2, j] += q * vc; szq[3, j] += q * vd
+            for g in range(4):
+                p = p0 + g
+                if p >= P:
+                    break
+                szz = (sza, szb, szc, szd)[g]
+                szy = (sya, syb, syc, syd)[g]
+                zzp = szz
+                zyp = szy
+                for j in range(K):
+                    zzp -= szq[g, j] * szq[g, j]
+                    zyp -= szq[g, j] * Qty[j]
+                if gfix == gfix:
+                    sse[i, p] = yyp - 2.0 * gfix * zyp + gfix * gfix * max(zzp, 0.0)
+                    gain[i, p] = gfix
+                elif zzp > 1e-10 * (szz + 1e-300) and zzp > 1e-300:
+                    sse[i, p] = yyp - zyp * zyp / zzp
+                    gain[i, p] = zyp / zzp
+                else:
+                    sse[i, p] = yyp
+                    gain[i, p] = 0.0
+    return sse
+
+
+# --------------------------------------------------------------------------------------------------
+# results
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ErrorSurface:
+    """Output-error cost over the (S, J) grid (minimum over the starting direction).
+
+    ``cost[i, j]`` is the mean squared simulation error (PV units squared) at ``S_grid_pct[i]``,
+    ``J_grid_pct[j]`` with the final process structure (gain, bias and load re-fitted per point);
+    ``bound`` is the cost level that delimits the confidence region.
+    """
+
+    S_grid_pct: np.ndarray
+    J_grid_pct: np.ndarray
+    cost: np.ndarray
+    bound: float = float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"S_grid_pct": [float(v) for v in self.S_grid_pct],
+                "J_grid_pct": [float(v) for v in self.J_grid_pct],
+                "cost": [[float(c) for c in row] for row in self.cost],
+                "bound": float(self.bound)}
+
+
+def _legendre_basis(n: int, order: int) -> np.ndarray:
+    t = np.linspace(-1.0, 1.0, n) if n > 1 else np.zeros(n)
+    cols = [np.ones(n)]
+    if order >= 1:
+        cols.append(t)
+    p_prev, p = np.ones(n), t
+    for k in range(2, order + 1):
+        p_prev, p = p, ((2 * k - 1) * t * p - (k - 1) * p_prev) / k
+        cols.append(p)
+    return np.stack(cols, axis=1)
+
+
+@dataclass(frozen=True)
+class HammersteinFit:
+    """Result of `fit_hammerstein`.
+
+    Attributes
+    ----------
+    S_pct, J_pct : float
+        Stiction parameters, % of valve span (0, 0 for the linear-only model).
+    f0 : int
+        Starting direction of the valve (+1 / -1) that fits best.
+    process : ProcessModel
+        The linear block (its ``bias`` is the constant of the fit; the slow load is apart).
+    ts_s : float
+        Sample period, seconds.
+    rmse : float
+        Root-mean-square simulation error over the scored samples, PV units.
+    r2 : float
+        1 - SSE / SST over the scored samples (simulation, not one-step).
+    S_interval_pct, J_interval_pct : (float, float)
+        Range of S and J inside the confidence region of the error surface.
+    surface : ErrorSurface
+        The cost over the global (S, J) grid.
+    load : ndarray
+        Slow-load coefficients (Legendre polynomial in time over the fitted record, PV units).
+    op_offset_pct : float
+        Offset added to OP before the valve model (nonzero only when OP was not in 0..100 %).
+    n_eff : float
+        Effective number of independent residuals used for the interval bound.
+    """
+
+    S_pct: float
+    J_pct: float
+    f0: int
+    process: ProcessModel
+    ts_s: float
+    rmse: float
+    r2: float
+    S_interval_pct: tuple[float, float]
+    J_interval_pct: tuple[float, float]
+    surface: ErrorSurface
+    load: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_fit: int = 0
+    op_offset_pct: float = 0.0
+    n_eff: float = float("nan")
+    cost: float = float("nan")
+    hp_tau_s: float | None = None
+    score_coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_order: int = 0
+
+    def heldout_cost(self, op_pct, pv, mask) -> float:
+        """Mean squared (prefiltered) output error on the samples in ``mask``.
+
+        Every parameter (valve, lags, dead time, gain, load) stays as fitted: this is the error the
+        fit makes on data it did not score.
+        """
+        r = self.heldout_residuals(op_pct, pv, mask)
+        return float(r @ r) / r.shape[0]
+
+    def heldout_residuals(self, op_pct, pv, mask) -> np.ndarray:
+        """The (prefiltered) output errors on the samples in ``mask``, in time order."""
+        x = np.asarray(op_pct, dtype=float) + self.op_offset_pct
+        y = np.asarray(pv, dtype=float)
+        m = np.zeros(x.shape[0], bool)
+        m[mask] = True
+        if x.shape[0] != self.n_fit or not m.any():
+            raise DataError("heldout_cost needs the fitted record's OP/PV and a non-empty mask")
+        mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0])[0]
+        proto = ProcessModel(kind=self.process.kind, gain=1.0, tau_s=self.process.tau_s,
+                             delay_s=self.process.delay_s, bias=0.0, tau2_s=self.process.tau2_s)
+        z = proto.regressor(mv - mv[0], self.ts_s)
+        a = math.exp(-self.ts_s / self.hp_tau_s) if self.hp_tau_s else -1.0
+        A = _score_design(z, x.shape[0], self.load_order, a)
+        yf = _hp_filter(y, a) if a >= 0 else y
+        return (yf - A @ self.score_coef)[m]
+
+    def simulate(self, op_pct) -> tuple[np.ndarray, np.ndarray]:
+        """Simulate the fitted valve and process from any OP series.
+
+        Returns ``(mv_hat_pct, pv_hat)``: the modelled stem position (% of span) and PV. The slow
+        load is added only when ``op_pct`` has the length of the fitted record.
+        """
+        x = np.asarray(op_pct, dtype=float) + self.op_offset_pct
+        if x.ndim != 1 or x.shape[0] == 0 or not np.all(np.isfinite(x)):
+            raise DataError("op_pct must be a non-empty 1-D series of finite values")
+        mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0])[0] - self.op_offset_pct
+        pv = self.process.simulate(mv, self.ts_s)
+        if self.load.shape[0] > 1 and x.shape[0] == self.n_fit:
+            pv = pv + _legendre_basis(x.shape[0], self.load.shape[0] - 1)[:, 1:] @ self.load[1:]
+        return mv, pv
+
+    @property
+    def stiction_class(self) -> str:
+        from .stiction_model import stiction_class
+        return stiction_class(self.S_pct, self.J_pct)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"S_pct": self.S_pct, "J_pct": self.J_pct, "f0": self.f0,
+                "process": self.process.to_dict(), "rmse": self.rmse, "r2": self.r2,
+                "S_interval_pct": list(self.S_interval_pct),
+                "J_interval_pct": list(self.J_interval_pct)}
+
+
+# --------------------------------------------------------------------------------------------------
+# the fitting problem
+# --------------------------------------------------------------------------------------------------
+
+@dataclass
+class _Configs:
+    a1: np.ndarray
+    a2: np.ndarray
+    d: np.ndarray
+    integ: np.ndarray
+    kind: list
+    tau: np.ndarray
+    tau2: np.ndarray
+
+    def take(self, idx) -> "_Configs":
+        idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
+        return _Configs(self.a1[idx], self.a2[idx], self.d[idx], self.integ[idx],
+                        [self.kind[i] for i in idx], self.tau[idx], self.tau2[idx])
+
+    def __len__(self) -> int:
+        return int(self.a1.shape[0])
+
+
+def _make_configs(entries, ts_s: float) -> _Configs:
+    """entries: iterable of (kind, tau_s, tau2_s, delay_samples)."""
+    kinds, a1, a2, d, integ, tau, tau2 = [], [], [], [], [], [], []
+    for kind, t1, t2, dd in entries:
+        kinds.append(kind)
+        a1.append(lag_coefficient(t1, ts_s))
+        a2.append(lag_coefficient(t2, ts_s) if kind == "soptd" else -1.0)
+        d.append(int(dd))
+        integ.append(kind == "integrating")
+        tau.append(t1)
+        tau2.append(t2 if kind == "soptd" else 0.0)
+    return _Configs(np.asarray(a1, float), np.asarray(a2, float), np.asarray(d, np.int64),
+                    np.asarray(integ, np.bool_), kinds, np.asarray(tau, float), np.asarray(tau2, float))
+
+
+@njit(cache=True, nogil=True)
+def _hp_filter_2d(v, a):  # pragma: no cover - compiled
+    n, m = v.shape
+    out = np.empty((n, m))
+    for j in range(m):
+        acc = 0.0
+        prev = v[0, j]
+        for k in range(n):
+            acc = a * acc + v[k, j] - prev
+            prev = v[k, j]
+            out[k, j] = acc
+    return out
+
+
+def _hp_filter(v: np.ndarray, a: float) -> np.ndarray:
+    """``(1 - q^-1) / (1 - a q^-1)`` along axis 0, starting at rest at the first sample."""
+    arr = np.asarray(v, dtype=np.float64)
+    if arr.ndim == 1:
+        return _hp_filter_2d(np.ascontiguousarray(arr[:, None]), float(a))[:, 0]
+    if arr.shape[1] == 0:
+        return np.zeros_like(arr)
+    return _hp_filter_2d(np.ascontiguousarray(arr), float(a))
+
+
+def _score_design(z: np.ndarray, n: int, load_order: int, ahp: float) -> np.ndarray:
+    """Columns [z, load basis] as the search scores them (prefiltered when ``ahp >= 0``)."""
+    B = _legendre_basis(n, load_order)
+    if ahp >= 0:
+        return np.column_stack([_hp_filter(z, ahp), _hp_filter(B[:, 1:], ahp) if load_order >= 1
+                                else np.zeros((n, 0))])
+    return np.column_stack([z, B])
+
+
+class _Problem:
+    """Data prepared once: scaled PV, score weights, orthonormal load basis, noise prefilter."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray, ts_s: float, w: np.ndarray, load_order: int,
+                 hp_tau_s: float | None = None, gain_fixed: float | None = None):
+        self.x = np.ascontiguousarray(x, dtype=np.float64)
+        self.ts_s = float(ts_s)
+        self.n = x.shape[0]
+        self.w = np.ascontiguousarray(w, dtype=np.float64)
+        self.n_scored = int(np.count_nonzero(self.w))
+        ws = self.w > 0
+        self.y_mean = float(np.mean(y[ws]))
+        self.y_std = float(np.std(y[ws])) or 1.0
+        yn = (y - self.y_mean) / self.y_std
+        self.yraw = np.asarray(y, dtype=float)
+        self.load_order = load_order
+        B = _legendre_basis(self.n, load_order)
+        self.hp_tau_s = float(hp_tau_s) if hp_tau_s is not None and hp_tau_s > 0 else None
+        if hp_tau_s is not None and hp_tau_s > 0:
+            self.ahp = math.exp(-ts_s / hp_tau_s)
+            yn = _hp_filter(yn, self.ahp)
+            B = _hp_filter(B[:, 1:], self.ahp) if load_order >= 1 else np.zeros((self.n, 0))
+        else:
+            self.ahp = -1.0
+        self.y = np.ascontiguousarray(yn)
+        self.yw = self.w * self.y
+        if B.shape[1] > 0:
+            # Orthonormalise the basis on the scored samples: Q = B R^-1 with Q_s^T Q_s = I.
+            _, R = np.linalg.qr(B[ws])
+            self.Q = np.linalg.solve(R.T, B.T).T
+        else:
+            self.Q = np.zeros((self.n, 0))
+        self.Qw = np.ascontiguousarray(self.Q * self.w[:, None])
+        self.Qty = self.Qw.T @ self.y
+        self.sst = float(np.sum(self.yw * self.y))
+        self.yyp = float(self.sst - self.Qty @ self.Qty)
+        self.evals = 0
+        self.smooth = False     # True scores `_valve_smooth` (slip instant interpolated)
+        self.gain_fixed = gain_fixed
+
+    def sse(self, S, J, F, cfg: _Configs) -> tuple[np.ndarray, np.ndarray]:
+        S = np.ascontiguousarray(S, dtype=np.float64)
+        J = np.ascontiguousarray(J, dtype=np.float64)
+        F = np.ascontiguousarray(F, dtype=np.float64)
+        m, P = S.shape[0], len(cfg)
+        out = np.empty((m, P))
+        gain = np.empty((m, P))
+        _ham_sse(self.x, S, J, F, cfg.a1, cfg.a2, cfg.d, cfg.integ, self.ts_s, self.ahp, self.w, self.yw,
+                 self.Qw, self.Qty, self.yyp, out, gain, self.smooth,
+                 self.gain_fixed / self.y_std if self.gain_fixed is not None else np.nan)
+        self.evals += m * P * self.n
+        return np.maximum(out, 0.0), gain
+
+
+def _process_grid(ts_s: float, n: int, kinds, max_delay_s: float | None,
+                  tau_range_s: tuple[float, float] | None = None, dmin: int = 0) -> list:
+    span_s = n * ts_s
+    lo, hi = tau_range_s if tau_range_s is not None else (0.5 * ts_s, max(span_s / 4.0, 2 * ts_s))
+    taus = np.geomspace(max(lo, 1e-9), max(hi, lo * 1.01), 11)
+    dmax = int(round((max_delay_s if max_delay_s is not None else min(span_s / 10.0, 60 * ts_s)) / ts_s))
+    dmax = max(0, min(dmax, n // 5))
+    delays = sorted(set([0, 1, 2, 3, 4] + [int(round(v)) for v in np.geomspace(5, max(dmax, 5), 8)]))
+    delays = [dd for dd in delays if dmin <= dd <= dmax] or [max(dmin, 0)]
+    entries = []
+    for dd in delays:
+        for t in taus:
+            if "foptd" in kinds:
+                entries.append(("foptd", float(t), 0.0, dd))
+            if "soptd" in kinds:
+                entries.append(("soptd", float(t), float(t) / 3.0, dd))
+                entries.append(("soptd", float(t), float(t), dd))
+            if "integrating" in kinds:
+                entries.append(("integrating", float(t) / 4.0, 0.0, dd))
+    return entries
+
+
+def _local_process_entries(kind: str, tau: float, tau2: float, dd: int, dmax: int, factors,
+                           dmin: int = 0) -> list:
+    out = []
+    for f in factors:
+        for ddd in sorted({max(dmin, dd - 1), dd, max(dmin, min(dmax, dd + 1))}):
+            t1 = tau * f
+            t2 = tau2 * f if kind == "soptd" else 0.0
+            out.append((kind, t1, t2, ddd))
+    return out
+
+
+def _burn_in(x: np.ndarray, burn_frac: float) -> int:
+    """Samples left out of the score at the start: the valve's initial state is unknown.
+
+    At least ``burn_frac`` of the record, and until OP has travelled over 60 % of its robust range
+    and back by half of that (a candidate valve started at rest has then moved both ways and is in
+    step with the plant's); never more than a quarter of the record.
+    """
+    n = x.shape[0]
+    lo, hi = np.percentile(x, [0.5, 99.5])
+    need = 0.6 * (hi - lo)
+    run_max = np.maximum.accumulate(x)
+    run_min = np.minimum.accumulate(x)
+    k = np.flatnonzero(run_max - run_min >= need)
+    burn = int(burn_frac * n)
+    if k.size:
+        k1 = int(k[0])
+        # ... and back: the first reversal by half of that after k1
+        up = x[k1] >= x[0] + 0.5 * (run_max[k1] - run_min[k1]) - 1e-12
+        tail = x[k1:]
+        ext = np.maximum.accumulate(tail) if up else np.minimum.accumulate(tail)
+        back = np.flatnonzero(np.abs(ext - tail) >= 0.5 * need)
+        k2 = k1 + int(back[0]) if back.size else n
+        burn = max(burn, k2)
+    else:
+        burn = n
+    return int(min(max(burn, 3), n // 4))
+
+
+def _score_weights(n: int, train, burn: int) -> np.ndarray:
+    w = np.zeros(n)
+    if train is None:
+        w[:] = 1.0
+    else:
+        t = np.asarray(train) if not isinstance(train, slice) else None
+        if isinstance(train, slice):
+            w[train] = 1.0
+        elif t.dtype == bool:
+            if t.shape[0] != n:
+                raise DataError(f"train mask has {t.shape[0]} samples, the record {n}")
+            w[t] = 1.0
+        else:
+            w[t.astype(np.int64)] = 1.0
+    w[:burn] = 0.0
+    if np.count_nonzero(w) < MIN_SAMPLES // 2:
+        raise DataError(f"only {int(np.count_nonzero(w))} samples left to score the fit; "
+                        f"give a longer record or a larger training set")
+    return w
+
+
+def _validate(op_pct, pv, ts_s):
+    x = np.asarray(op_pct, dtype=float)
+    y = np.asarray(pv, dtype=float)
+    if x.ndim != 1 or y.ndim != 1 or x.shape != y.shape:
+        raise DataError(f"OP and PV must be 1-D series of equal length, got {x.shape} and {y.shape}")
+    if x.shape[0] < MIN_SAMPLES:
+        raise DataError(f"record has {x.shape[0]} samples; the fit needs at least {MIN_SAMPLES}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise DataError("OP and PV must be finite; fill or split gaps first")
+    if not (ts_s > 0 and math.isfinite(ts_s)):
+        raise DataError(f"ts_s must be a positive number of seconds, got {ts_s!r}")
+    if np.ptp(x) <= 0:
+        raise DataError("OP is constant: the controller never moved the valve, nothing to identify")
+    if np.ptp(y) <= 0:
+        raise DataError("PV is constant: nothing to identify")
+    return x, y
+
+
+def _op_offset(x: np.ndarray) -> float:
+    """Shift that brings OP into 0..100 % when it is not (e.g. mean-centred data)."""
+    lo, hi = float(np.min(x)), float(np.max(x))
+    if lo >= 0.0 and hi <= 100.0:
+        return 0.0
+    if hi - lo < 100.0:
+        return 50.0 - 0.5 * (lo + hi)
+    raise DataError(f"OP spans {lo:g}..{hi:g}, more than a valve's 0..100 %; scale it to % of span")
+
+
+def _n_eff(res: np.ndarray) -> float:
+    r = res - res.mean()
+    den = float(r @ r)
+    if den <= 0 or r.shape[0] < 3:
+        return float(r.shape[0])
+    rho = float(r[1:] @ r[:-1]) / den
+    rho = min(max(rho, 0.0), 0.999)
+    return max(float(r.shape[0]) * (1.0 - rho) / (1.0 + rho), 5.0)
+
+
+def _interval(values: np.ndarray, inside: np.ndarray, best: float, grid: np.ndarray) -> tuple[float, float]:
+    vals = values[inside]
+    if vals.size == 0:
+        return (best, best)
+    lo, hi = float(vals.min()), float(vals.max())
+    # A region of one grid cell still carries the grid's resolution.
+    g = np.unique(grid)
+    i_lo = np.searchsorted(g, lo)
+    i_hi = np.searchsorted(g, hi)
+    step_lo = (g[i_lo] - g[i_lo - 1]) / 2 if i_lo > 0 else 0.0
+    step_hi = (g[i_hi + 1] - g[i_hi]) / 2 if i_hi + 1 < g.size else 0.0
+    return (max(0.0, min(lo - step_lo, best)), max(hi + step_hi, best))
+
+
+def _s_grid(x: np.ndarray, n_S: int, S_max_pct: float | None) -> np.ndarray:
+    if S_max_pct is None:
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        S_max_pct = float(min(max(hi - lo, 0.2), 100.0))
+    k = np.arange(1, n_S + 1) / n_S
+    return S_max_pct * k ** 1.4
+
+
+@dataclass
+class _Best:
+    S: float
+    J: float
+    F: float
+    cfg: _Configs
+    sse: float
+
+
+def _nelder_mead(f, x0, steps, *, max_iter: int = 60, tol: float = 1e-3):
+    """Minimise ``f`` from ``x0`` with the Nelder-Mead simplex (initial edge lengths ``steps``)."""
+    x0 = np.asarray(x0, float)
+    dim = x0.shape[0]
+    simplex = [x0] + [x0 + np.eye(dim)[i] * steps[i] for i in range(dim)]
+    values = [f(v) for v in simplex]
+    for _ in range(max_iter):
+        order = np.argsort(values)
+        simplex = [simplex[i] for i in order]
+        values = [values[i] for i in order]
+        if abs(values[-1] - values[0]) <= tol * (abs(values[0]) + 1e-12):
+            break
+        centroid = np.mean(simplex[:-1], axis=0)
+        xr = centroid + (centroid - simplex[-1])
+        fr = f(xr)
+        if fr < values[0]:
+            xe = centroid + 2.0 * (centroid - simplex[-1])
+            fe = f(xe)
+            simplex[-1], values[-1] = (xe, fe) if fe < fr else (xr, fr)
+        elif fr < values[-2]:
+            simplex[-1], values[-1] = xr, fr
+        else:
+            xc = centroid + 0.5 * (simplex[-1] - centroid)
+            fc = f(xc)
+            if fc < values[-1]:
+                simplex[-1], values[-1] = xc, fc
+            else:
+                for i in range(1, dim + 1):
+                    simplex[i] = simplex[0] + 0.5 * (simplex[i] - simplex[0])
+                    values[i] = f(simplex[i])
+    i = int(np.argmin(values))
+    return simplex[i], values[i]
+
+
+def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: bool) -> _Best:
+    """Refine S, J (and the lags, dead time fixed) of one candidate by Nelder-Mead.
+
+    Both starting directions are scored at every point; the better one counts.
+    """
+    kind = cur.cfg.kind[0]
+    d = int(cur.cfg.d[0])
+    tau0 = max(float(cur.cfg.tau[0]), 1e-6)
+    ratio2 = float(cur.cfg.tau2[0]) / tau0 if kind == "soptd" else 0.0
+    scale = max(cur.S, 0.05)
+    best_f = [cur.F]
+
+    def unpack(v):
+        S = abs(v[0]) * scale
+        J = abs(v[1]) * scale
+        tau = tau0 * math.exp(v[2]) if not fixed else tau0
+        return S, J, tau
+
+    def cost(v):
+        S, J, tau = unpack(v)
+        cfg = _make_configs([(kind, tau, tau * ratio2, d)], ts_s)
+        sse, _ = prob.sse([S, S], [J, J], [1.0, -1.0], cfg)
+        return float(sse[:, 0].min())
+
+    x0 = np.array([cur.S / scale, cur.J / scale, 0.0])
+    steps = np.array([0.15, 0.15 + 0.1 * (cur.J < 1e-9), 0.3 if not fixed else 0.0])
+    if fixed:
+        x0, steps = x0[:2], steps[:2]
+        f = lambda v: cost(np.concatenate([v, [0.0]]))  # noqa: E731
+    else:
+        f = cost
+    xb, fb = _nelder_mead(f, x0, steps)
+    if fixed:
+        xb = np.concatenate([xb, [0.0]])
+    if fb >= cur.sse:
+        return cur
+    S, J, tau = unpack(xb)
+    cfg = _make_configs([(kind, tau, tau * ratio2, d)], ts_s)
+    sse, _ = prob.sse([S, S], [J, J], [1.0, -1.0], cfg)
+    k = int(np.argmin(sse[:, 0]))
+    return _Best(S, J, (1.0, -1.0)[k], cfg, float(sse[k, 0]))
+
+
+def _zoom(prob: "_Problem", cur: _Best, *, rounds: int = 2, size: int = 9, span: float = 0.15) -> _Best:
+    """Local (S, J, f0) grid around ``cur`` at its structure, shrinking by 4 each round.
+
+    The cost is piecewise constant in S and J (the valve path changes only when a threshold
+    crosses an input sample), which can stall a simplex; a grid cannot stall.
+    """
+    dS = span * max(cur.S, 0.05)
+    dJ = span * max(cur.J, 0.5 * cur.S, 0.05)
+    for _ in range(rounds):
+        Sl = np.unique(np.clip(cur.S + dS * np.linspace(-1, 1, size), 1e-6, None))
+        Jl = np.unique(np.clip(cur.J + dJ * np.linspace(-1, 1, size), 0.0, None))
+        Sm, Jm, Fm = np.meshgrid(Sl, Jl, [1.0, -1.0], indexing="ij")
+        sse, _ = prob.sse(Sm.ravel(), Jm.ravel(), Fm.ravel(), cur.cfg)
+        i = int(np.argmin(sse[:, 0]))
+        if sse[i, 0] < cur.sse:
+            cur = _Best(float(Sm.ravel()[i]), float(Jm.ravel()[i]), float(Fm.ravel()[i]), cur.cfg,
+                        float(sse[i, 0]))
+        dS /= 4.0
+        dJ /= 4.0
+    return cur
+
+
+def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = True,
+                    kinds=("foptd", "soptd", "integrating"), max_delay_s: float | None = None,
+                    n_S: int = 12, n_J: int = 12, S_max_pct: float | None = None,
+                    load_order: int = 2, burn_frac: float = 0.05, refine_rounds: int = 2,
+                    structure: tuple | None = None, hp_tau_s: float | str | None = "auto",
+                    n_starts: int = 3, tau_range_s: tuple[float, float] | None = None,
+                    min_delay_s: float | None = None, max_samples: int | None = 4000,
+                    surface: bool = True, gain_fixed: float | None = None) -> HammersteinFit:
+    """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
+
+    Parameters
+    ----------
+    op_pct : array, shape (n,)
+        Controller output, % of valve span.
+    pv : array, shape (n,)
+        Process variable, engineering units.
+    ts_s : float
+        Sample period, seconds.
+    train : slice or bool mask or index array, optional
+        Samples the fit may score; the others are simulated but held out.
+    stiction : bool
+        False fits the linear-only model (S = J = 0), the reference for detection.
+    kinds : tuple of {"foptd", "soptd", "integrating"}
+        Process structures searched.
+    max_delay_s : float, optional
+        Largest dead time searched (default: a tenth of the record, at most 60 samples).
+    n_S, n_J : int
+        Size of the global (S, J) grid.
+    S_max_pct : float, optional
+        Largest S searched (default: OP's robust peak-to-peak range).
+    load_order : int
+        Order of the Legendre polynomial in time that absorbs slow load (0: a constant only).
+    burn_frac : float
+        Fraction of the record at its start left out of the score (unknown initial state).
+    refine_rounds : int
+        Alternations of process search and local (S, J) zoom after the global grid.
+    structure : (kind, tau_s, tau2_s, delay_s), optional
+        Fix the process structure instead of searching it (gain and bias are still fitted).
+    hp_tau_s : float, None or "auto"
+        Noise model: PV disturbances are taken as integrated noise, ``H = (1 - a q^-1)/(1 - q^-1)``
+        with ``a = exp(-ts/hp_tau_s)``, and both sides are prefiltered by ``1/H`` (prediction error
+        with a fixed noise model). None is pure output error. ``"auto"`` picks ``hp_tau_s`` from
+        `AUTO_HP_CANDIDATES` (samples) by the linear model's prediction-error cost.
+    n_starts : int
+        Distinct starts from the global grid that are refined.
+    tau_range_s : (float, float), optional
+        Range of lags searched.
+    min_delay_s : float, optional
+        Smallest dead time searched (default one sample: logged PV cannot respond to the OP logged
+        at the same instant, and allowing it lets the fit explain PV through the controller).
+    max_samples : int or None
+        Longer records are searched on block averages of about this many samples first, then
+        refined at the full rate (None: always full rate).
+    gain_fixed : float, optional
+        Fix the process gain (PV units per %) instead of fitting it (the direct valve fit uses 1).
+    surface : bool
+        Compute the error surface and the intervals (False: a faster fit with point estimates;
+        the surface is then a single cell and the intervals collapse to the estimate).
+
+    Returns
+    -------
+    HammersteinFit
+    """
+    x, y = _validate(op_pct, pv, ts_s)
+    n = x.shape[0]
+    off = _op_offset(x)
+    x = x + off
+    burn = _burn_in(x, burn_frac)
+    w = _score_weights(n, train, burn)
+    auto_hp = isinstance(hp_tau_s, str)
+    if auto_hp:
+        if hp_tau_s != "auto":
+            raise DataError(f"hp_tau_s must be a number of seconds, None or 'auto', got {hp_tau_s!r}")
+        hp_tau_s = AUTO_HP_SAMPLES * ts_s
+    prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed)
+    dmax = int(round((max_delay_s if max_delay_s is not None else min(n * ts_s / 10.0, 60 * ts_s)) / ts_s))
+    dmax = max(0, min(dmax, n // 5))
+    dmin = int(round((min_delay_s if min_delay_s is not None else ts_s) / ts_s))
+    dmin = min(max(dmin, 0), dmax)
+
+    if structure is not None:
+        k_, t1_, t2_, d_ = structure
+        all_cfg = _make_configs([(k_, t1_, t2_, int(round(d_ / ts_s)))], ts_s)
+    else:
+        all_cfg = _make_configs(_process_grid(ts_s, n, kinds, max_delay_s, tau_range_s, dmin), ts_s)
+
+    def best_structure(S, J, F) -> tuple[int, float]:
+        sse, _ = prob.sse([S], [J], [F], all_cfg)
+        p = int(np.argmin(sse[0]))
+        return p, float(sse[0, p])
+
+    def polish_structure(S, J, F, cfg: _Configs, p: int) -> tuple[_Configs, float]:
+        """Finer lags (and +-1 sample of dead time) around structure p."""
+        if structure is not None:
+            return cfg.take(p), None
+        entries = _local_process_entries(cfg.kind[p], float(cfg.tau[p]), float(cfg.tau2[p]),
+                                         int(cfg.d[p]), dmax, 2.0 ** np.arange(-1.0, 1.01, 0.25), dmin)
+        loc = _make_configs(entries, ts_s)
+        sse, _ = prob.sse([S], [J], [F], loc)
+        q = int(np.argmin(sse[0]))
+        return loc.take(q), float(sse[0, q])
+
+    if auto_hp:
+        # noise model by prediction-error cost of the linear model (the filters are monic, so the
+        # costs of different noise models compare directly)
+        p_lin, _ = best_structure(0.0, 0.0, 1.0)
+        cfg_l = all_cfg.take(p_lin)
+        costs = []
+        for hp in AUTO_HP_CANDIDATES:
+            pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed)
+            c, _ = pr.sse([0.0], [0.0], [1.0], cfg_l)
+            costs.append(float(c[0, 0]) * pr.y_std ** 2)
+        hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
+        hp_tau_s = None if hp_best is None else hp_best * ts_s
+        if hp_tau_s != prob.hp_tau_s:
+            prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed)
+
+    S_grid = _s_grid(x, n_S, S_max_pct)
+    J_grid = np.concatenate([[0.0], 1.5 * S_grid[-1] * (np.arange(1, n_J) / (n_J - 1)) ** 1.4])
+
+    def search() -> _Best:
+        # 1. linear-only
+        p_lin, sse_lin = best_structure(0.0, 0.0, 1.0)
+        cfg_b, sse_b = polish_structure(0.0, 0.0, 1.0, all_cfg, p_lin)
+        best = _Best(0.0, 0.0, 1.0, cfg_b, sse_b if sse_b is not None else sse_lin)
+
+        if stiction:
+            # 2. global grid: (S, J/S) x a coarse set of lags and dead times
+            ratios = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0])
+            Sg0, Rg0, Fg0 = np.meshgrid(S_grid, ratios, [1.0, -1.0], indexing="ij")
+            Sg0, Jg0, Fg0 = Sg0.ravel(), (Sg0 * Rg0).ravel(), Fg0.ravel()
+            if structure is None:
+                span_s = n * ts_s
+                t_lo, t_hi = tau_range_s if tau_range_s is not None else (ts_s, max(span_s / 8.0, 2 * ts_s))
+                taus = np.geomspace(t_lo, max(t_hi, 1.01 * t_lo), 6)
+                d_lin = int(best.cfg.d[0])
+                dset = sorted({max(dmin, dd) for dd in (0, 2, 5, 12, d_lin) if dd <= dmax})
+                entries = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
+                if "integrating" in kinds:
+                    entries += [("integrating", float(ts_s), 0.0, dd) for dd in dset]
+                gcfg = _make_configs(entries, ts_s)
+            else:
+                gcfg = best.cfg
+            sse_g, _ = prob.sse(Sg0, Jg0, Fg0, gcfg)
+            # keep the best few distinct starts: best per valve-shape ratio, then overall order
+            order = np.argsort(sse_g.min(axis=1))
+            starts = []
+            for i in order:
+                p = int(np.argmin(sse_g[i]))
+                cand = (float(Sg0[i]), float(Jg0[i]), p, float(Fg0[i]), float(sse_g[i, p]))
+                if all(abs(cand[0] - c[0]) > 0.2 * cand[0] or abs(cand[1] - c[1]) > 0.2 * max(cand[0], 1e-9)
+                       for c in starts):
+                    starts.append(cand)
+                if len(starts) >= n_starts:
+                    break
+            # 3. from each start: process structure for that valve, then Nelder-Mead on (S, J, lags)
+            results = [best]
+            for S0, J0, p, F0, c0 in starts:
+                cur = _Best(S0, J0, F0, gcfg.take(p), c0)
+                for rnd in range(refine_rounds):
+                    if structure is None:
+                        if rnd == 0:
+                            q, sq = best_structure(cur.S, cur.J, cur.F)
+                            cq = all_cfg.take(q)
+                        else:
+                            cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
+                        if sq < cur.sse:
+                            cur = _Best(cur.S, cur.J, cur.F, cq, sq)
+                    cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None)
+                results.append(cur)
+            best = min(results, key=lambda r: r.sse)
+        return best
+
+    def refine_from(coarse: "HammersteinFit") -> _Best:
+        """Full-rate refinement of a fit made on block-averaged data."""
+        nonlocal prob
+        q = int(round(coarse.ts_s / ts_s))
+        cp = coarse.process
+        d0 = int(round(cp.delay_s / ts_s))
+        S0, J0, F0 = coarse.S_pct, coarse.J_pct, float(coarse.f0)
+        base = (cp.kind, cp.tau_s if cp.kind != "integrating" else max(cp.tau_s, 0.0),
+                cp.tau2_s, d0)
+        if auto_hp:
+            cfg0 = _make_configs([base], ts_s)
+            costs = []
+            for hp in AUTO_HP_CANDIDATES:
+                pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed)
+                c, _ = pr.sse([S0], [J0], [F0], cfg0)
+                costs.append(float(c[0, 0]) * pr.y_std ** 2)
+            hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
+            hp_new = None if hp_best is None else hp_best * ts_s
+            if hp_new != prob.hp_tau_s:
+                prob = _Problem(x, y, ts_s, w, load_order, hp_new, gain_fixed)
+        dstep = max(1, q // 3)
+        dset = sorted({min(dmax, max(dmin, d0 + k * dstep)) for k in range(-3, 4)})
+        entries = [(cp.kind, cp.tau_s * f, cp.tau2_s * f, dd) for f in 2.0 ** np.arange(-1.0, 1.01, 0.5)
+                   for dd in dset]
+        loc = _make_configs(entries, ts_s)
+        sse, _ = prob.sse([S0], [J0], [F0], loc)
+        k = int(np.argmin(sse[0]))
+        cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]))
+        if stiction:
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False)
+        cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
+        if sq is not None and sq < cur.sse:
+            cur = _Best(cur.S, cur.J, cur.F, cq, sq)
+        if stiction:
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False)
+        return cur
+
+    if max_samples is not None and n > max_samples and structure is None:
+        q = int(math.ceil(n / max_samples))
+        nd = n // q
+        xd = x[: nd * q].reshape(nd, q).mean(axis=1)
+        yd = y[: nd * q].reshape(nd, q).mean(axis=1)
+        wd = w[: nd * q].reshape(nd, q).min(axis=1) > 0
+        wd[: max(1, burn // q)] = True      # the coarse fit applies its own burn-in
+        coarse = fit_hammerstein(xd, yd, ts_s * q, train=wd, stiction=stiction, kinds=kinds,
+                                 max_delay_s=max_delay_s, n_S=n_S, n_J=n_J, S_max_pct=float(S_grid[-1]),
+                                 load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
+                                 hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
+                                 tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
+                                 surface=False, gain_fixed=gain_fixed)
+        best = refine_from(coarse)
+    else:
+        best = search()
+
+    prob.smooth = False
+    sse0, _ = prob.sse([best.S], [best.J], [best.F], best.cfg)
+    best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]))
+    if stiction and best.S > 0:
+        best = _zoom(prob, best, rounds=2, size=9, span=0.06)
+
+    surface_cost = None
+    if stiction and surface:
+        Sg, Jg, Fg = np.meshgrid(S_grid, J_grid, [1.0, -1.0], indexing="ij")
+        # 4. surface at the final structure
+        sse_s, _ = prob.sse(Sg.ravel(), Jg.ravel(), Fg.ravel(), best.cfg)
+        surface_cost = sse_s[:, 0].reshape(Sg.shape).min(axis=2)
+        # the linear model is the S = 0 row
+        lin_row = np.full((1, J_grid.shape[0]), float(prob.sse([0.0], [0.0], [1.0], best.cfg)[0][0, 0]))
+        surface_cost = np.vstack([lin_row, surface_cost])
+        # a fine local surface for the interval
+        Sl = np.clip(best.S + 0.6 * max(best.S, float(S_grid[0])) * np.linspace(-1, 1, 11), 0.0, None)
+        Jl = np.clip(best.J + 0.6 * max(best.J, best.S, float(S_grid[0])) * np.linspace(-1, 1, 11), 0.0, None)
+        Sl, Jl = np.unique(Sl), np.unique(Jl)
+        Sm, Jm, Fm = np.meshgrid(Sl, Jl, [1.0, -1.0], indexing="ij")
+        sse_loc, _ = prob.sse(Sm.ravel(), Jm.ravel(), Fm.ravel(), best.cfg)
+        loc_cost = sse_loc[:, 0].reshape(Sm.shape).min(axis=2)
+
+    return _finish(prob, best, ts_s, off, S_grid, J_grid, surface_cost,
+                   (Sl, Jl, loc_cost) if surface_cost is not None else None, load_order)
+
+
+def _finish(prob: _Problem, best: _Best, ts_s, off, S_grid, J_grid, surface_cost, local, load_order):
+    cfg = best.cfg
+    kind = cfg.kind[0]
+    x = prob.x
+    mv = stiction_batch(x, [best.S], [best.J], [best.F])[0]
+    proto = ProcessModel(kind=kind, gain=1.0, tau_s=float(cfg.tau[0]), delay_s=float(cfg.d[0]) * ts_s,
+                         bias=0.0, tau2_s=float(cfg.tau2[0]))
+    z = proto.regressor(mv - mv[0], ts_s)
+    ws = prob.w > 0
+    yraw = prob.yraw
+    # gain and load in the (prefiltered) scoring domain, as the search scored them
+    Af = _score_design(z, prob.n, load_order, prob.ahp)
+    yf = _hp_filter(yraw, prob.ahp) if prob.ahp >= 0 else yraw
+    if prob.gain_fixed is not None:
+        rest, *_ = np.linalg.lstsq(Af[ws][:, 1:], (yf - prob.gain_fixed * Af[:, 0])[ws], rcond=None)
+        score_coef = np.concatenate([[prob.gain_fixed], rest])
+    else:
+        score_coef, *_ = np.linalg.lstsq(Af[ws], yf[ws], rcond=None)
+    res_f = (yf - Af @ score_coef)[ws]
+    gain_pv = float(score_coef[0])
+    # free-run simulation with that gain: constant and slow load re-fitted on raw PV
+    B = _legendre_basis(prob.n, load_order)
+    cb, *_ = np.linalg.lstsq(B[ws], (yraw - gain_pv * z)[ws], rcond=None)
+    coef = np.concatenate([[gain_pv], cb])
+    yhat = gain_pv * z + B @ cb
+    res = (yraw - yhat)[ws]
+    sse = float(res @ res)
+    sst = float(np.sum((yraw[ws] - yraw[ws].mean()) ** 2))
+    rmse = math.sqrt(sse / max(1, res.shape[0]))
+    r2 = 1.0 - sse / sst if sst > 0 else 0.0
+    gain = float(coef[0])
+    const = float(coef[1])
+    load = np.asarray(coef[1:], float)
+    # ProcessModel convention: pv = bias + gain * z(u) with z from absolute u; here z used u - u0.
+    u0 = float(mv[0])
+    if kind == "integrating":
+        # z_rel = z_abs - u0 * t  ->  pv = const + gain*(z_abs - u0 t) + load; the linear load term
+        # carries the balance: keep u_balance at u0 and leave the drift in the load.
+        process = ProcessModel(kind=kind, gain=gain, tau_s=proto.tau_s, delay_s=proto.delay_s,
+                               bias=const, tau2_s=0.0, u_balance_pct=u0 - off)
+    else:
+        process = ProcessModel(kind=kind, gain=gain, tau_s=proto.tau_s, delay_s=proto.delay_s,
+                               bias=const - gain * (u0 - off), tau2_s=proto.tau2_s)
+    ne = _n_eff(res_f)
+    nu = max(ne - 2.0, 1.0)
+    ratio = 0.05 ** (-2.0 / nu)
+    n_sc = max(1, prob.n_scored)
+    scale = prob.y_std ** 2 / n_sc  # sse in scaled units -> mean squared error in PV units
+    if surface_cost is not None:
+        S_axis = np.concatenate([[0.0], S_grid])
+        cost = surface_cost * scale
+        Sl, Jl, loc_cost = local
+        loc_cost = loc_cost * scale
+        cmin = min(float(cost.min()), float(loc_cost.min()), best.sse * scale)
+        bound = cmin * ratio
+        inside_g = cost <= bound
+        inside_l = loc_cost <= bound
+        Sg2, Jg2 = np.meshgrid(S_axis, J_grid, indexing="ij")
+        Sl2, Jl2 = np.meshgrid(Sl, Jl, indexing="ij")
+        # the fine local grid sets the interval unless the region reaches its border
+        on_border = (inside_l[0, :].any() and Sl[0] > 0) or inside_l[-1, :].any() \
+            or (inside_l[:, 0].any() and Jl[0] > 0) or inside_l[:, -1].any()
+        if on_border:
+            S_int = _interval(np.concatenate([Sg2[inside_g], Sl2[inside_l]]), np.ones(
+                int(inside_g.sum() + inside_l.sum()), bool), best.S, np.concatenate([S_axis, Sl]))
+            J_int = _interval(np.concatenate([Jg2[inside_g], Jl2[inside_l]]), np.ones(
+                int(inside_g.sum() + inside_l.sum()), bool), best.J, np.concatenate([J_grid, Jl]))
+        else:
+            S_int = _interval(Sl2, inside_l, best.S, Sl)
+            J_int = _interval(Jl2, inside_l, best.J, Jl)
+        surface = ErrorSurface(S_axis, J_grid, cost, bound)
+    else:
+        S_int = (best.S, best.S)
+        J_int = (best.J, best.J)
+        surface = ErrorSurface(np.zeros(1), np.zeros(1), np.array([[sse / n_sc]]), float("nan"))
+    return HammersteinFit(S_pct=float(best.S), J_pct=float(best.J), f0=int(best.F), process=process,
+                          ts_s=float(ts_s), rmse=rmse, r2=r2, S_interval_pct=S_int, J_interval_pct=J_int,
+                          surface=surface, load=load, n_fit=prob.n, op_offset_pct=off, n_eff=ne,
+                          cost=float(res_f @ res_f) / n_sc, hp_tau_s=prob.hp_tau_s,
+                          score_coef=np.asarray(score_coef, float), load_order=load_order)
+
+
+# --------------------------------------------------------------------------------------------------
+# OP/MV: fit the valve directly
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ValveFit:
+    """Result of `fit_valve`: the stiction model fitted on recorded OP -> stem position MV.
+
+    ``MV ~ offset_pct + gain * lag(valve(OP))`` with an actuator lag ``lag_s`` and dead time
+    ``delay_s`` (a positioner's response), both small.
+    """
+
+    S_pct: float
+    J_pct: float
+    f0: int
+    lag_s: float
+    delay_s: float
+    gain: float
+    offset_pct: float
+    ts_s: float
+    rmse: float
+    r2: float
+    S_interval_pct: tuple[float, float]
+    J_interval_pct: tuple[float, float]
+    surface: ErrorSurface
+    hammerstein: HammersteinFit
+
+    def simulate(self, op_pct) -> np.ndarray:
+        """Modelled stem position (% of span) for any OP series."""
+        return self.hammerstein.simulate(op_pct)[1]
+
+    @property
+    def stiction_class(self) -> str:
+        from .stiction_model import stiction_class
+        return stiction_class(self.S_pct, self.J_pct)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"S_pct": self.S_pct, "J_pct": self.J_pct, "f0": self.f0, "lag_s": self.lag_s,
+                "delay_s": self.delay_s, "gain": self.gain, "offset_pct": self.offset_pct,
+                "rmse": self.rmse, "r2": self.r2, "S_interval_pct": list(self.S_interval_pct),
+                "J_interval_pct": list(self.J_interval_pct)}
+
+
+def fit_valve(op_pct, mv_pct, ts_s: float = 1.0, *, train=None, stiction: bool = True,
+              max_lag_s: float | None = None, max_delay_s: float | None = None,
+              free_gain: bool = False, **opts) -> ValveFit:
+    """Fit the two-parameter valve model directly on OP -> recorded stem position MV.
+
+    Parameters
+    ----------
+    op_pct, mv_pct : array (n,)
+        Controller output and stem position, % of span.
+    ts_s : float
+        Sample period, seconds.
+    train : slice or mask, optional
+        Samples the fit may score.
+    max_lag_s, max_delay_s : float, optional
+        Largest actuator lag and dead time searched (default 5 and 3 samples).
+    free_gain : bool
+        Fit the stem's gain too (default: 1, OP and MV both in % of span; only an offset is
+        fitted). A free gain lets a wrong (S, J) hide behind a smaller travel.
+    """
+    lag_hi = max_lag_s if max_lag_s is not None else 5.0 * ts_s
+    opts.setdefault("load_order", 0)
+    h = fit_hammerstein(op_pct, mv_pct, ts_s, train=train, stiction=stiction, kinds=("foptd",),
+                        max_delay_s=max_delay_s if max_delay_s is not None else 3.0 * ts_s,
+                        tau_range_s=(0.05 * ts_s, lag_hi), hp_tau_s=None, min_delay_s=0.0,
+                        gain_fixed=None if free_gain else 1.0, **opts)
+    p = h.process
+    return ValveFit(S_pct=h.S_pct, J_pct=h.J_pct, f0=h.f0, lag_s=p.tau_s, delay_s=p.delay_s,
+                    gain=p.gain, offset_pct=p.bias, ts_s=h.ts_s, rmse=h.rmse, r2=h.r2,
+                    S_interval_pct=h.S_interval_pct, J_interval_pct=h.J_interval_pct,
+                    surface=h.surface, hammerstein=h)
+
+
+# --------------------------------------------------------------------------------------------------
+# estimator
+# --------------------------------------------------------------------------------------------------
+
+class StictionEstimator:
+    """scikit-learn style wrapper around `fit_hammerstein` (or `fit_valve` with ``use_mv``).
+
+    Parameters are stored as given; ``fit(record)`` (a `diagnose.record.LoopRecord`) or
+    ``fit(op_pct, pv, ts_s)`` validates and learns ``S_pct_``, ``J_pct_``, ``f0_``, ``process_``,
+    ``class_`` and ``result_``.
+    """
+
+    def __init__(self, *, use_mv: bool = False, n_S: int = 12, n_J: int = 12, load_order: int = 2,
+                 hp_tau_s: float | None | str = "auto") -> None:
+        self.use_mv = use_mv
+        self.n_S = n_S
+        self.n_J = n_J
+        self.load_order = load_order
+        self.hp_tau_s = hp_tau_s
+
+    def get_params(self) -> dict[str, Any]:
+        return {"use_mv": self.use_mv, "n_S": self.n_S, "n_J": self.n_J,
+                "load_order": self.load_order, "hp_tau_s": self.hp_tau_s}
+
+    def fit(self, record_or_op, pv=None, ts_s: float | None = None) -> "StictionEstimator":
+        from .stiction_model import stiction_class
+        if pv is None:
+            rec = record_or_op
+            op, pv, ts_s = rec.op, rec.pv, rec.ts_s
+            mv = rec.mv
+        else:
+            op, mv = record_or_op, None
+            if ts_s is None:
+                raise DataError("fit(op_pct, pv, ts_s): give the sample period ts_s")
+        if self.use_mv:
+            if mv is None:
+                raise DataError("use_mv=True needs a record with a stem position (MV)")
+            res = fit_valve(op, mv, ts_s, n_S=self.n_S, n_J=self.n_J)
+            self.process_ = None
+        else:
+            res = fit_hammerstein(op, pv, ts_s, n_S=self.n_S, n_J=self.n_J, load_order=self.load_order,
+                                  hp_tau_s=self.hp_tau_s)
+            self.process_ = res.process
+        self.result_ = res
+        self.S_pct_ = res.S_pct
+        self.J_pct_ = res.J_pct
+        self.f0_ = res.f0
+        self.class_ = stiction_class(res.S_pct, res.J_pct)
+        return self
+
+    def _check(self) -> None:
+        if not hasattr(self, "result_"):
+            raise NotFittedError("this StictionEstimator is not fitted yet; call fit() first")
+
+    def simulate(self, op_pct):
+        """``(mv_hat_pct, pv_hat)`` (Hammerstein) or ``mv_hat_pct`` (valve fit) for an OP series."""
+        self._check()
+        return self.result_.simulate(op_pct)
+
+    predict = simulate

@@ -1,0 +1,349 @@
+"""Identify stiction in one loop record: S, J, class, verdict, process model and context.
+
+`identify(record)` runs, in order:
+
+1. data checks (too short, constant OP or PV: `DataError`) and data quality (`diagnose.quality`);
+2. the stiction verdict from **held-out output error**: the record is cut into ``n_blocks``
+   interleaved blocks; the valve + process model and the linear-only model (S = J = 0) are fitted
+   on the even blocks and scored on the odd ones. Stiction is reported when the valve model's
+   held-out error is lower by more than ``threshold`` (relative) *and* S is clearly above zero;
+3. S, J and the process from the fit on the whole record (`diagnose.fit.fit_hammerstein`); when the
+   stem position MV is recorded, S, J and the class come from the direct OP -> MV fit
+   (`diagnose.fit.fit_valve`) and ``method`` says so;
+4. the class from `diagnose.stiction_model.stiction_class` (tolerance max(0.1 %, 15 % of S));
+5. the oscillation context (`diagnose.oscillation`) and a confidence in [0, 1].
+
+The threshold and its justification are in docs/fitting.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import DataError
+from .fit import MIN_SAMPLES, HammersteinFit, ValveFit, fit_hammerstein, fit_valve
+from .oscillation import Oscillation, oscillation_context
+from .record import Finding, LoopRecord
+from .stiction_model import stiction_class
+
+#: Relative reduction of the held-out output error the valve model must achieve over the
+#: linear-only model to call stiction (see docs/fitting.md for how it was chosen).
+DETECTION_THRESHOLD = 0.02
+#: Smallest S (% of span) reported as stiction: below this a valve is within positioner resolution.
+S_MIN_PCT = 0.2
+#: Records longer than this are block-averaged for the held-out test (the verdict), not for S and J.
+DETECT_MAX_SAMPLES = 4000
+#: Number of interleaved blocks for the held-out test.
+N_BLOCKS = 6
+#: Batches of the held-out losses for the paired t statistic.
+N_BATCHES = 24
+#: One-sided critical value of the paired t statistic (about 1 % for 20+ batches).
+T_CRIT = 2.5
+
+
+def _finite(v: float | None) -> float | None:
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    """The identification of one loop (`to_dict` gives the issue-3 JSON object).
+
+    Attributes
+    ----------
+    loop : str
+    stiction : bool
+    cls : str
+        One of `diagnose.stiction_model.CLASSES` (``"none"`` when ``stiction`` is False).
+    S_pct, J_pct : float
+        % of valve span, 0 when the class is ``none``.
+    S_interval_pct, J_interval_pct : (float, float)
+    process : ProcessModel or None
+    rmse, r2 : float
+        Free-run simulation fit of PV (or MV for the OP/MV method) over the record.
+    oscillation : Oscillation
+    warnings : tuple of dict
+        ``{"code": str, "message": str}``.
+    confidence : float
+        Confidence in the verdict, 0..1.
+    method : str
+        ``"op_pv"`` (Hammerstein fit) or ``"op_mv"`` (valve fitted on the recorded stem position).
+    detection : dict
+        Numbers behind the verdict (held-out errors, improvement, threshold).
+    data_quality : tuple of Finding
+    fit : HammersteinFit or None
+    valve_fit : ValveFit or None
+    linear_fit : HammersteinFit or None
+    """
+
+    loop: str
+    stiction: bool
+    cls: str
+    S_pct: float
+    J_pct: float
+    S_interval_pct: tuple[float, float]
+    J_interval_pct: tuple[float, float]
+    process: Any
+    rmse: float
+    r2: float
+    oscillation: Oscillation
+    warnings: tuple = ()
+    confidence: float = 0.0
+    method: str = "op_pv"
+    detection: dict = field(default_factory=dict)
+    data_quality: tuple = ()
+    fit: HammersteinFit | None = None
+    valve_fit: ValveFit | None = None
+    linear_fit: HammersteinFit | None = None
+    n: int = 0
+    ts_s: float = 1.0
+    fitted_S_pct: float = 0.0
+    fitted_J_pct: float = 0.0
+
+    @property
+    def klass(self) -> str:
+        return self.cls
+
+    def to_dict(self) -> dict[str, Any]:
+        """The issue-3 JSON object (plus confidence, method, detection, data_quality)."""
+        return {
+            "loop": self.loop,
+            "stiction": bool(self.stiction),
+            "class": self.cls,
+            "S": float(self.S_pct),
+            "J": float(self.J_pct),
+            "S_interval": [float(self.S_interval_pct[0]), float(self.S_interval_pct[1])],
+            "J_interval": [float(self.J_interval_pct[0]), float(self.J_interval_pct[1])],
+            "process": self.process.to_dict() if self.process is not None else {},
+            "fit": {"rmse": _finite(self.rmse), "r2": _finite(self.r2)},
+            "oscillation": self.oscillation.to_dict(),
+            "warnings": [dict(w) for w in self.warnings],
+            "confidence": float(self.confidence),
+            "method": self.method,
+            "detection": {k: (_finite(v) if isinstance(v, float) else v) for k, v in self.detection.items()},
+            "data_quality": [f.to_dict() for f in self.data_quality],
+            "n_samples": int(self.n),
+            "ts_s": float(self.ts_s),
+        }
+
+
+def _blocks(n: int, n_blocks: int) -> tuple[np.ndarray, np.ndarray]:
+    edges = np.linspace(0, n, n_blocks + 1).astype(int)
+    train = np.zeros(n, bool)
+    for b in range(0, n_blocks, 2):
+        train[edges[b]:edges[b + 1]] = True
+    return train, ~train
+
+
+def _quality(record: LoopRecord) -> tuple[Finding, ...]:
+    findings = tuple(record.findings)
+    if not (record.meta or {}).get("quality_checked"):
+        try:
+            from . import quality
+        except ImportError:  # pragma: no cover - quality module not installed
+            return findings
+        known = {(f.code, f.message) for f in findings}
+        findings = findings + tuple(f for f in quality.assess(record) if (f.code, f.message) not in known)
+    return findings
+
+
+def _warn(code: str, message: str) -> dict[str, str]:
+    return {"code": code, "message": message}
+
+
+def _check(record: LoopRecord) -> None:
+    if record.n < MIN_SAMPLES:
+        raise DataError(f"loop {record.name!r} has {record.n} samples; identification needs at least "
+                        f"{MIN_SAMPLES} (give a longer record)")
+    if np.ptp(record.op) <= 0:
+        raise DataError(f"loop {record.name!r}: OP is constant ({record.op[0]:g}) over the whole record; "
+                        "the controller never moved the valve, so stiction cannot be identified "
+                        "(pick a period in automatic with some control action)")
+    if np.ptp(record.pv) <= 0:
+        raise DataError(f"loop {record.name!r}: PV is constant ({record.pv[0]:g}) over the whole record; "
+                        "check the PV column (--pv) or the instrument")
+
+
+def _paired_t(loss_a: np.ndarray, loss_b: np.ndarray, block_id: np.ndarray, n_batches: int) -> float:
+    """t statistic of the batch-wise log ratio ``log(mean loss_a / mean loss_b)``.
+
+    The held-out losses are cut into contiguous batches inside each held-out block; batch means
+    are close to independent when batches are long against the residuals' correlation time, and
+    the log ratio makes the statistic scale-free (a loop whose disturbance level changes over the
+    record does not dominate it).
+    """
+    ratios = []
+    blocks = np.unique(block_id)
+    for b in blocks:
+        idx = np.flatnonzero(block_id == b)
+        for part in np.array_split(idx, max(1, n_batches // max(1, blocks.size))):
+            if part.size:
+                la, lb = float(loss_a[part].mean()), float(loss_b[part].mean())
+                if la > 0 and lb > 0:
+                    ratios.append(math.log(la / lb))
+    r = np.asarray(ratios)
+    if r.size < 3:
+        return 0.0
+    se = float(r.std(ddof=1)) / math.sqrt(r.size)
+    if se <= 0:
+        return 100.0 if r.mean() > 0 else 0.0
+    return float(min(r.mean() / se, 100.0))
+
+
+def _decimate(op: np.ndarray, y: np.ndarray, ts_s: float, max_samples: int):
+    """Block means of OP and y (about ``max_samples`` left) for the held-out test of long records."""
+    n = op.shape[0]
+    if n <= max_samples:
+        return op, y, ts_s
+    q = int(math.ceil(n / max_samples))
+    nd = n // q
+    return (op[: nd * q].reshape(nd, q).mean(axis=1), y[: nd * q].reshape(nd, q).mean(axis=1), ts_s * q)
+
+
+def _detect(op: np.ndarray, y: np.ndarray, ts_s: float, fitter, n_blocks: int, **opts) -> dict[str, Any]:
+    op, y, ts_s = _decimate(op, y, ts_s, DETECT_MAX_SAMPLES)
+    opts = dict(opts, surface=False)
+    train, test = _blocks(op.shape[0], n_blocks)
+    f_v = fitter(op, y, ts_s, train=train, **opts)
+    f_l = fitter(op, y, ts_s, train=train, stiction=False, **opts)
+    h_v = f_v.hammerstein if isinstance(f_v, ValveFit) else f_v
+    h_l = f_l.hammerstein if isinstance(f_l, ValveFit) else f_l
+    r_v = h_v.heldout_residuals(op, y, test)
+    r_l = h_l.heldout_residuals(op, y, test)
+    e_v = float(r_v @ r_v) / r_v.size
+    e_l = float(r_l @ r_l) / r_l.size
+    imp = 1.0 - e_v / e_l if e_l > 0 else 0.0
+    edges = np.linspace(0, op.shape[0], n_blocks + 1).astype(int)
+    block_id = np.searchsorted(edges, np.flatnonzero(test), side="right")
+    t = _paired_t(r_l ** 2, r_v ** 2, block_id, N_BATCHES)
+    return {"heldout_mse_valve": e_v, "heldout_mse_linear": e_l, "improvement": imp, "t_stat": t,
+            "train_S_pct": f_v.S_pct, "train_J_pct": f_v.J_pct}
+
+
+def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_blocks: int = N_BLOCKS,
+             use_mv: bool = True, **fit_opts) -> Identification:
+    """Identify stiction (verdict, S, J, class) in one loop.
+
+    Parameters
+    ----------
+    record : LoopRecord
+    threshold : float
+        Relative held-out error reduction required to call stiction.
+    n_blocks : int
+        Interleaved blocks of the held-out test (even blocks train, odd blocks test).
+    use_mv : bool
+        Fit the valve directly on OP -> MV when the record has a stem position.
+    **fit_opts
+        Passed to `diagnose.fit.fit_hammerstein` (e.g. ``n_S``, ``load_order``, ``hp_tau_s``).
+
+    Raises
+    ------
+    DataError
+        The record cannot be identified (too short, constant OP or PV).
+    """
+    _check(record)
+    findings = _quality(record)
+    warnings: list[dict[str, str]] = []
+    compression = False
+    for f in findings:
+        if f.severity in ("warning", "error"):
+            warnings.append(_warn(f"data_quality.{f.code}", f.message))
+        if f.code == "compression" and f.severity != "info":
+            compression = True
+    op, pv, ts = record.op, record.pv, record.ts_s
+    if float(np.min(op)) < 0.0 or float(np.max(op)) > 100.0:
+        warnings.append(_warn("op_not_percent",
+                              f"OP spans {float(np.min(op)):g}..{float(np.max(op)):g}, outside 0..100 % of "
+                              "span (mean-centred or in engineering units?); it was shifted into the span, "
+                              "so S and J are in OP's own units"))
+    osc = oscillation_context(pv, ts, sp=record.sp, op=op)
+
+    method = "op_pv"
+    valve_fit = None
+    mv_still = False
+    if use_mv and record.mv is not None:
+        method = "op_mv"
+        mv = record.mv
+        if np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0]))):
+            mv_still = True
+        else:
+            valve_fit = fit_valve(op, mv, ts, n_S=fit_opts.get("n_S", 12), n_J=fit_opts.get("n_J", 12))
+
+    # the Hammerstein fit on the whole record (process model, PV fit; S and J for op_pv)
+    fit = fit_hammerstein(op, pv, ts, **fit_opts)
+    linear = None
+
+    if mv_still:
+        S_lo = float(np.percentile(op, 99.5) - np.percentile(op, 0.5))
+        warnings.append(_warn("valve_not_moving",
+                              f"the stem position (MV) never moves while OP travels {S_lo:.3g} % of span: "
+                              "the valve is stuck (or MV is not the stem position); S is at least that, "
+                              "J cannot be identified"))
+        det = {"improvement": None, "threshold": threshold}
+        stiction, S, J = True, S_lo, 0.0
+        S_int, J_int = (S_lo, 100.0), (0.0, 100.0)
+        cls = "deadband"
+        confidence = 0.7
+        rmse, r2 = fit.rmse, fit.r2
+    else:
+        if valve_fit is not None:
+            det = _detect(op, record.mv, ts, fit_valve, n_blocks)
+            S, J = valve_fit.S_pct, valve_fit.J_pct
+            S_int, J_int = valve_fit.S_interval_pct, valve_fit.J_interval_pct
+            rmse, r2 = valve_fit.rmse, valve_fit.r2
+        else:
+            det = _detect(op, pv, ts, fit_hammerstein, n_blocks, **fit_opts)
+            S, J = fit.S_pct, fit.J_pct
+            S_int, J_int = fit.S_interval_pct, fit.J_interval_pct
+            rmse, r2 = fit.rmse, fit.r2
+        det["threshold"] = threshold
+        det["S_min_pct"] = S_MIN_PCT
+        imp = det["improvement"]
+        det["t_crit"] = T_CRIT
+        stiction = bool(imp > threshold and det["t_stat"] > T_CRIT and S >= S_MIN_PCT)
+        cls = stiction_class(S, J) if stiction else "none"
+        if stiction and cls == "none":
+            stiction = False
+        # confidence: how far the evidence is from the decision boundary
+        t_margin = abs(det["t_stat"] - T_CRIT) / T_CRIT if math.isfinite(det["t_stat"]) else 3.0
+        margin = min(t_margin, abs(imp - threshold) / 0.05) if stiction else max(0.0, min(t_margin, 3.0))
+        confidence = 0.5 + 0.5 * math.tanh(margin)
+        if r2 < 0.2 and method == "op_pv":
+            confidence *= 0.8
+            warnings.append(_warn("poor_fit", f"the model explains little of PV (free-run r2 = {r2:.2f}); "
+                                  "unmeasured disturbances dominate, the verdict is less certain"))
+        if record.n < 5 * MIN_SAMPLES:
+            confidence *= 0.8
+            warnings.append(_warn("short_record", f"only {record.n} samples; longer records identify S and J "
+                                  "more reliably"))
+    fitted_S, fitted_J = S, J
+    if compression:
+        confidence = min(confidence, 0.5)
+        if stiction:
+            warnings.append(_warn("data_quality.compression",
+                                  "historian compression can fake stiction shapes: the stiction verdict is "
+                                  "hedged; confirm on uncompressed data"))
+    if not stiction:
+        S = J = 0.0
+        S_int, J_int = (0.0, float(S_int[1])), (0.0, float(J_int[1]))
+    seen = set()
+    uniq = []
+    for w in warnings:
+        key = (w["code"], w["message"])
+        if key not in seen:
+            seen.add(key)
+            uniq.append(w)
+    return Identification(
+        loop=record.name, stiction=stiction, cls=cls, S_pct=float(S), J_pct=float(J),
+        S_interval_pct=(float(S_int[0]), float(S_int[1])), J_interval_pct=(float(J_int[0]), float(J_int[1])),
+        process=fit.process, rmse=float(rmse), r2=float(r2), oscillation=osc, warnings=tuple(uniq),
+        confidence=float(min(max(confidence, 0.0), 1.0)), method=method, detection=det,
+        data_quality=findings, fit=fit, valve_fit=valve_fit, linear_fit=linear, n=record.n, ts_s=ts,
+        fitted_S_pct=float(fitted_S), fitted_J_pct=float(fitted_J))

@@ -1,0 +1,113 @@
+"""Figures of an `Explanation`: the fits, the residual with the located windows, and the
+conditioned residuals. matplotlib is imported only here and only when a figure is drawn (Agg).
+
+The computation lives in `Explanation.figure_data`; this module only draws it.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from typing import Any
+
+import numpy as np
+
+
+def _mpl():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0, 9.0)):
+    """Draw the figure data onto a new matplotlib figure and return it."""
+    plt = _mpl()
+    d = fig_data
+    t = np.asarray(d["t_s"])
+    fig = plt.figure(figsize=figsize, constrained_layout=True)
+    gs = fig.add_gridspec(3, 3)
+    unit = d.get("units", "")
+    name = d.get("missing_physics") or "none named"
+
+    ax = fig.add_subplot(gs[0, :])
+    ax.plot(t, d["observed"], color="0.3", lw=0.8, label="recorded")
+    ax.plot(t, d["baseline"], color="tab:red", lw=0.8, label="baseline")
+    if d.get("missing_physics"):
+        ax.plot(t, d["improved"], color="tab:blue", lw=0.8, label=f"with {name}")
+    ax.axvline(d["train_end_s"], color="k", ls="--", lw=0.8)
+    ax.text(d["train_end_s"], ax.get_ylim()[1], " held out ->", va="top", fontsize=8)
+    ax.set_ylabel(f"{d.get('target', 'pv').upper()} [{unit}]")
+    ax.set_title(title or f"missing physics: {name}")
+    ax.legend(loc="lower left", fontsize=8, ncol=3)
+
+    ax = fig.add_subplot(gs[1, :])
+    ax.plot(t, d["residual_baseline"], color="tab:red", lw=0.6, label="baseline residual")
+    if d.get("missing_physics"):
+        ax.plot(t, d["residual_improved"], color="tab:blue", lw=0.6, label="improved residual")
+    for a, b in d.get("windows", []):
+        ax.axvspan(a, b, color="orange", alpha=0.25)
+    ax.plot(d["window_t_s"], d["window_rms"], color="k", lw=1.2, label="window RMS (baseline)")
+    slips = np.asarray(d.get("slip_t_s", []))
+    if slips.size:
+        lo = ax.get_ylim()[0]
+        ax.plot(slips, np.full(slips.shape, lo), "|", color="tab:green", ms=6, label="simulated slips")
+    ax.axvline(d["train_end_s"], color="k", ls="--", lw=0.8)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(f"residual [{unit}]")
+    ax.legend(loc="upper left", fontsize=8, ncol=4)
+
+    ax = fig.add_subplot(gs[2, 0])
+    ax.plot(d["profile_lag_s"], d["after_slip_profile"], "o-", ms=3)
+    ax.axhline(float(np.sqrt(np.mean(np.square(d["residual_baseline"])))), color="0.5", ls=":",
+               label="overall RMS")
+    ax.set_xlabel("time after a slip [s]")
+    ax.set_ylabel("residual RMS")
+    ax.set_title("after slips", fontsize=9)
+    ax.legend(fontsize=7)
+
+    ax = fig.add_subplot(gs[2, 1])
+    ax.bar(np.arange(len(d["op_bin_rms"])), d["op_bin_rms"], color="tab:purple", alpha=0.7)
+    ax.set_xticks(np.arange(len(d["op_bin_rms"])))
+    ax.set_xticklabels([f"{c:.0f}" for c in d["op_bin_centres_pct"]], fontsize=7)
+    up, dn = d["direction_rms"]
+    ax.set_xlabel("OP bin centre [%]")
+    ax.set_ylabel("residual RMS")
+    ax.set_title(f"by operating point; opening {up:.3g} / closing {dn:.3g}", fontsize=9)
+
+    ax = fig.add_subplot(gs[2, 2])
+    f = np.asarray(d["freq_hz"])
+    if f.size:
+        ax.semilogy(1.0 / f, np.asarray(d["residual_psd"]) + 1e-300, lw=0.8)
+        ax.set_xscale("log")
+        plc = d.get("limit_cycle_period_s")
+        if plc:
+            for h in range(1, 6):
+                ax.axvline(plc / h, color="tab:red", ls=":", lw=0.8)
+    ax.set_xlabel("period [s]")
+    ax.set_ylabel("residual power")
+    ax.set_title("spectrum (red: limit cycle and harmonics)", fontsize=9)
+    return fig
+
+
+def plot_explanation(explanation, record=None, path_png: str | os.PathLike = "explain.png", *,
+                     dpi: int = 110) -> str:
+    """Draw an explanation to a PNG file (written atomically) and return the path."""
+    title = ""
+    if record is not None:
+        title = f"{record.name}: missing physics: {explanation.missing_physics or 'none named'}"
+    fig = draw_explanation(explanation.figure_data(), title=title)
+    path = os.fspath(path_png)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(suffix=".png", dir=folder)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=dpi)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        _mpl().close(fig)
+    return path

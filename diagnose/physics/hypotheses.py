@@ -1,0 +1,418 @@
+"""Missing-physics hypotheses: each one an augmented model with a few physical parameters.
+
+The design follows pysindy's feature libraries: a small base class does what every hypothesis
+shares (validation, the search bookkeeping, the parameter count for the information criterion)
+and leaves one abstract step, `PhysicsHypothesis._search`, to each subclass. `REGISTRY` is built
+from explicit classes; add one by subclassing and calling `register`.
+
+A hypothesis is fitted on the training samples of one `Stage`, starting from the *reference*: the
+plain model refit by the same searches (`model.refine_plain`), so that a gain is due to the added
+physics and not to a different search.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import DataError
+from .model import (Stage, Structure, best_of, global_sj, predict, refine_sj, refit_dynamics, sj_local,
+                    train_sse)
+
+VALVE_SIDE = "valve"
+PROCESS_SIDE = "process"
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """A fitted hypothesis on one stage.
+
+    Parameters
+    ----------
+    name : str
+        Hypothesis name.
+    params : mapping str -> float
+        Its physical parameters, units in the names.
+    structure : Structure
+        The whole augmented model (for simulation).
+    n_extra : int
+        Parameters added to the plain model (for the information criterion).
+    train_sse : float
+        Training sum of squared errors.
+    stage : str
+        ``loop`` (OP -> PV) or ``valve`` (OP -> MV).
+    """
+
+    name: str
+    params: Mapping[str, float]
+    structure: Structure
+    n_extra: int
+    train_sse: float
+    stage: str
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+@dataclass(frozen=True)
+class Context:
+    """What the localisation found that a hypothesis may use (limit cycle, residual)."""
+
+    limit_cycle_period_s: float | None = None
+    residual: np.ndarray | None = None
+
+
+class PhysicsHypothesis:
+    """Base class. Subclasses set `name`, `param_names`, `side`, `n_extra`, `description` and
+    implement `_search(stage, reference, context) -> Structure` and `_params(structure, reference,
+    stage, coef) -> dict`."""
+
+    name: str = ""
+    param_names: tuple[str, ...] = ()
+    side: str = VALVE_SIDE
+    n_extra: int = 1
+    description: str = ""
+
+    def applicable(self, stage: Stage) -> bool:
+        """Whether the hypothesis can be tested on this stage."""
+        if self.side == PROCESS_SIDE:
+            return stage.name == "loop"
+        return stage.name in ("loop", "valve")
+
+    def fit(self, stage: Stage, reference: Structure, context: Context | None = None) -> Fitted:
+        if not self.applicable(stage):
+            raise DataError(f"hypothesis {self.name!r} cannot be tested on the {stage.name} stage")
+        if int(stage.train.sum()) < 50:
+            raise DataError(f"hypothesis {self.name!r} needs at least 50 training samples")
+        context = context or Context()
+        struct = self._search(stage, reference, context)
+        # the augmented model nests the plain one: never return a worse fit than the reference
+        struct, sse = best_of(stage, [struct, reference])
+        _, _, coef = predict(stage, struct)
+        params = {k: float(v) for k, v in self._params(struct, reference, stage, coef).items()}
+        missing = set(self.param_names) - set(params)
+        if missing:  # pragma: no cover - programming error in a subclass
+            raise RuntimeError(f"{self.name}: params lack {sorted(missing)}")
+        return Fitted(name=self.name, params=params, structure=struct, n_extra=self.n_extra,
+                      train_sse=sse, stage=stage.name)
+
+    def _search(self, stage: Stage, reference: Structure, context: Context) -> Structure:
+        raise NotImplementedError
+
+    def _params(self, struct: Structure, reference: Structure, stage: Stage, coef) -> dict:
+        raise NotImplementedError
+
+
+def _with_sj(struct: Structure, S: float, J: float, f0: int | None = None) -> Structure:
+    return struct.replace(S_up_pct=S, S_dn_pct=S, J_up_pct=J, J_dn_pct=J,
+                          f0=struct.f0 if f0 is None else f0)
+
+
+class ActuatorLag(PhysicsHypothesis):
+    """First-order lag of the stem after the friction element (pneumatic actuator, positioner).
+
+    On the valve stage (OP -> MV) a dead time of whole samples is searched with it (a positioner's
+    or the logging's delay); on the loop stage a dead time is part of the process already.
+    """
+
+    name = "actuator_lag"
+    param_names = ("tau_s", "dead_time_s", "S_pct", "J_pct")
+    side = VALVE_SIDE
+    n_extra = 2
+    description = "first-order lag of the stem after a slip"
+
+    def _search(self, stage, reference, context):
+        ts = stage.ts_s
+        S, J = reference.S_up_pct, reference.J_up_pct
+        taus = ts * np.array([0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0])
+        delays = (0, 1, 2, 3) if stage.name == "valve" else (None,)
+
+        def with_delay(s: Structure, d) -> Structure:
+            if d is None:
+                return s
+            return s.replace(process=dataclasses.replace(s.process, delay_s=d * ts))
+
+        pairs = sj_local(S, J, s_span=0.1, n_s=7, j_span=0.3, n_j=3)
+        combos = [(float(t), d) for t in taus for d in delays]
+        cands = [with_delay(_with_sj(reference, s, j, f), d).replace(tau_lag_s=t)
+                 for t, d in combos for s, j in pairs for f in (1, -1)]
+        sse = train_sse(stage, cands).reshape(len(combos), -1)
+        results = []
+        # a lag changes which slips a plain fit had to fake: search the valve again for the best few
+        for i in np.argsort(sse.min(axis=1))[:3]:
+            st = cands[int(i) * sse.shape[1] + int(np.argmin(sse[i]))]
+            st = global_sj(stage, st)
+            st, c = refit_dynamics(stage, st, rounds=1)
+            results.append((c, st))
+        best = min(results, key=lambda t: t[0])[1]
+        t0 = best.tau_lag_s
+        pairs = sj_local(best.S_up_pct, best.J_up_pct, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        cands = [_with_sj(best, s, j).replace(tau_lag_s=t0 * m)
+                 for m in (0.75, 0.87, 1.0, 1.15, 1.3) for s, j in pairs]
+        cands.append(best)
+        best, _ = best_of(stage, cands)
+        best, _ = refit_dynamics(stage, best, rounds=1)
+        best, _ = refine_sj(stage, best, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
+        return best
+
+    def _params(self, struct, reference, stage, coef):
+        dead = struct.process.delay_s if stage.name == "valve" else 0.0
+        return {"tau_s": struct.tau_lag_s, "dead_time_s": float(dead), "S_pct": struct.S_up_pct,
+                "J_pct": struct.J_up_pct}
+
+
+class AsymmetricStiction(PhysicsHypothesis):
+    """Separate (S, J) when opening and when closing."""
+
+    name = "asymmetric_stiction"
+    param_names = ("S_open_pct", "J_open_pct", "S_close_pct", "J_close_pct")
+    side = VALVE_SIDE
+    n_extra = 2
+    description = "different stiction opening and closing"
+
+    def _search(self, stage, reference, context):
+        # Opening reversals depend on S_open, closing ones on S_close: the cost nearly separates, so
+        # wide fine one-direction scans (coordinate descent) find both.
+        S = max(reference.S_up_pct, 0.2)
+        wide = np.exp(np.arange(math.log(0.3), math.log(1.9), math.log1p(0.02)))
+        starts = [reference]
+        if not stage.fixed_dynamics:
+            # From OP/PV alone a plain valve with other process dynamics can mimic asymmetry: a
+            # coarse asymmetric-valve x dynamics grid gives more starting points.
+            starts += _coarse_asym_starts(stage, reference)
+        results = []
+        for st in starts:
+            b = self._scan(stage, st, S, wide)
+            results.append((best_of(stage, [b])[1], b))
+        return min(results, key=lambda t: t[0])[1]
+
+    def _scan(self, stage, start, S, wide):
+        best = start
+        for rnd in range(2):
+            for side in ("up", "dn"):
+                Sx = S if rnd == 0 else getattr(best, f"S_{side}_pct")
+                Jx = getattr(best, f"J_{side}_pct")
+                r = Jx / Sx if Sx > 0 else 0.5
+                fs = (1, -1) if rnd == 0 else (best.f0,)
+                cands = [best.replace(**{f"S_{side}_pct": Sx * m, f"J_{side}_pct": Sx * m * rr}, f0=f)
+                         for m in (wide if rnd == 0 else 1.0 + np.linspace(-0.08, 0.08, 17))
+                         for rr in {r, 0.5 * r, min(1.5 * r, 1.5)} for f in fs]
+                cands.append(best)
+                best, _ = best_of(stage, cands)
+                Sx = getattr(best, f"S_{side}_pct")
+                cands = [best.replace(**{f"S_{side}_pct": Sx * m, f"J_{side}_pct": Sx * rr})
+                         for m in 1.0 + np.linspace(-0.03, 0.03, 5) for rr in np.linspace(0.0, 1.5, 31)]
+                cands.append(best)
+                best, _ = best_of(stage, cands)
+            best, _ = refit_dynamics(stage, best, rounds=1)
+        return best
+
+    def _params(self, struct, reference, stage, coef):
+        return {"S_open_pct": struct.S_up_pct, "J_open_pct": struct.J_up_pct,
+                "S_close_pct": struct.S_dn_pct, "J_close_pct": struct.J_dn_pct}
+
+
+def _coarse_asym_starts(stage: Stage, reference: Structure, k: int = 3) -> list[Structure]:
+    from ..process_model import ProcessModel
+
+    span = float(np.ptp(stage.x[: stage.n_fit]))
+    S_grid = np.geomspace(0.3, max(0.8 * span, 0.4), 14)
+    T = stage.train.sum() * stage.ts_s
+    p0 = reference.process
+    taus = sorted(set(np.geomspace(stage.ts_s, max(T / 8, 2 * stage.ts_s), 5).tolist() + [max(p0.tau_s, stage.ts_s)]))
+    d0 = int(round(p0.delay_s / stage.ts_s))
+    dyn = [ProcessModel("foptd", 1.0, float(t), d * stage.ts_s, 0.0)
+           for t in taus for d in sorted({0, 2, 4, 7, d0})]
+    valves = [(su, su * r, jr) for su in S_grid for r in (0.35, 0.55, 0.8, 1.25, 1.8, 2.8) for jr in (0.3, 0.75)]
+    cands = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * jr, J_dn_pct=sd * jr, f0=f, process=p)
+             for p in dyn for su, sd, jr in valves for f in (1, -1)]
+    sse = train_sse(stage, cands).reshape(len(dyn), -1)
+    out = []
+    for i in np.argsort(sse.min(axis=1))[:k]:
+        st = cands[int(i) * sse.shape[1] + int(np.argmin(sse[i]))]
+        st, _ = refit_dynamics(stage, st, rounds=1)
+        out.append(st)
+    return out
+
+
+class ValveCharacteristic(PhysicsHypothesis):
+    """Installed characteristic: operating-point dependent gain, flow ~ (e^(c y) - 1), R = e^c."""
+
+    name = "valve_characteristic"
+    param_names = ("rangeability_R", "gain_ratio_80_20")
+    side = PROCESS_SIDE
+    n_extra = 1
+    description = "operating-point dependent gain (installed characteristic)"
+
+    def _search(self, stage, reference, context):
+        # The gain change distorts the plain fit's S and J: for the most promising exponents the
+        # valve is searched again globally.
+        cs = [c for c in np.linspace(-4.0, 4.5, 18) if abs(c) > 1e-6]
+        S, J = reference.S_up_pct, reference.J_up_pct
+        pairs = sj_local(S, J, s_span=0.06, n_s=7, j_span=0.2, n_j=3, j_zero=False)
+        cands = [_with_sj(reference, s, j).replace(char_c=float(c)) for c in cs for s, j in pairs]
+        sse = train_sse(stage, cands).reshape(len(cs), len(pairs))
+        order = np.argsort(sse.min(axis=1))[:3]
+        results = []
+        for i in order:
+            st = cands[int(i) * len(pairs) + int(np.argmin(sse[i]))]
+            st, _ = refit_dynamics(stage, st, rounds=1)
+            st = global_sj(stage, st)
+            st, _ = refit_dynamics(stage, st, rounds=1)
+            c0 = st.char_c
+            st, c = best_of(stage, [st.replace(char_c=float(c0 + d)) for d in np.linspace(-0.4, 0.4, 9)
+                                    if abs(c0 + d) > 1e-6])
+            results.append((c, st))
+        best = min(results, key=lambda t: t[0])[1]
+        best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5, both_f0=False)
+        best, _ = refit_dynamics(stage, best, rounds=1)
+        return best
+
+    def _params(self, struct, reference, stage, coef):
+        c = struct.char_c
+        # slope of the characteristic at 80 % over that at 20 % of travel: e^(0.6 c)
+        return {"rangeability_R": math.exp(c), "gain_ratio_80_20": math.exp(0.6 * c)}
+
+
+class ExternalDisturbance(PhysicsHypothesis):
+    """An oscillating load not caused by the valve: an additive sinusoid (period, amplitude)."""
+
+    name = "external_disturbance"
+    param_names = ("period_s", "amplitude")
+    side = PROCESS_SIDE
+    n_extra = 3
+    description = "oscillating external load"
+
+    def candidate_periods(self, stage: Stage, reference: Structure, context: Context, k: int = 3) -> list[float]:
+        """Periods of the largest residual spectral peaks away from the limit cycle's harmonics."""
+        if context.residual is not None:
+            r = np.asarray(context.residual, float)
+        else:
+            y_hat, _, _ = predict(stage, reference)
+            r = stage.y - y_hat
+        n = stage.n_fit
+        tr = stage.train[:n]
+        r = r[:n][tr]
+        m = r.shape[0]
+        r = r - np.polyval(np.polyfit(np.arange(m), r, 1), np.arange(m))
+        nfft = 4 * int(2 ** math.ceil(math.log2(m)))
+        P = np.abs(np.fft.rfft(r * np.hanning(m), nfft)) ** 2
+        f = np.fft.rfftfreq(nfft, stage.ts_s)
+        T = m * stage.ts_s
+        ok = (f >= 3.0 / T) & (f <= 0.4 / stage.ts_s)
+        if context.limit_cycle_period_s:
+            flc = 1.0 / context.limit_cycle_period_s
+            for h in range(1, 12):
+                ok &= np.abs(f - h * flc) > max(0.07 * h * flc, 1.5 / T)
+        idx = np.flatnonzero(ok[1:-1] & (P[1:-1] >= P[:-2]) & (P[1:-1] >= P[2:])) + 1
+        if idx.size == 0:
+            return []
+        top = idx[np.argsort(P[idx])[::-1][:k]]
+        return [float(1.0 / f[i]) for i in top]
+
+    def _search(self, stage, reference, context):
+        periods = self.candidate_periods(stage, reference, context)
+        if not periods:
+            return reference
+        T = stage.train.sum() * stage.ts_s
+        best, best_c = reference, math.inf
+        for p in periods:
+            f0 = 1.0 / p
+            fs = f0 + np.linspace(-1.0, 1.0, 21) / T
+            cands = [reference.replace(period_s=float(1.0 / f)) for f in fs if f > 0]
+            s, c = best_of(stage, cands)
+            f1 = 1.0 / s.period_s
+            cands = [reference.replace(period_s=float(1.0 / f)) for f in f1 + np.linspace(-0.1, 0.1, 11) / T]
+            s, c = best_of(stage, cands)
+            if c < best_c:
+                best, best_c = s, c
+        # the plain fit bent its valve and process to follow the load through OP: search again
+        best, _ = refit_dynamics(stage, best, rounds=1)
+        best = global_sj(stage, best)
+        best, _ = refit_dynamics(stage, best, rounds=1)
+        f1 = 1.0 / best.period_s
+        best, _ = best_of(stage, [best.replace(period_s=float(1.0 / f))
+                                  for f in f1 + np.linspace(-0.1, 0.1, 11) / T])
+        best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        return best
+
+    def _params(self, struct, reference, stage, coef):
+        if struct.period_s is None:
+            return {"period_s": float("nan"), "amplitude": 0.0}
+        a, b = coef[-2], coef[-1]
+        return {"period_s": struct.period_s, "amplitude": float(math.hypot(a, b))}
+
+
+class TimeVaryingFriction(PhysicsHypothesis):
+    """S and J drifting linearly over the record (wear, temperature, maintenance)."""
+
+    name = "time_varying_friction"
+    param_names = ("S_start_pct", "J_start_pct", "dS_pct_per_h", "dJ_pct_per_h")
+    side = VALVE_SIDE
+    n_extra = 2
+    description = "friction drifting over the record"
+
+    def _search(self, stage, reference, context):
+        T = max(stage.n_fit * stage.ts_s, stage.ts_s)
+        S = max(reference.S_up_pct, 0.2)
+        J = max(reference.J_up_pct, 0.05)
+        # relative change of S (and J alike) over the fitted span, and S at the start
+        changes = np.concatenate([np.linspace(-0.7, -0.05, 8), np.linspace(0.05, 2.5, 16)])
+        starts = np.exp(np.linspace(math.log(0.35), math.log(1.2), 30))
+        cands = []
+        for ms in starts:
+            for ch in changes:
+                for f in (1, -1):
+                    s0, j0 = S * ms, J * ms
+                    cands.append(_with_sj(reference, s0, j0, f).replace(
+                        dS_pct_per_s=s0 * ch / T, dJ_pct_per_s=j0 * ch / T))
+        cands.append(reference)
+        best, _ = best_of(stage, cands)
+        for rnd in range(2):
+            s0, j0 = best.S_up_pct, max(best.J_up_pct, 0.05)
+            rs = best.dS_pct_per_s * T / max(s0, 1e-9)
+            rj = best.dJ_pct_per_s * T / max(j0, 1e-9)
+            span = 0.06 if rnd == 0 else 0.02
+            cands = [best.replace(S_up_pct=s0 * ms, S_dn_pct=s0 * ms, dS_pct_per_s=s0 * ms * (rs + d) / T)
+                     for ms in 1.0 + np.linspace(-span, span, 9) for d in np.linspace(-0.25, 0.25, 11) * (span / 0.06)]
+            cands.append(best)
+            best, _ = best_of(stage, cands)
+            cands = [best.replace(J_up_pct=j0 * mj, J_dn_pct=j0 * mj, dJ_pct_per_s=j0 * mj * (rj + d) / T)
+                     for mj in 1.0 + np.linspace(-3 * span, 3 * span, 7) for d in np.linspace(-0.5, 0.5, 7)]
+            cands.append(best)
+            best, _ = best_of(stage, cands)
+            best, _ = refit_dynamics(stage, best, rounds=1)
+        return best
+
+    def _params(self, struct, reference, stage, coef):
+        return {"S_start_pct": struct.S_up_pct, "J_start_pct": struct.J_up_pct,
+                "dS_pct_per_h": struct.dS_pct_per_s * 3600.0, "dJ_pct_per_h": struct.dJ_pct_per_s * 3600.0}
+
+
+REGISTRY: dict[str, PhysicsHypothesis] = {}
+
+
+def register(hypothesis: PhysicsHypothesis) -> PhysicsHypothesis:
+    """Add a hypothesis to the registry (its `name` must be new)."""
+    if not hypothesis.name or hypothesis.name in REGISTRY:
+        raise ValueError(f"hypothesis name {hypothesis.name!r} is empty or already registered")
+    REGISTRY[hypothesis.name] = hypothesis
+    return hypothesis
+
+
+for _cls in (ActuatorLag, AsymmetricStiction, ValveCharacteristic, ExternalDisturbance, TimeVaryingFriction):
+    register(_cls())
+
+
+def get(names: Any = None) -> list[PhysicsHypothesis]:
+    """Registered hypotheses by name (all when ``names`` is None)."""
+    if names is None:
+        return list(REGISTRY.values())
+    out = []
+    for nm in names:
+        if nm not in REGISTRY:
+            raise DataError(f"unknown hypothesis {nm!r}; choose from {', '.join(REGISTRY)}")
+        out.append(REGISTRY[nm])
+    return out

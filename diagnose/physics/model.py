@@ -1,0 +1,428 @@
+"""The augmented Hammerstein model every hypothesis fits, and the small searches that fit it.
+
+Model (one *stage* of the loop, input ``x`` and target ``y``)::
+
+    stem  = augmented_valve(x; S_up, J_up, S_dn, J_dn, dS, dJ, f0, tau_lag)   (identity when the
+                                                                               input is already MV)
+    u     = characteristic(stem; c)                                           (c = 0: linear)
+    z     = ProcessModel(kind, tau, tau2, delay).regressor(u)                 (identity on the valve stage)
+    y_hat = gain * z + bias [+ slope * t (integrating)] [+ a sin(w t) + b cos(w t)]
+
+The linear coefficients (gain, bias, slope, a, b) are solved by least squares on the *training*
+samples for every candidate (separable least squares), the physical parameters are searched on
+small grids around the baseline. Stages:
+
+* ``loop``: OP -> PV, the fitting stage's Hammerstein model (OP/PV records);
+* ``valve``: OP -> MV, the valve alone (records with the stem position).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+from numba import njit
+
+from ..errors import DataError
+from ..process_model import ProcessModel, lag_coefficient
+from .valve import augmented_valve, characteristic
+
+IDENTITY = ProcessModel(kind="foptd", gain=1.0, tau_s=0.0, delay_s=0.0, bias=0.0)
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Physical parameters of one augmented model (the linear coefficients are refit per use).
+
+    Parameters
+    ----------
+    S_up_pct, J_up_pct, S_dn_pct, J_dn_pct : float
+        Stiction opening / closing, % of span.
+    dS_pct_per_s, dJ_pct_per_s : float
+        Linear drift of S and J from the first sample, % of span per second.
+    f0 : {+1, -1}
+        Starting direction of the valve.
+    tau_lag_s : float
+        Actuator lag after the friction, seconds.
+    char_c : float
+        Installed characteristic exponent c = ln R (0: linear).
+    process : ProcessModel
+        Dynamics of the linear part (gain and bias are refit).
+    period_s : float or None
+        Period of an additive sinusoidal load.
+    """
+
+    S_up_pct: float = 0.0
+    J_up_pct: float = 0.0
+    S_dn_pct: float = 0.0
+    J_dn_pct: float = 0.0
+    dS_pct_per_s: float = 0.0
+    dJ_pct_per_s: float = 0.0
+    f0: int = 1
+    tau_lag_s: float = 0.0
+    char_c: float = 0.0
+    process: ProcessModel = IDENTITY
+    period_s: float | None = None
+
+    @classmethod
+    def plain(cls, S_pct: float, J_pct: float, f0: int, process: ProcessModel) -> "Structure":
+        return cls(S_up_pct=S_pct, J_up_pct=J_pct, S_dn_pct=S_pct, J_dn_pct=J_pct, f0=int(f0),
+                   process=process)
+
+    def replace(self, **kw) -> "Structure":
+        return dataclasses.replace(self, **kw)
+
+
+@dataclass(frozen=True, eq=False)
+class Stage:
+    """Input, target and split of one stage.
+
+    Parameters
+    ----------
+    name : {"loop", "valve"}
+    x : ndarray (n,)
+        Input, % of span (OP).
+    y : ndarray (n,)
+        Target (PV in engineering units, or MV in %).
+    ts_s : float
+    train : ndarray of bool (n,)
+        Samples the fit may score; the rest is held out.
+    """
+
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    ts_s: float
+    train: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def n_fit(self) -> int:
+        """Samples to simulate while searching (through the last training sample)."""
+        idx = np.flatnonzero(self.train)
+        return int(idx[-1]) + 1 if idx.size else self.n
+
+    @property
+    def fixed_dynamics(self) -> bool:
+        return self.name == "valve"
+
+    @property
+    def heldout(self) -> np.ndarray:
+        """Samples after the training part (samples left out at the start are not held out)."""
+        return np.arange(self.n) >= self.n_fit
+
+
+def _design(z: np.ndarray, struct: Structure, ts_s: float, n: int) -> np.ndarray:
+    cols = [z, np.ones(n)]
+    t = np.arange(n) * ts_s
+    if struct.process.kind == "integrating":
+        cols.append(t)
+    if struct.period_s is not None:
+        w = 2.0 * np.pi / struct.period_s
+        cols.append(np.sin(w * t))
+        cols.append(np.cos(w * t))
+    return np.column_stack(cols)
+
+
+def stems(stage: Stage, structs: Sequence[Structure], n: int | None = None) -> np.ndarray:
+    """Simulated stem positions (rows) of many structures over the stage's input."""
+    n = stage.n if n is None else n
+    x = stage.x[:n]
+    if stage.name == "process":
+        return np.broadcast_to(x, (len(structs), n))
+    arr = lambda f: np.array([f(s) for s in structs], dtype=float)  # noqa: E731
+    return augmented_valve(x, S_up=arr(lambda s: s.S_up_pct), J_up=arr(lambda s: s.J_up_pct),
+                           S_dn=arr(lambda s: s.S_dn_pct), J_dn=arr(lambda s: s.J_dn_pct),
+                           dS_pct_per_s=arr(lambda s: s.dS_pct_per_s),
+                           dJ_pct_per_s=arr(lambda s: s.dJ_pct_per_s),
+                           f0=arr(lambda s: s.f0), tau_lag_s=arr(lambda s: s.tau_lag_s),
+                           ts_s=stage.ts_s)
+
+
+def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):
+    u = characteristic(stem, struct.char_c) if struct.char_c else stem
+    proc = struct.process
+    z = u if (proc.tau_s == 0 and proc.delay_s == 0 and proc.kind != "integrating") \
+        else proc.regressor(u, stage.ts_s)
+    X = _design(z, struct, stage.ts_s, n)
+    tr = stage.train[:n]
+    coef, *_ = np.linalg.lstsq(X[tr], stage.y[:n][tr], rcond=None)
+    if not np.all(np.isfinite(coef)):
+        coef = np.zeros(X.shape[1])
+    return X @ coef, coef
+
+
+def predict(stage: Stage, struct: Structure, stem: np.ndarray | None = None):
+    """Whole-record prediction, with the linear coefficients fitted on the training samples.
+
+    Returns
+    -------
+    y_hat : ndarray (n,)
+    stem : ndarray (n,)
+    coef : ndarray
+    """
+    if stem is None:
+        stem = stems(stage, [struct])[0]
+    y_hat, coef = _linear_fit(stage, struct, stem, stage.n)
+    return y_hat, stem, coef
+
+
+@njit(cache=True, nogil=True)
+def _sse_kernel(U, a1, a2, d, integ, ts_s, E, y, w, out):  # pragma: no cover - compiled
+    """Training SSE of rows of U through lags (a1, a2 < 0: first order), dead time d and an
+    optional integrator, with columns [z, 1, E...] solved by weighted least squares per row."""
+    m, n = U.shape
+    q = E.shape[1]
+    p = 2 + q
+    for i in range(m):
+        u0 = U[i, 0]
+        z1 = u0
+        z2 = u0
+        acc = 0.0
+        A = np.zeros((p, p))
+        b = np.zeros(p)
+        yy = 0.0
+        col = np.empty(p)
+        for k in range(n):
+            kd = k - d[i]
+            ud = U[i, kd] if kd >= 0 else u0
+            z1 = a1[i] * z1 + (1.0 - a1[i]) * ud
+            if a2[i] >= 0.0:
+                z2 = a2[i] * z2 + (1.0 - a2[i]) * z1
+            else:
+                z2 = z1
+            if integ[i]:
+                acc += ts_s * z2
+                zk = acc
+            else:
+                zk = z2
+            wk = w[k]
+            if wk == 0.0:
+                continue
+            if q == 0:
+                A[0, 0] += wk * zk * zk
+                A[0, 1] += wk * zk
+                A[1, 1] += wk
+                b[0] += wk * zk * y[k]
+                b[1] += wk * y[k]
+                yy += wk * y[k] * y[k]
+                continue
+            col[0] = zk
+            col[1] = 1.0
+            for j in range(q):
+                col[2 + j] = E[k, j]
+            for r in range(p):
+                b[r] += wk * col[r] * y[k]
+                for c in range(p):
+                    A[r, c] += wk * col[r] * col[c]
+            yy += wk * y[k] * y[k]
+        if q == 0:
+            A[1, 0] = A[0, 1]
+        for r in range(p):
+            A[r, r] += 1e-9 * (A[r, r] + 1e-12)
+        coef = np.linalg.solve(A, b)
+        sse = yy - 2.0 * (coef @ b) + coef @ (A @ coef)
+        out[i] = max(sse, 0.0)
+    return out
+
+
+def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.ndarray:
+    t = np.arange(n) * ts_s
+    cols = []
+    if integ:
+        cols.append(t)
+    if struct.period_s is not None:
+        w = 2.0 * np.pi / struct.period_s
+        cols += [np.sin(w * t), np.cos(w * t)]
+    return np.column_stack(cols) if cols else np.zeros((n, 0))
+
+
+def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
+    """Training sum of squared errors of each structure (simulated through the training part)."""
+    n = stage.n_fit
+    Y = stems(stage, structs, n)
+    tr = stage.train[:n].astype(np.float64)
+    yv = np.ascontiguousarray(stage.y[:n], dtype=np.float64)
+    out = np.empty(len(structs))
+    groups: dict = {}
+    for i, s in enumerate(structs):
+        proc = s.process
+        groups.setdefault((s.period_s, proc.kind == "integrating"), []).append(i)
+    for (period, integ), idx in groups.items():
+        m = len(idx)
+        U = np.empty((m, n))
+        a1 = np.empty(m)
+        a2 = np.empty(m)
+        d = np.empty(m, np.int64)
+        ig = np.full(m, integ, np.bool_)
+        for j, i in enumerate(idx):
+            s = structs[i]
+            U[j] = characteristic(Y[i], s.char_c) if s.char_c else Y[i]
+            proc = s.process
+            a1[j] = lag_coefficient(proc.tau_s, stage.ts_s)
+            a2[j] = lag_coefficient(proc.tau2_s, stage.ts_s) if proc.kind == "soptd" else -1.0
+            d[j] = int(round(proc.delay_s / stage.ts_s))
+        E = np.ascontiguousarray(_extra_columns(structs[idx[0]], stage.ts_s, n, integ))
+        res = np.empty(m)
+        _sse_kernel(U, a1, a2, d, ig, float(stage.ts_s), E, yv, tr, res)
+        out[idx] = res
+    return out
+
+
+def best_of(stage: Stage, structs: Sequence[Structure]) -> tuple[Structure, float]:
+    structs = list(structs)
+    sse = train_sse(stage, structs)
+    sse = np.where(np.isfinite(sse), sse, np.inf)
+    i = int(np.argmin(sse))
+    return structs[i], float(sse[i])
+
+
+def refit_dynamics(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Structure, float]:
+    """Refit the process time constants and dead time by a local grid (coordinate rounds)."""
+    if stage.fixed_dynamics:
+        return best_of(stage, [struct])
+    n = stage.n_fit
+    stem = stems(stage, [struct], n)[0]
+    tr = stage.train[:n]
+    ts = stage.ts_s
+
+    def cost(p: ProcessModel) -> float:
+        y_hat, _ = _linear_fit(stage, struct.replace(process=p), stem, n)
+        e = (stage.y[:n] - y_hat)[tr]
+        return float(e @ e)
+
+    best = struct.process
+    best_c = cost(best)
+    for r in range(rounds):
+        span = (0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0) if r == 0 else (0.8, 0.9, 1.0, 1.1, 1.25)
+        d0 = int(round(best.delay_s / ts))
+        cands = []
+        tau0 = max(best.tau_s, ts)
+        for m in span:
+            for dd in (-2, -1, 0, 1, 2):
+                d = d0 + dd
+                if d < 0:
+                    continue
+                cands.append(dataclasses.replace(best, tau_s=tau0 * m, delay_s=d * ts))
+        if best.kind == "soptd":
+            tau20 = max(best.tau2_s, ts)
+            cands += [dataclasses.replace(best, tau2_s=tau20 * m) for m in span]
+        for p in cands:
+            c = cost(p)
+            if c < best_c:
+                best, best_c = p, c
+    return struct.replace(process=best), best_c
+
+
+def sj_local(S_pct: float, J_pct: float, *, s_span: float, n_s: int, j_span: float, n_j: int,
+             floor_pct: float = 0.2, j_zero: bool = True) -> list[tuple[float, float]]:
+    """Candidate (S, J) pairs around a centre: S (1 + linspace(-s_span, s_span, n_s)), J likewise.
+
+    The output-error cost of a stiction model is sharp in S (a few per cent of S move every slip
+    by samples), so searches step S by 1-3 %.
+    """
+    S0 = max(S_pct, floor_pct)
+    J0 = max(J_pct, 0.25 * floor_pct)
+    out = []
+    for ms in 1.0 + np.linspace(-s_span, s_span, n_s):
+        for mj in 1.0 + np.linspace(-j_span, j_span, n_j):
+            out.append((float(S0 * ms), float(max(J0 * mj, 0.0))))
+        if j_zero:
+            out.append((float(S0 * ms), 0.0))
+    return out
+
+
+def sj_grid(S_pct: float, J_pct: float, *, s_mult: Iterable[float], j_mult: Iterable[float],
+            floor_pct: float = 0.2) -> list[tuple[float, float]]:
+    """Candidate (S, J) pairs around a centre (multiplicative, with a floor for tiny values)."""
+    S0 = max(S_pct, floor_pct)
+    J0 = max(J_pct, floor_pct * 0.5)
+    out = []
+    for ms in s_mult:
+        for mj in j_mult:
+            out.append((S0 * ms, J0 * mj))
+    if J_pct <= floor_pct:
+        out += [(S0 * ms, 0.0) for ms in s_mult]
+    return out
+
+
+def refine_sj(stage: Stage, struct: Structure, *, s_span: float = 0.12, n_s: int = 13,
+              j_span: float = 0.4, n_j: int = 9, both_f0: bool = True) -> tuple[Structure, float]:
+    """Local symmetric (S, J) grid (and f0) around ``struct``, other parameters fixed."""
+    S, J = struct.S_up_pct, struct.J_up_pct
+    fs = (1, -1) if both_f0 else (struct.f0,)
+    cands = [struct.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=j, J_dn_pct=j, f0=f)
+             for s, j in sj_local(S, J, s_span=s_span, n_s=n_s, j_span=j_span, n_j=n_j) for f in fs]
+    cands.append(struct)
+    return best_of(stage, cands)
+
+
+def refine_plain(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Structure, float]:
+    """Local refit of the plain model (S, J, f0 and the dynamics): the null model's refit.
+
+    Every hypothesis is compared with this refit, so an improvement is due to the added physics
+    and not to a different search.
+    """
+    sse = math.inf
+    for r in range(rounds):
+        struct, sse = refine_sj(stage, struct, s_span=0.15 if r == 0 else 0.04,
+                                n_s=16 if r == 0 else 9, j_span=0.4 if r == 0 else 0.12,
+                                n_j=9 if r == 0 else 5)
+        struct, sse = refit_dynamics(stage, struct, rounds=1)
+    struct, sse = refine_sj(stage, struct, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
+    return struct, sse
+
+
+def global_sj(stage: Stage, struct: Structure, span: float | None = None, step: float = 0.025) -> Structure:
+    """Fine global symmetric (S, J, f0) grid at fixed other parameters (S in geometric steps of
+    ``step`` from 0.2 % to 80 % of OP's range), then a local polish."""
+    if span is None:
+        span = float(np.ptp(stage.x[: stage.n_fit]))
+    hi = max(0.8 * span, 0.3)
+    S_grid = np.exp(np.arange(math.log(0.2), math.log(hi) + 1e-9, math.log1p(step)))
+    ratios = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.45)
+    cands = [struct.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f)
+             for s in S_grid for r in ratios for f in (1, -1)]
+    cands += [struct.replace(S_up_pct=0.0, S_dn_pct=0.0, J_up_pct=0.0, J_dn_pct=0.0), struct]
+    best = best_of(stage, cands)[0]
+    return refine_sj(stage, best, s_span=0.03, n_s=7, j_span=0.15, n_j=7)[0]
+
+
+def rmse(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(e)))) if e.size else float("nan")
+
+
+def effective_n(e: np.ndarray, max_lag: int | None = None) -> float:
+    """Effective number of independent samples of a residual (integrated autocorrelation time).
+
+    Sums the autocorrelation until it first drops below 0.05 (Sokal-style window).
+    """
+    e = np.asarray(e, float) - float(np.mean(e))
+    n = e.shape[0]
+    if n < 8:
+        return float(max(n, 1))
+    var = float(e @ e)
+    if var <= 0:
+        return float(n)
+    max_lag = min(n // 4, 500) if max_lag is None else max_lag
+    f = np.fft.rfft(e, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[: max_lag + 1] / var
+    tau = 1.0
+    for k in range(1, max_lag + 1):
+        if ac[k] < 0.05:
+            break
+        tau += 2.0 * ac[k]
+    return float(max(min(n / tau, n), 5.0))
+
+
+def validate_stage_data(x: np.ndarray, y: np.ndarray, what: str) -> None:
+    if np.ptp(x) <= 0:
+        raise DataError(f"OP is constant over the record; {what} needs a moving controller output")
+    if np.ptp(y) <= 0:
+        raise DataError(f"the target series is constant over the record; {what} has nothing to explain")

@@ -1,0 +1,164 @@
+"""Simulator parts that hide one piece of missing physics in a closed loop.
+
+They follow the `diagnose.simulate` protocols (a valve has ``reset(x0_pct)`` and ``step(x_pct)``; a
+process has ``reset(u0_pct, ts_s)`` and ``step(u_pct)``), so ``simulate_loop(valve=LaggedValve(...))``
+produces a record whose plant has the effect while the baseline model does not. A sinusoidal
+external load needs no part: pass ``load=diagnose.simulate.sinusoid(...)`` to `simulate_loop`.
+
+`AugmentedValve` is the step-by-step reference of `diagnose.physics.valve.augmented_valve` (the
+compiled kernel the hypotheses fit); the tests check that both agree sample for sample.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import DataError
+
+
+def _clip(v: float) -> float:
+    return 0.0 if v < 0.0 else (100.0 if v > 100.0 else v)
+
+
+def _sign(v: float) -> float:
+    return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+
+
+class AugmentedValve:
+    """A sticky valve with direction-dependent and drifting friction and an actuator lag.
+
+    Parameters
+    ----------
+    S_up_pct, J_up_pct : float
+        Stiction while opening (direction +1), % of span.
+    S_dn_pct, J_dn_pct : float, optional
+        Stiction while closing (direction -1); default the opening values.
+    dS_pct_per_s, dJ_pct_per_s : float
+        Linear drift of S and J per second after `reset` (clipped at 0).
+    tau_lag_s : float
+        First-order actuator lag after the friction element, seconds (0: none).
+    ts_s : float
+        Sample period, seconds (needed by the lag and the drift).
+    f0 : {+1, -1}
+        Direction of the last motion before the start.
+    """
+
+    def __init__(self, S_up_pct: float, J_up_pct: float, S_dn_pct: float | None = None,
+                 J_dn_pct: float | None = None, *, dS_pct_per_s: float = 0.0,
+                 dJ_pct_per_s: float = 0.0, tau_lag_s: float = 0.0, ts_s: float = 1.0,
+                 f0: int = 1) -> None:
+        S_dn_pct = S_up_pct if S_dn_pct is None else S_dn_pct
+        J_dn_pct = J_up_pct if J_dn_pct is None else J_dn_pct
+        for nm, v in (("S_up_pct", S_up_pct), ("J_up_pct", J_up_pct), ("S_dn_pct", S_dn_pct),
+                      ("J_dn_pct", J_dn_pct)):
+            if not (math.isfinite(v) and v >= 0):
+                raise DataError(f"{nm} must be finite and >= 0 % of span, got {v}")
+        if not (ts_s > 0 and tau_lag_s >= 0):
+            raise DataError("ts_s must be > 0 and tau_lag_s >= 0 seconds")
+        if f0 not in (1, -1):
+            raise DataError(f"starting direction f0 must be +1 or -1, got {f0!r}")
+        self.S_up, self.J_up, self.S_dn, self.J_dn = map(float, (S_up_pct, J_up_pct, S_dn_pct, J_dn_pct))
+        self.dS, self.dJ = float(dS_pct_per_s), float(dJ_pct_per_s)
+        self.ts_s = float(ts_s)
+        self.tau_lag_s = float(tau_lag_s)
+        self.a = math.exp(-ts_s / tau_lag_s) if tau_lag_s > 0 else 0.0
+        self.f0 = int(f0)
+        self.reset(0.0)
+
+    def reset(self, x0_pct: float) -> float:
+        x0 = _clip(float(x0_pct))
+        self.k = 0
+        self.x_prev = x0
+        self.v_prev = 0.0
+        self.y = x0
+        self.z = x0
+        self.x_ss = x0
+        self.stuck = True
+        self.f = float(self.f0)
+        return self.z
+
+    def _sj(self) -> tuple[float, float, float, float]:
+        t = self.k * self.ts_s
+        return (max(self.S_up + self.dS * t, 0.0), max(self.J_up + self.dJ * t, 0.0),
+                max(self.S_dn + self.dS * t, 0.0), max(self.J_dn + self.dJ * t, 0.0))
+
+    def step(self, x_pct: float) -> float:
+        self.k += 1
+        su, ju, sd, jd = self._sj()
+        x = _clip(float(x_pct))
+        v = x - self.x_prev
+        if (not self.stuck) and (v == 0.0 or _sign(v) != _sign(self.v_prev)):
+            self.stuck = True
+            self.x_ss = self.x_prev
+        moving = not self.stuck
+        if self.stuck:
+            s_new = sd if self.f > 0 else su
+            j_same = ju if self.f > 0 else jd
+            if -self.f * (x - self.x_ss) > s_new:
+                self.f = -self.f
+                self.stuck = False
+                moving = True
+            elif self.f * (x - self.x_ss) > j_same:
+                self.stuck = False
+                moving = True
+        if moving:
+            half = ((su - ju) if self.f > 0 else (sd - jd)) / 2.0
+            self.y = _clip(x - self.f * half)
+        self.z = self.a * self.z + (1.0 - self.a) * self.y
+        self.x_prev = x
+        self.v_prev = v
+        return self.z
+
+
+class LaggedValve(AugmentedValve):
+    """Stiction followed by a first-order actuator lag of ``tau_lag_s`` seconds."""
+
+    def __init__(self, S_pct: float, J_pct: float, tau_lag_s: float, *, ts_s: float = 1.0,
+                 f0: int = 1) -> None:
+        super().__init__(S_pct, J_pct, tau_lag_s=tau_lag_s, ts_s=ts_s, f0=f0)
+
+
+class AsymmetricStictionValve(AugmentedValve):
+    """Different (S, J) when opening and when closing."""
+
+    def __init__(self, S_up_pct: float, J_up_pct: float, S_dn_pct: float, J_dn_pct: float, *,
+                 f0: int = 1) -> None:
+        super().__init__(S_up_pct, J_up_pct, S_dn_pct, J_dn_pct, f0=f0)
+
+
+class DriftingStictionValve(AugmentedValve):
+    """S and J drifting linearly in time (packing wear, temperature): ``S(t) = S0 + dS t``."""
+
+    def __init__(self, S0_pct: float, J0_pct: float, *, dS_pct_per_s: float, dJ_pct_per_s: float,
+                 ts_s: float = 1.0, f0: int = 1) -> None:
+        super().__init__(S0_pct, J0_pct, dS_pct_per_s=dS_pct_per_s, dJ_pct_per_s=dJ_pct_per_s,
+                         ts_s=ts_s, f0=f0)
+
+
+def equal_percentage(y_pct: float, R: float) -> float:
+    """Relative flow (% of maximum) of an equal-percentage valve: ``100 R^(y/100 - 1)``."""
+    return 100.0 * R ** (y_pct / 100.0 - 1.0)
+
+
+class CharacteristicProcess:
+    """A process whose input is the flow of an installed equal-percentage valve.
+
+    Parameters
+    ----------
+    process : Process
+        Any `diagnose.simulate` process (FOPTD, SOPTD, Integrating).
+    R : float
+        Rangeability (R > 1); the loop gain at the stem grows as ``ln R * flow``.
+    """
+
+    def __init__(self, process, R: float) -> None:
+        if not R > 1:
+            raise DataError(f"rangeability R must be > 1, got {R}")
+        self.process = process
+        self.R = float(R)
+
+    def reset(self, u0_pct: float, ts_s: float) -> float:
+        return self.process.reset(equal_percentage(u0_pct, self.R), ts_s)
+
+    def step(self, u_pct: float) -> float:
+        return self.process.step(equal_percentage(u_pct, self.R))

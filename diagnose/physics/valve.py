@@ -1,0 +1,150 @@
+"""The augmented valve: the two-parameter stiction model with the physics it leaves out.
+
+One compiled kernel runs many candidate valves over one input series. Each candidate has
+
+* separate stiction for the two directions of motion: ``S_up, J_up`` (opening, f = +1) and
+  ``S_dn, J_dn`` (closing, f = -1), % of span;
+* a linear drift of S and J over the record, ``dS_pct_per_s``, ``dJ_pct_per_s`` (values clipped at 0);
+* a first-order actuator lag *after* the friction element, discrete pole ``a_lag`` (0: no lag);
+* a starting direction ``f0``.
+
+With S_up = S_dn, J_up = J_dn, no drift and no lag it equals `diagnose.stiction_model.stiction_batch`
+sample for sample (tests/test_physics_valve.py pins this). Reversal into direction f must beat S of
+direction f; a restart in the same direction f must beat J of direction f; while moving in direction
+f the stem sits at ``x - f (S_f - J_f) / 2``.
+
+`characteristic` is the static installed characteristic between stem position and flow.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..errors import DataError
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, ts_s, out):  # pragma: no cover
+    m = S_up.shape[0]
+    n = x.shape[0]
+    for i in range(m):
+        f = f0[i]
+        a = a_lag[i]
+        xp = min(max(x[0], 0.0), 100.0)
+        up = False
+        yp = xp
+        xss = xp
+        stuck = True
+        z = yp
+        out[i, 0] = z
+        for k in range(1, n):
+            t = k * ts_s
+            su = max(S_up[i] + dS[i] * t, 0.0)
+            sd = max(S_dn[i] + dS[i] * t, 0.0)
+            ju = max(J_up[i] + dJ[i] * t, 0.0)
+            jd = max(J_dn[i] + dJ[i] * t, 0.0)
+            xk = min(max(x[k], 0.0), 100.0)
+            v = xk - xp
+            up_k = v > 0.0
+            if not stuck and (v == 0.0 or up_k != up):
+                stuck = True
+                xss = xp
+            if stuck:
+                d = xk - xss
+                # reversal into direction -f must beat S of that direction
+                s_new = sd if f > 0 else su
+                j_same = ju if f > 0 else jd
+                if -f * d > s_new:
+                    f = -f
+                    stuck = False
+                elif f * d > j_same:
+                    stuck = False
+                if not stuck:
+                    half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+                    yp = min(max(xk - f * half, 0.0), 100.0)
+            else:
+                half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+                yp = min(max(xk - f * half, 0.0), 100.0)
+            z = a * z + (1.0 - a) * yp
+            out[i, k] = z
+            xp = xk
+            up = up_k
+    return out
+
+
+def _param(v, m: int) -> np.ndarray:
+    arr = np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (m,)))
+    return arr
+
+
+def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0,
+                    dJ_pct_per_s=0.0, f0=1, tau_lag_s=0.0, ts_s: float = 1.0) -> np.ndarray:
+    """Stem position of one or many augmented valves driven by one input series.
+
+    Parameters
+    ----------
+    x_pct : array_like, shape (n,)
+        Valve input (controller output), % of span.
+    S_up, J_up : float or array (m,)
+        Stiction while opening, % of span.
+    S_dn, J_dn : float or array (m,), optional
+        Stiction while closing (default: the opening values).
+    dS_pct_per_s, dJ_pct_per_s : float or array (m,)
+        Linear drift of S and J, % of span per second from the first sample.
+    f0 : {+1, -1} or array (m,)
+        Direction of the last motion before the record.
+    tau_lag_s : float or array (m,)
+        Time constant of the first-order actuator lag after the friction element, seconds.
+    ts_s : float
+        Sample period, seconds.
+
+    Returns
+    -------
+    ndarray, shape (m, n), or (n,) when every parameter is a scalar.
+    """
+    x = np.ascontiguousarray(x_pct, dtype=np.float64)
+    if x.ndim != 1:
+        raise DataError(f"x_pct must be one-dimensional, got shape {x.shape}")
+    if not ts_s > 0:
+        raise DataError(f"ts_s must be > 0 seconds, got {ts_s}")
+    S_dn = S_up if S_dn is None else S_dn
+    J_dn = J_up if J_dn is None else J_dn
+    params = [S_up, J_up, S_dn, J_dn, dS_pct_per_s, dJ_pct_per_s, f0, tau_lag_s]
+    scalar = all(np.ndim(p) == 0 for p in params)
+    m = max(int(np.size(p)) for p in params)
+    S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, tau_ = (_param(p, m) for p in params)
+    for nm, arr in (("S_up", S_up_), ("J_up", J_up_), ("S_dn", S_dn_), ("J_dn", J_dn_)):
+        if np.any(~np.isfinite(arr)) or np.any(arr < 0):
+            raise DataError(f"{nm} must be finite and >= 0 % of span")
+    if np.any((f0_ != 1.0) & (f0_ != -1.0)):
+        raise DataError("starting directions f0 must be +1 or -1")
+    if np.any(tau_ < 0) or np.any(~np.isfinite(tau_)):
+        raise DataError("tau_lag_s must be finite and >= 0 seconds")
+    a = np.where(tau_ > 0, np.exp(-ts_s / np.where(tau_ > 0, tau_, 1.0)), 0.0)
+    out = np.empty((m, x.shape[0]))
+    if x.shape[0]:
+        _aug_kernel(x, S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, np.ascontiguousarray(a),
+                    float(ts_s), out)
+    return out[0] if scalar else out
+
+
+def characteristic(y_pct, c: float) -> np.ndarray:
+    """Installed characteristic: relative flow (% of maximum) at stem position ``y_pct``.
+
+    ``c = ln R``: c > 0 is equal-percentage-like with rangeability R = e^c (normalised so that
+    0 % -> 0 and 100 % -> 100 %: ``100 (e^(c y/100) - 1) / (e^c - 1)``), c < 0 quick opening, c = 0
+    linear.
+    """
+    y = np.asarray(y_pct, dtype=float)
+    if abs(c) < 1e-9:
+        return y.copy()
+    return 100.0 * np.expm1(c * y / 100.0) / math.expm1(c)
+
+
+def characteristic_scalar(y: float, c: float) -> float:
+    if abs(c) < 1e-9:
+        return y
+    return 100.0 * math.expm1(c * y / 100.0) / math.expm1(c)

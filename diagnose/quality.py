@@ -1,0 +1,305 @@
+"""Data-quality assessment of a loop record (pure: arrays in, findings out, no I/O).
+
+`assess(record)` looks at the signals themselves and returns `diagnose.record.Finding`s:
+
+``compression``
+    Historian compression: long runs that are *exactly* straight (swinging door, interpolated
+    back) or exactly flat with arbitrary jumps between them (box-car / deadband, stepped back), in
+    OP or PV. Such records fake stiction shapes: the finding is a ``warning`` and the fitting stage
+    must lower its confidence.
+``quantisation``
+    Values on a coarse grid (few distinct levels over the signal's range).
+``op_saturation``
+    OP at 0 % or 100 % of span for a noticeable share of the record.
+``manual_mode``
+    Samples in manual, from ``meta["manual_intervals"]`` set by a connector that read a mode column.
+``frozen``
+    A value that does not change for a long stretch (a sensor or link that froze); an OP that never
+    moves at all is reported as ``frozen`` with ``data["whole_record"] = True`` (a ``warning``: the
+    loop cannot show stiction, and the diagnosis says so).
+
+Connector-level findings (``gap``, ``bad_values``, ``duplicates``, ``segment``,
+``irregular_sampling``) come from the reader, which sees the raw file.
+
+For tests and experiments the module also has the two classic compressors, `swinging_door` and
+`boxcar`, and `decompress` to interpolate archived points back onto the sample grid.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .record import Finding, LoopRecord
+
+# thresholds (documented in docs/connectors.md)
+LINE_MIN_POINTS = 6           # a straight run has at least this many samples on one line
+FLAT_MIN_POINTS = 5           # a flat run has at least this many equal samples
+COMPRESSION_LINEAR_FRAC = 0.25  # share of samples on sloped straight runs that means compression
+COMPRESSION_FLAT_FRAC = 0.60  # share on flat runs (not quantisation) that means box-car compression
+FROZEN_FRAC = 0.25            # one flat run this long (share of the record) is a frozen value
+FROZEN_MIN_POINTS = 30
+SATURATION_FRAC = 0.05
+QUANT_MAX_LEVELS = 50
+
+
+def _tolerance(x: np.ndarray) -> float:
+    """Largest spread of first differences that still counts as "exactly straight".
+
+    Float32 storage (about 2**-23 relative) and decimal rounding of the export leave small residues
+    on an interpolated straight line: rounded to a resolution r, the first differences of a
+    straight line take at most two neighbouring values, r apart.
+    """
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    tol = 4.0 * 2.0 ** -23 * scale + 1e-12
+    res = decimal_resolution(x)
+    if res is not None:
+        tol = max(tol, res * (1 + 1e-6) + 1e-9 * scale)
+    return tol
+
+
+def decimal_resolution(x: np.ndarray) -> float | None:
+    """10**-d for the fewest decimals d (<= 8) that write every value exactly, else None."""
+    if x.size == 0:
+        return None
+    sample = x[:: max(1, x.size // 2000)]
+    scale = max(1.0, float(np.max(np.abs(sample))))
+    for d in range(0, 9):
+        y = sample * 10.0 ** d
+        if np.all(np.abs(y - np.round(y)) <= 1e-6 * max(1.0, scale * 10.0 ** d * 1e-9) + 1e-9 * scale * 10.0 ** d):
+            return 10.0 ** -d
+    return None
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def straight_and_flat(x: np.ndarray) -> dict[str, Any]:
+    """Shares of samples on exactly straight sloped runs and on exactly flat runs."""
+    n = x.size
+    out = {"linear_frac": 0.0, "flat_frac": 0.0, "n_linear_runs": 0, "longest_flat": 0,
+           "longest_flat_start": 0, "tol": 0.0}
+    if n < LINE_MIN_POINTS + 2:
+        return out
+    tol = _tolerance(x)
+    out["tol"] = tol
+    d1 = np.diff(x)
+    d2 = np.abs(np.diff(d1))
+    flat_step = np.abs(d1) <= tol * 0.25
+    # flat runs: consecutive equal samples
+    s, e = _runs(flat_step)
+    lens = e - s + 1  # samples
+    keep = lens >= FLAT_MIN_POINTS
+    flat_cover = np.zeros(n, bool)
+    for a, b in zip(s[keep], e[keep]):
+        flat_cover[a:b + 1] = True
+    if np.any(keep):
+        k = int(np.argmax(lens))
+        out["longest_flat"] = int(lens[k])
+        out["longest_flat_start"] = int(s[k])
+    # straight runs: every window of LINE_MIN_POINTS samples whose first differences spread by at
+    # most tol, with a non-zero slope
+    w = LINE_MIN_POINTS - 1
+    lin_cover = np.zeros(n, bool)
+    n_runs = 0
+    if d1.size >= w:
+        win = np.lib.stride_tricks.sliding_window_view(d1, w)
+        straight = (np.ptp(win, axis=1) <= tol) & (np.abs(win.mean(axis=1)) > tol * 0.25)
+        s, e = _runs(straight)
+        n_runs = int(s.size)
+        for a, b in zip(s, e):
+            lin_cover[a:b - 1 + w + 1] = True
+    out["linear_frac"] = float(np.count_nonzero(lin_cover & ~flat_cover)) / n
+    out["flat_frac"] = float(np.count_nonzero(flat_cover)) / n
+    out["n_linear_runs"] = n_runs
+    return out
+
+
+def quantum(x: np.ndarray) -> dict[str, Any] | None:
+    """The value grid of a quantised signal: step size, levels over the range, or None."""
+    d = np.abs(np.diff(x))
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    d = d[d > 4.0 * 2.0 ** -23 * scale + 1e-12]
+    if d.size < 10:
+        return None
+    q = float(np.min(d))
+    r = d / q
+    on_grid = np.abs(r - np.round(r)) <= 0.02
+    if np.count_nonzero(on_grid) < 0.95 * d.size:
+        return None
+    span = float(np.percentile(x, 99) - np.percentile(x, 1))
+    levels = span / q if q > 0 else np.inf
+    return {"step": q, "levels": float(levels), "single_step_frac": float(np.mean(np.round(r) == 1))}
+
+
+def _compression(role: str, x: np.ndarray) -> Finding | None:
+    sf = straight_and_flat(x)
+    lin, flat = sf["linear_frac"], sf["flat_frac"]
+    kind = None
+    if lin >= COMPRESSION_LINEAR_FRAC and (sf["n_linear_runs"] >= 3 or lin >= 0.5):
+        kind = "swinging-door (straight runs)"
+    elif flat >= COMPRESSION_FLAT_FRAC and sf["longest_flat"] < FROZEN_FRAC * x.size:
+        q = quantum(x)
+        if q is None:
+            kind = "box-car (flat runs with jumps)"
+    if kind is None:
+        return None
+    return Finding(
+        "compression",
+        f"{role.upper()} looks historian-compressed ({kind}: {100 * lin:.0f} % of samples on exactly "
+        f"straight runs, {100 * flat:.0f} % on flat runs); interpolated compressed data can fake "
+        "stiction shapes: export raw/sampled values with compression off if you can",
+        "warning",
+        {"role": role, "kind": kind.split()[0], "linear_frac": round(lin, 4), "flat_frac": round(flat, 4),
+         "n_linear_runs": sf["n_linear_runs"]},
+    )
+
+
+def _frozen(role: str, x: np.ndarray, ts_s: float) -> Finding | None:
+    n = x.size
+    if n == 0:
+        return None
+    span = float(np.max(x) - np.min(x))
+    if span <= 4.0 * 2.0 ** -23 * float(np.max(np.abs(x))) + 1e-12:
+        return Finding("frozen", f"{role.upper()} never moves (constant {float(x[0]):.4g} over all {n} samples)"
+                       + ("; a loop whose OP never moves cannot show stiction" if role == "op" else ""),
+                       "warning", {"role": role, "whole_record": True, "value": float(x[0]), "samples": n})
+    sf = straight_and_flat(x)
+    L = sf["longest_flat"]
+    if L >= max(FROZEN_MIN_POINTS, FROZEN_FRAC * n):
+        return Finding("frozen", f"{role.upper()} stays exactly at {float(x[sf['longest_flat_start']]):.4g} "
+                       f"for {L} samples ({L * ts_s:.0f} s, {100 * L / n:.0f} % of the record): a frozen "
+                       "sensor, link or historian value?", "warning",
+                       {"role": role, "whole_record": False, "start": sf["longest_flat_start"], "samples": L})
+    return None
+
+
+def _quantisation(role: str, x: np.ndarray) -> Finding | None:
+    q = quantum(x)
+    if q is None or not np.isfinite(q["levels"]) or q["levels"] > QUANT_MAX_LEVELS:
+        return None
+    sev = "warning" if q["levels"] < 20 else "info"
+    return Finding("quantisation", f"{role.upper()} is quantised in steps of {q['step']:.4g} "
+                   f"({q['levels']:.0f} levels over its range); small valve moves may be hidden", sev,
+                   {"role": role, "step": q["step"], "levels": round(q["levels"], 1)})
+
+
+def _saturation(op: np.ndarray) -> Finding | None:
+    # at a limit = at 0 % (100 %) and exactly at the record's own minimum (maximum): clamped
+    mn, mx = float(np.min(op)), float(np.max(op))
+    eps = 1e-6 * max(1.0, abs(mn), abs(mx))
+    lo = float(np.mean((op <= 0.5) & (op <= mn + eps))) if mn >= -0.5 else 0.0
+    hi = float(np.mean((op >= 99.5) & (op >= mx - eps))) if mx <= 100.5 else 0.0
+    frac = lo + hi
+    if frac < 0.01:
+        return None
+    sev = "warning" if frac >= SATURATION_FRAC else "info"
+    where = "0 %" if lo >= hi else "100 %"
+    return Finding("op_saturation", f"OP is saturated (at 0 % or 100 % of span) for {100 * frac:.1f} % of the "
+                   f"record, mostly at {where}; the valve cannot move there", sev,
+                   {"frac_low": round(lo, 4), "frac_high": round(hi, 4)})
+
+
+def _manual(record: LoopRecord) -> Finding | None:
+    iv = record.meta.get("manual_intervals") if record.meta else None
+    if not iv:
+        return None
+    n_man = sum(int(b) - int(a) for a, b in iv)
+    if n_man <= 0:
+        return None
+    frac = n_man / max(1, record.n)
+    return Finding("manual_mode", f"the controller is in manual for {n_man} samples ({100 * frac:.1f} % of "
+                   "the record); closed-loop shapes do not apply there", "warning",
+                   {"samples": n_man, "frac": round(frac, 4), "intervals": [[int(a), int(b)] for a, b in iv][:50]})
+
+
+def assess(record: LoopRecord) -> tuple[Finding, ...]:
+    """Data-quality findings of a record from its signals (and ``meta["manual_intervals"]``)."""
+    out: list[Finding] = []
+    for role in ("op", "pv"):
+        x = getattr(record, role)
+        f = _frozen(role, x, record.ts_s)
+        if f is not None:
+            out.append(f)
+            if f.data.get("whole_record"):
+                continue
+        for check in (_compression, _quantisation):
+            f = check(role, x)
+            if f is not None:
+                out.append(f)
+    f = _saturation(record.op)
+    if f is not None:
+        out.append(f)
+    f = _manual(record)
+    if f is not None:
+        out.append(f)
+    return tuple(out)
+
+
+# ----------------------------------------------------------------------------------------- compressors
+
+def swinging_door(t: np.ndarray, x: np.ndarray, dev: float) -> np.ndarray:
+    """Indices of the points a swinging-door compressor with deviation ``dev`` archives.
+
+    Like a historian's archive it stores actual values (the point before the one that closed the
+    doors), so the linear interpolation between archived points can be up to ``2 * dev`` off a raw
+    point (usually much less).
+    """
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    n = x.size
+    if n <= 2:
+        return np.arange(n)
+    keep = [0]
+    a = 0
+    up, lo = np.inf, -np.inf
+    for i in range(1, n):
+        dt = t[i] - t[a]
+        s_up = (x[i] + dev - x[a]) / dt
+        s_lo = (x[i] - dev - x[a]) / dt
+        nu, nl = min(up, s_up), max(lo, s_lo)
+        if nl > nu:  # the doors opened past parallel: archive the previous point
+            a = i - 1
+            keep.append(a)
+            dt = t[i] - t[a]
+            up = (x[i] + dev - x[a]) / dt
+            lo = (x[i] - dev - x[a]) / dt
+        else:
+            up, lo = nu, nl
+    if keep[-1] != n - 1:
+        keep.append(n - 1)
+    return np.asarray(keep)
+
+
+def boxcar(x: np.ndarray, dev: float) -> np.ndarray:
+    """Indices a box-car (exception-deviation) filter archives: a point when it differs from the last
+    archived value by more than ``dev``, together with the point before it."""
+    x = np.asarray(x, float)
+    n = x.size
+    if n <= 2:
+        return np.arange(n)
+    keep = [0]
+    last = x[0]
+    for i in range(1, n):
+        if abs(x[i] - last) > dev:
+            if keep[-1] != i - 1:
+                keep.append(i - 1)
+            keep.append(i)
+            last = x[i]
+    if keep[-1] != n - 1:
+        keep.append(n - 1)
+    return np.asarray(keep)
+
+
+def decompress(t: np.ndarray, x: np.ndarray, idx: np.ndarray, *, kind: str = "linear") -> np.ndarray:
+    """Archived points ``idx`` back on the sample times ``t`` (``linear`` or ``step`` hold)."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    if kind == "linear":
+        return np.interp(t, t[idx], x[idx])
+    j = np.searchsorted(t[idx], t, side="right") - 1
+    return x[idx][np.clip(j, 0, idx.size - 1)]

@@ -1,0 +1,659 @@
+"""The nightly batch: find loops in files/folders, diagnose each, write reports and a plant summary.
+
+Flow: `discover` lists input files; each file is one task (`process_file`) run on a local process
+pool (default), inline (``workers=1``) or on Dask distributed (``scheduler="local"`` for a
+LocalCluster of ``workers`` processes, or a ``tcp://`` address). A task reads the file with
+`connectors.read_records`, diagnoses every loop in it (`diagnose.service.pipeline.diagnose`) and
+writes, per loop, into ``OUT/loops/LOOP/``: the figures (PNG), ``LOOP.md``, ``LOOP.pdf`` and last
+``LOOP.json``, all atomically. The parent collects the outcomes as they finish (progress bar on
+stderr), stores every result in the history database (one transaction per file), ranks the loops
+and writes ``summary.{md,pdf,csv,json}``.
+
+Resume: a loop is skipped when its ``LOOP.json`` already holds the same input hash (file content +
+read options + loop + pipeline options) and tool version; a whole file is skipped without being
+read when its state file under ``OUT/.stiction/`` says all its loops are done. A killed job re-run
+on the same inputs therefore redoes only what was not finished. A bad file or a failing loop becomes
+a ``failed`` row in the summary and the batch goes on.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import re
+import sys
+import time
+import traceback
+from concurrent.futures import Future
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+
+from ..errors import DataError, StictionError
+from .report import SUMMARY_COLUMNS, write_atomic
+
+INPUT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
+STATE_DIR = ".stiction"
+
+
+@dataclass(frozen=True)
+class BatchConfig:
+    """What every task needs (picklable: it travels to worker processes).
+
+    Parameters
+    ----------
+    out_dir : str
+        Output folder.
+    read_options : mapping
+        Passed to `connectors.read_records` (column names, ``ts_s``, ``tz``...).
+    tags : str, optional
+        Tag-map TOML file for `connectors.read_records`.
+    explain : bool or "auto"
+        Run the missing-physics stage (``"auto"``: only where the fitted model leaves a mismatch).
+    narx : bool
+        Select and free-run the NARX-SP model.
+    pdf : bool
+        Write ``LOOP.pdf`` too.
+    db : str, optional
+        History database, read by workers for each loop's earlier runs (degradation warning).
+    """
+
+    out_dir: str
+    read_options: Mapping[str, Any] = field(default_factory=dict)
+    tags: str | None = None
+    explain: bool | str = "auto"
+    narx: bool = True
+    pdf: bool = True
+    db: str | None = None
+
+    def options_key(self) -> str:
+        """The part of the input hash that the options make (what changes the result)."""
+        from .pipeline import tool_version
+
+        opts = {"read": dict(sorted(self.read_options.items())), "tags": _file_digest(self.tags),
+                "explain": self.explain, "narx": self.narx, "pdf": self.pdf, "version": tool_version()}
+        return json.dumps(opts, sort_keys=True, default=str)
+
+
+# ----------------------------------------------------------------------------------------------
+# discovery and hashing
+
+
+def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.PathLike] = ()
+             ) -> tuple[list[Path], list[dict[str, Any]]]:
+    """Input files (folders searched recursively for ``*.csv|tsv|txt|dat``) and missing inputs.
+
+    Hidden files/folders and anything under ``exclude`` (the output folder) are left out. Returns
+    the files in a stable order and one failure row per input path that does not exist.
+    """
+    excl = [Path(e).resolve() for e in exclude]
+    files: list[Path] = []
+    missing: list[dict[str, Any]] = []
+    seen: set[Path] = set()
+
+    def add(p: Path) -> None:
+        rp = p.resolve()
+        if rp in seen or any(rp == e or e in rp.parents for e in excl):
+            return
+        seen.add(rp)
+        files.append(p)
+
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            for root, dirs, names in os.walk(p):
+                dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+                for name in sorted(names):
+                    if not name.startswith(".") and name.lower().endswith(INPUT_SUFFIXES):
+                        add(Path(root) / name)
+        elif p.is_file():
+            add(p)
+        else:
+            missing.append(failure_row(str(p), str(p), f"{p}: no such file or folder"))
+    return files, missing
+
+
+def _file_digest(path: str | os.PathLike | None) -> str | None:
+    if path is None:
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def input_hash(file_digest: str, options_key: str, loop: str = "", segment: Any = None) -> str:
+    """The hash a loop's result is filed under: file content, options, tool version, loop."""
+    h = hashlib.sha256()
+    for part in (file_digest, options_key, loop, str(segment)):
+        h.update(part.encode("utf-8"))
+        h.update(b"\0")
+    return h.hexdigest()[:32]
+
+
+_SAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def safe_name(text: str) -> str:
+    """A file-system-safe loop id (``FIC 101/A`` -> ``FIC_101_A``)."""
+    s = _SAFE.sub("_", str(text)).strip("._") or "loop"
+    return s[:100]
+
+
+def _one_line(exc: BaseException) -> str:
+    msg = str(exc).strip().splitlines()
+    text = msg[0] if msg else ""
+    if isinstance(exc, StictionError):
+        return text or type(exc).__name__
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def failure_row(loop: str, source: str, error: str) -> dict[str, Any]:
+    return {"loop": loop, "status": "failed", "source": source, "error": error}
+
+
+# ----------------------------------------------------------------------------------------------
+# one loop, one file (run in workers)
+
+
+def loop_row(result: Mapping[str, Any], report: str | None, *, skipped: bool = False,
+             degradation: str | None = None) -> dict[str, Any]:
+    """The summary row of one diagnosed loop."""
+    from .pipeline import _interval, oscillation_info, stiction_present
+
+    def r4(v: Any) -> Any:
+        return round(v, 4) if isinstance(v, float) else v
+
+    slo, shi = (r4(v) for v in _interval(result.get("S_interval")))
+    jlo, jhi = (r4(v) for v in _interval(result.get("J_interval")))
+    warns = result.get("warnings") or []
+    osc = oscillation_info(result)
+    return {
+        "loop": result.get("loop_id") or result.get("loop"),
+        "status": "ok",
+        "severity": (result.get("severity") or {}).get("score"),
+        "verdict": result.get("verdict"),
+        "class": result.get("class"),
+        "sticky": bool(stiction_present(result)),
+        "S_pct": r4(result.get("S")), "S_lo": slo, "S_hi": shi,
+        "J_pct": r4(result.get("J")), "J_lo": jlo, "J_hi": jhi,
+        "confidence": r4(result.get("confidence")),
+        "oscillation_period_s": r4(osc["period_s"]) if osc["present"] else None,
+        "warnings": len(warns),
+        "data_quality_warnings": sum(1 for w in warns if str(w.get("code", "")).startswith("data_quality.")),
+        "degradation": degradation or result.get("degradation"),
+        "action": result.get("action"),
+        "report": report,
+        "source": (result.get("record") or {}).get("source"),
+        "error": None,
+        "input_hash": result.get("input_hash"),
+        "skipped": skipped,
+        "seconds": sum((result.get("timings_s") or {}).values()),
+    }
+
+
+def _loop_dir(cfg: BatchConfig, loop_id: str) -> Path:
+    return Path(cfg.out_dir) / "loops" / loop_id
+
+
+def _existing(cfg: BatchConfig, loop_id: str) -> dict[str, Any] | None:
+    p = _loop_dir(cfg, loop_id) / f"{loop_id}.json"
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def _choose_loop_id(cfg: BatchConfig, record: Any, path: Path) -> str:
+    base = safe_name(record.name)
+    nseg = record.meta.get("n_segments") or 1
+    if nseg > 1:
+        base += f"_seg{int(record.meta.get('segment', 0)) + 1}"
+    prev = _existing(cfg, base)
+    src = str(path)
+    if prev is not None and (prev.get("record") or {}).get("source") not in (None, src):
+        return f"{base}__{safe_name(path.stem)}"
+    return base
+
+
+def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
+                       history_rows: Sequence[Mapping[str, Any]] = (),
+                       degradation: str | None = None) -> str:
+    """Figures, Markdown, PDF, then JSON (the done marker) of one loop; returns the report's path
+    relative to the output folder."""
+    from . import figures as figs
+    from .report import loop_blocks, to_markdown
+
+    d = _loop_dir(cfg, loop_id)
+    d.mkdir(parents=True, exist_ok=True)
+    for stale in d.glob(".*.tmp"):  # left by a killed job
+        stale.unlink(missing_ok=True)
+    hist_for_fig = list(history_rows) + ([{"run_at": "this run", "S_pct": diag.result.get("S"),
+                                           "J_pct": diag.result.get("J")}] if history_rows else [])
+    pngs = figs.loop_figures(diag, hist_for_fig)
+    for name, png in pngs.items():
+        write_atomic(d / f"{name}.png", png)
+    blocks = loop_blocks(diag.result, list(pngs), history_rows=list(history_rows), degradation=degradation)
+    write_atomic(d / f"{loop_id}.md", to_markdown(blocks))
+    if cfg.pdf:
+        from .pdf import to_pdf
+
+        write_atomic(d / f"{loop_id}.pdf", to_pdf(blocks, pngs, title=f"Stiction report {loop_id}"))
+    write_atomic(d / f"{loop_id}.json", json.dumps(diag.result, indent=1, allow_nan=False))
+    return f"loops/{loop_id}/{loop_id}.md"
+
+
+def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> dict[str, Any]:
+    """Diagnose one record and write its outputs; a summary row (``status`` ok or failed)."""
+    from .history import degradation as degrade, previous_runs
+    from .pipeline import diagnose
+
+    loop_id = _choose_loop_id(cfg, record, path)
+    ih = input_hash(digest, cfg.options_key(), record.name, record.meta.get("segment"))
+    prev = _existing(cfg, loop_id)
+    if prev is not None and prev.get("input_hash") == ih:
+        row = loop_row(prev, f"loops/{loop_id}/{loop_id}.md", skipped=True)
+        row["_result"] = prev
+        return row
+    try:
+        diag = diagnose(record, explain=cfg.explain, narx=cfg.narx)
+        diag.result["loop_id"] = loop_id
+        diag.result["input_hash"] = ih
+        hist = previous_runs(cfg.db, loop_id, exclude_hash=ih)
+        warn = degrade(hist + [{"run_at": "this run", "S_pct": diag.result.get("S")}]) if hist else None
+        if warn:
+            diag.result["degradation"] = warn
+        t0 = time.perf_counter()
+        report = write_loop_outputs(cfg, diag, loop_id, history_rows=hist, degradation=warn)
+        diag.result["timings_s"]["report"] = round(time.perf_counter() - t0, 4)
+        row = loop_row(diag.result, report, degradation=warn)
+        row["_result"] = diag.result
+        return row
+    except MemoryError:
+        raise
+    except Exception as exc:  # a failing loop is recorded, the batch goes on
+        row = failure_row(loop_id, str(path), _one_line(exc))
+        if not isinstance(exc, StictionError):
+            row["traceback"] = traceback.format_exc(limit=6)
+        return row
+
+
+def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
+    from connectors import read_records
+
+    opts = dict(cfg.read_options)
+    if cfg.tags:
+        opts["tags"] = cfg.tags
+    return read_records(str(path), **opts)
+
+
+def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
+    """One task: read a file, diagnose every loop in it. Returns ``{"path", "digest", "rows"}``."""
+    _worker_setup()
+    p = Path(path)
+    try:
+        digest = _file_digest(p)
+        records = read_file(cfg, p)
+        if not records:
+            raise DataError(f"{p}: no loops found in this file")
+    except MemoryError:
+        raise
+    except Exception as exc:
+        return {"path": str(p), "digest": None, "rows": [failure_row(safe_name(p.stem), str(p), _one_line(exc))]}
+    rows = [process_record(cfg, rec, p, digest) for rec in records]
+    return {"path": str(p), "digest": digest, "rows": rows}
+
+
+_SETUP_DONE = False
+
+
+def _worker_setup() -> None:
+    """Once per process: one thread per worker for BLAS/OpenMP/torch (the pool gives parallelism)."""
+    global _SETUP_DONE
+    if _SETUP_DONE:
+        return
+    _SETUP_DONE = True
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        try:
+            torch.set_num_threads(1)
+        except Exception:  # pragma: no cover
+            pass
+
+
+# ----------------------------------------------------------------------------------------------
+# state (whole-file skip)
+
+
+def _state_path(cfg: BatchConfig, path: str) -> Path:
+    key = hashlib.sha1(str(Path(path).resolve()).encode("utf-8")).hexdigest()[:20]
+    return Path(cfg.out_dir) / STATE_DIR / "files" / f"{key}.json"
+
+
+def _load_state(cfg: BatchConfig, path: str, digest: str) -> list[dict[str, Any]] | None:
+    """The rows of a file already done with this content and these options, or None."""
+    try:
+        st = json.loads(_state_path(cfg, path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if st.get("digest") != digest or st.get("options") != cfg.options_key():
+        return None
+    rows = []
+    for loop_id in st.get("loops", []):
+        res = _existing(cfg, loop_id)
+        if res is None:
+            return None
+        row = loop_row(res, f"loops/{loop_id}/{loop_id}.md", skipped=True)
+        row["_result"] = res
+        rows.append(row)
+    return rows
+
+
+def _save_state(cfg: BatchConfig, outcome: Mapping[str, Any]) -> None:
+    rows = outcome["rows"]
+    if outcome.get("digest") is None or any(r["status"] != "ok" for r in rows):
+        return  # failures are retried next time
+    st = {"path": outcome["path"], "digest": outcome["digest"], "options": cfg.options_key(),
+          "loops": [r["loop"] for r in rows]}
+    write_atomic(_state_path(cfg, outcome["path"]), json.dumps(st))
+
+
+# ----------------------------------------------------------------------------------------------
+# progress
+
+
+class Progress:
+    """A progress bar on stderr (one line redrawn on a terminal, a line per 10 % otherwise)."""
+
+    def __init__(self, total: int, *, stream: Any = None, enabled: bool = True, label: str = "loops") -> None:
+        self.total = max(total, 0)
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = enabled
+        self.label = label
+        self.done = 0
+        self.failed = 0
+        self.skipped = 0
+        self.t0 = time.monotonic()
+        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._last_decile = -1
+
+    def update(self, files: int = 1, *, failed: int = 0, skipped: int = 0) -> None:
+        self.done += files
+        self.failed += failed
+        self.skipped += skipped
+        if not self.enabled:
+            return
+        frac = self.done / self.total if self.total else 1.0
+        el = time.monotonic() - self.t0
+        eta = el / frac - el if frac > 0 else 0.0
+        width = 30
+        bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
+        text = (f"[{bar}] {self.done}/{self.total} files {frac:4.0%}  failed {self.failed}  "
+                f"skipped {self.skipped}  {el:5.0f} s elapsed, ~{eta:.0f} s left")
+        if self._tty:
+            self.stream.write("\r" + text)
+            if self.done >= self.total:
+                self.stream.write("\n")
+        else:
+            decile = int(frac * 10)
+            if decile != self._last_decile or self.done >= self.total:
+                self._last_decile = decile
+                self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+# ----------------------------------------------------------------------------------------------
+# executors
+
+
+class _Inline:
+    """Runs tasks in this process, one after another (``workers=1``), as they are collected."""
+
+    def submit(self, fn: Callable, *args: Any) -> Future:
+        fut: Future = Future()
+        fut._stiction_task = (fn, args)  # type: ignore[attr-defined]
+        return fut
+
+    def as_completed(self, futures: Sequence[Future]) -> Iterator[Future]:
+        for fut in futures:
+            fn, args = fut._stiction_task  # type: ignore[attr-defined]
+            try:
+                fut.set_result(fn(*args))
+            except BaseException as exc:
+                if isinstance(exc, KeyboardInterrupt):
+                    raise
+                fut.set_exception(exc)
+            yield fut
+
+    def close(self) -> None:
+        pass
+
+
+class _Pool:
+    def __init__(self, workers: int) -> None:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        # forkserver: workers start from a clean process, safe when the parent has threads (torch).
+        ctx = mp.get_context("forkserver")
+        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_setup)
+
+    def submit(self, fn: Callable, *args: Any) -> Future:
+        return self.ex.submit(fn, *args)
+
+    def as_completed(self, futures: Sequence[Future]) -> Iterator[Future]:
+        from concurrent.futures import as_completed
+
+        return as_completed(futures)
+
+    def close(self) -> None:
+        self.ex.shutdown(wait=True, cancel_futures=True)
+
+
+class _Dask:
+    def __init__(self, scheduler: str, workers: int) -> None:
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise StictionError("--scheduler needs Dask distributed: pip install 'stiction[dask]'") from None
+        self.cluster = None
+        if scheduler == "local":
+            self.cluster = LocalCluster(n_workers=max(workers, 1), threads_per_worker=1, processes=True,
+                                        dashboard_address=None, silence_logs=40)
+            self.client = Client(self.cluster)
+        else:
+            try:
+                self.client = Client(scheduler, timeout="20s")
+            except OSError as exc:
+                raise StictionError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        self.client.run(_worker_setup)
+
+    def submit(self, fn: Callable, *args: Any) -> Any:
+        return self.client.submit(fn, *args, pure=False)
+
+    def as_completed(self, futures: Sequence[Any]) -> Iterator[Any]:
+        from distributed import as_completed
+
+        return iter(as_completed(futures))
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def make_executor(workers: int, scheduler: str | None) -> Any:
+    if scheduler:
+        return _Dask(scheduler, workers)
+    if workers <= 1:
+        return _Inline()
+    return _Pool(workers)
+
+
+# ----------------------------------------------------------------------------------------------
+# the batch
+
+
+@dataclass
+class BatchResult:
+    rows: list[dict[str, Any]]
+    out_dir: Path
+    n_files: int
+    elapsed_s: float
+
+    @property
+    def n_failed(self) -> int:
+        return sum(1 for r in self.rows if r["status"] != "ok")
+
+    @property
+    def n_skipped(self) -> int:
+        return sum(1 for r in self.rows if r.get("skipped"))
+
+    @property
+    def summary_md(self) -> Path:
+        return self.out_dir / "summary.md"
+
+
+def rank(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Ok loops by severity (then S) descending with ranks 1..n, then failures by name."""
+    rows = list(rows)
+    ok = sorted((r for r in rows if r["status"] == "ok"),
+                key=lambda r: (-(r.get("severity") or 0.0), -(r.get("S_pct") or 0.0), str(r["loop"])))
+    bad = sorted((r for r in rows if r["status"] != "ok"), key=lambda r: (str(r["loop"]), str(r.get("source"))))
+    for i, r in enumerate(ok, 1):
+        r["rank"] = i
+    for r in bad:
+        r["rank"] = None
+    return ok + bad
+
+
+def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool = True,
+                  meta: Mapping[str, Any] | None = None) -> None:
+    """``summary.md``, ``summary.pdf``, ``summary.csv`` and ``summary.json`` (atomically)."""
+    from .report import summary_blocks, to_markdown
+
+    meta = dict(meta or {})
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in SUMMARY_COLUMNS})
+    write_atomic(out_dir / "summary.csv", buf.getvalue())
+    clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
+    doc = {**meta, "n_loops": len(rows), "n_failed": sum(1 for r in rows if r["status"] != "ok"),
+           "loops": clean}
+    write_atomic(out_dir / "summary.json", json.dumps(doc, indent=1, default=str))
+    kw = {"generated_at": meta.get("generated_at"), "tool_version": meta.get("tool_version")}
+    write_atomic(out_dir / "summary.md", to_markdown(summary_blocks(rows, **kw)))
+    if pdf:
+        from .pdf import to_pdf
+
+        write_atomic(out_dir / "summary.pdf", to_pdf(summary_blocks(rows, links=False, **kw),
+                                                     title="Plant stiction summary"))
+
+
+def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *,
+              workers: int | None = None, scheduler: str | None = None, tags: str | None = None,
+              read_options: Mapping[str, Any] | None = None, explain: bool | str = "auto", narx: bool = True,
+              pdf: bool = True, db: str | os.PathLike | None = None, history: bool = True,
+              progress: bool = True, stream: Any = None) -> BatchResult:
+    """Diagnose every loop found in ``inputs``; write per-loop reports and the plant summary.
+
+    Parameters
+    ----------
+    inputs : paths
+        Files and/or folders (searched recursively).
+    out_dir : path
+        Output folder (created).
+    workers : int, optional
+        Worker processes (default: the machine's CPU count); 1 runs inline.
+    scheduler : str, optional
+        ``"local"`` for a Dask LocalCluster of ``workers`` processes, or a Dask scheduler address
+        (``tcp://host:8786``).
+    db : path, optional
+        History database (`diagnose.service.history.default_db_path()` when None); ``history=False``
+        leaves it alone.
+
+    Returns
+    -------
+    BatchResult
+        ``n_failed > 0`` when any file or loop failed.
+    """
+    from .history import History, default_db_path, row_from_result, utc_now
+    from .pipeline import tool_version
+
+    t0 = time.monotonic()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if tags is not None and not Path(tags).is_file():
+        raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
+    db_path = Path(db) if db is not None else default_db_path()
+    cfg = BatchConfig(out_dir=str(out), read_options=dict(read_options or {}), tags=tags, explain=explain,
+                      narx=narx, pdf=pdf, db=str(db_path) if history else None)
+    files, missing = discover(inputs, exclude=[out])
+    if not files and not missing:
+        raise DataError("no input files found (looked for " + ", ".join(INPUT_SUFFIXES) +
+                        f" in {', '.join(map(str, inputs))})")
+    workers = workers or os.cpu_count() or 1
+    rows: list[dict[str, Any]] = list(missing)
+    bar = Progress(len(files), stream=stream, enabled=progress)
+    hist = History(db_path) if history else None
+    run_at = utc_now()
+
+    def collect(outcome: Mapping[str, Any], skipped_file: bool = False) -> None:
+        frows = outcome["rows"]
+        if hist is not None:
+            hist.add_rows([row_from_result(r["_result"], run_at=run_at, input_hash=r.get("input_hash"))
+                           for r in frows if r["status"] == "ok" and "_result" in r])
+        if not skipped_file:
+            _save_state(cfg, outcome)
+        rows.extend(frows)
+        bar.update(failed=sum(1 for r in frows if r["status"] != "ok"),
+                   skipped=sum(1 for r in frows if r.get("skipped")))
+
+    todo: list[str] = []
+    try:
+        for f in files:
+            try:
+                digest = _file_digest(f)
+            except OSError as exc:
+                collect({"path": str(f), "digest": None,
+                         "rows": [failure_row(safe_name(f.stem), str(f), _one_line(exc))]})
+                continue
+            done = _load_state(cfg, str(f), digest)
+            if done is not None:
+                collect({"path": str(f), "digest": digest, "rows": done}, skipped_file=True)
+            else:
+                todo.append(str(f))
+        if todo:
+            ex = make_executor(min(workers, len(todo)) if not scheduler else workers, scheduler)
+            try:
+                futures = [ex.submit(process_file, cfg, f) for f in todo]
+                path_of = {id(fu): f for fu, f in zip(futures, todo)}
+                for fu in ex.as_completed(futures):
+                    try:
+                        outcome = fu.result()
+                    except Exception as exc:  # a worker died (memory, signal): record, go on
+                        f = path_of.get(id(fu), "?")
+                        outcome = {"path": f, "digest": None,
+                                   "rows": [failure_row(safe_name(Path(f).stem), f, _one_line(exc))]}
+                    collect(outcome)
+            finally:
+                ex.close()
+    finally:
+        if hist is not None:
+            hist.close()
+    ranked = rank(rows)
+    meta = {"generated_at": run_at, "tool_version": tool_version(), "inputs": [str(i) for i in inputs],
+            "workers": workers, "scheduler": scheduler, "elapsed_s": round(time.monotonic() - t0, 3)}
+    write_summary(out, ranked, pdf=pdf, meta=meta)
+    for r in ranked:
+        r.pop("_result", None)
+    return BatchResult(rows=ranked, out_dir=out, n_files=len(files), elapsed_s=time.monotonic() - t0)

@@ -1,0 +1,100 @@
+"""`stiction bank train|show|select`: rebuild, list or query the NARX-SP model bank."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from ...errors import DataError
+
+
+def _default_dir() -> Path:
+    return Path(__file__).resolve().parents[2] / "narx" / "bank"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    t = sub.add_parser("train", help="train every bank case and write weights + manifest.json")
+    t.add_argument("--out", default=None, help="bank folder (default: the package's bank folder)")
+    t.add_argument("--seed", type=int, default=0, help="training seed")
+    t.add_argument("--cases", default=None,
+                   help="only these cases, e.g. '3:1,1:3' (S:J in %% of span); default the grid")
+    s = sub.add_parser("show", help="list the bank's models")
+    s.add_argument("--json", action="store_true", help="print the list as JSON")
+    q = sub.add_parser("select", help="the bank model for an identified (S, J)")
+    q.add_argument("--S", type=float, required=True, help="S, %% of span")
+    q.add_argument("--J", type=float, required=True, help="J, %% of span")
+
+
+def _parse_cases(text):
+    cases = []
+    for item in text.split(","):
+        try:
+            S, J = (float(v) for v in item.split(":"))
+        except ValueError:
+            raise DataError(f"--cases: cannot read {item!r}; write S:J pairs like 3:1,1:3") from None
+        if S <= 0 or J < 0:
+            raise DataError(f"--cases: {item!r} needs S > 0 and J >= 0")
+        cases.append((S, J))
+    return cases
+
+
+def _atomic_torch_save(obj, path: Path) -> None:
+    import torch
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def run(args: argparse.Namespace) -> int:
+    from connectors.historian import atomic_write_text
+
+    from ...narx.bank import bank_grid, load_bank, train_bank
+
+    if args.action == "train":
+        cases = _parse_cases(args.cases) if args.cases else bank_grid()
+        out = Path(args.out) if args.out else _default_dir()
+        out.mkdir(parents=True, exist_ok=True)
+
+        def progress(i, n, e):
+            m = e["metrics"]
+            print(f"[{i}/{n}] {e['name']}: free-run {m['rmse_free_run']:.4f} %, one-step "
+                  f"{m['rmse_one_step']:.4f} %, {m['train_s']:.1f} s", file=sys.stderr)
+
+        manifest, states = train_bank(cases, seed=args.seed, progress=progress)
+        for name, state in states.items():
+            _atomic_torch_save(state, out / f"{name}.pt")
+        atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
+        print(f"wrote {len(states)} models and manifest.json to {out} "
+              f"({manifest['train_total_s']:.0f} s)", file=sys.stderr)
+        return 0
+    bank = load_bank()
+    if args.action == "select":
+        sel = bank.select(args.S, args.J)
+        print(json.dumps({"narx": sel.to_dict(), "warning": sel.warning()}))
+        return 0
+    rows = [{"model": m.name, "S": m.S_pct, "J": m.J_pct, "class": m.cls,
+             "rmse_one_step": m.metrics["rmse_one_step"], "rmse_free_run": m.metrics["rmse_free_run"],
+             "cdc": m.metrics["cdc"], "train_s": m.metrics["train_s"],
+             "robust_radius": m.robust_radius_pct} for m in bank.models]
+    if args.json:
+        print(json.dumps({"models": rows, "robust_threshold_pct": bank.manifest["robust_threshold_pct"],
+                          "distance": bank.manifest["distance"]}))
+        return 0
+    print(f"NARX-SP bank: {len(rows)} models; distance {bank.manifest['distance']}; robust = "
+          f"free-run RMSE <= {bank.manifest['robust_threshold_pct']:g} % of span")
+    print(f"{'model':<22}{'S':>6}{'J':>7}  {'class':<11}{'1-step':>9}{'free-run':>10}"
+          f"{'train s':>9}{'robust r':>10}")
+    for r in rows:
+        print(f"{r['model']:<22}{r['S']:>6g}{r['J']:>7g}  {r['class']:<11}{r['rmse_one_step']:>9.4f}"
+              f"{r['rmse_free_run']:>10.4f}{r['train_s']:>9.1f}{r['robust_radius']:>10.2f}")
+    return 0

@@ -1,0 +1,72 @@
+"""`stiction batch`: diagnose every loop in files/folders; per-loop reports and a plant summary."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="historian export files and/or folders")
+    p.add_argument("--out", required=True, help="output folder (reports, figures, summary)")
+    p.add_argument("--tags", default=None, help="tag map (TOML) naming each loop's OP/PV/SP/MV tags")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: CPU count; 1 runs in this process)")
+    p.add_argument("--scheduler", default=None,
+                   help="run on Dask distributed: 'local' for a LocalCluster of --workers processes, "
+                        "or a scheduler address such as tcp://10.0.0.5:8786")
+    p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
+                                              "or ~/.local/share/stiction/history.sqlite)")
+    p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
+    p.add_argument("--explain", choices=["auto", "on", "off"], default="auto",
+                   help="run the missing-physics stage: auto (default) only where the fitted model "
+                        "leaves a mismatch (free-run r2 on PV < 0.8), on for every loop, off")
+    p.add_argument("--no-explain", dest="explain", action="store_const", const="off",
+                   help="same as --explain off")
+    p.add_argument("--narx", action=argparse.BooleanOptionalAction, default=True,
+                   help="select and free-run the NARX-SP model (default on)")
+    p.add_argument("--pdf", action=argparse.BooleanOptionalAction, default=True,
+                   help="write PDF reports beside the Markdown (default on)")
+    for role in ("op", "pv", "sp", "mv"):
+        p.add_argument(f"--{role}", default=None, help=f"name of the {role.upper()} column (overrides the naming rule)")
+    p.add_argument("--ts-s", type=float, default=None, help="sample period in seconds (default: from the timestamps)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def read_options(args: argparse.Namespace) -> dict:
+    opts = {r: getattr(args, r) for r in ("op", "pv", "sp", "mv") if getattr(args, r, None)}
+    if getattr(args, "ts_s", None) is not None:
+        opts["ts_s"] = args.ts_s
+    return opts
+
+
+def explain_mode(value: str) -> bool | str:
+    return {"on": True, "off": False}.get(value, "auto")
+
+
+def report(res, stream=None) -> None:
+    """What the batch did, on stdout; failures on stderr."""
+    stream = stream or sys.stdout
+    ok = len(res.rows) - res.n_failed
+    print(f"{len(res.rows)} loops from {res.n_files} files: {ok} diagnosed "
+          f"({res.n_skipped} unchanged since the last run), {res.n_failed} failed, "
+          f"{res.elapsed_s:.1f} s", file=stream)
+    print(f"summary: {res.out_dir / 'summary.md'} (also .pdf, .csv, .json)", file=stream)
+    print(f"per-loop reports: {res.out_dir / 'loops'}/LOOP/LOOP.md (.pdf, .json, figures)", file=stream)
+    for r in res.rows:
+        if r["status"] != "ok":
+            print(f"failed: {r['loop']} ({r.get('source')}): {r.get('error')}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..batch import run_batch
+
+    if args.workers is not None and args.workers < 1:
+        from ...errors import DataError
+
+        raise DataError("--workers must be at least 1")
+    res = run_batch(args.inputs, args.out, workers=args.workers, scheduler=args.scheduler, tags=args.tags,
+                    read_options=read_options(args), explain=explain_mode(args.explain), narx=args.narx, pdf=args.pdf,
+                    db=args.db, history=not args.no_history, progress=not args.quiet)
+    report(res)
+    return 1 if res.n_failed else 0

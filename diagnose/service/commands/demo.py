@@ -1,0 +1,45 @@
+"""`stiction demo`: the nightly batch on the bundled sample logs; says where the reports are."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def sample_logs() -> Path:
+    """The repository's sample_logs/ (beside the package), else ./sample_logs."""
+    here = Path(__file__).resolve().parents[3] / "sample_logs"
+    if here.is_dir():
+        return here
+    cwd = Path.cwd() / "sample_logs"
+    if cwd.is_dir():
+        return cwd
+    from ...errors import DataError
+
+    raise DataError("sample_logs/ not found (run from the repository root, or use `stiction batch`)")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="stiction-demo-out", help="output folder (default ./stiction-demo-out)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    p.add_argument("--db", default=None, help="history database (default OUT/history.sqlite)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..batch import run_batch
+    from .batch import report
+
+    out = Path(args.out)
+    src = sample_logs()
+    print(f"diagnosing the loops in {src} ...", file=sys.stderr)
+    res = run_batch([src], out, workers=args.workers, db=args.db or out / "history.sqlite",
+                    explain=True, progress=not args.quiet)
+    report(res)
+    top = [r for r in res.rows if r["status"] == "ok"][:3]
+    if top:
+        print("worst loops: " + ", ".join(f"{r['loop']} (severity {r['severity']:.0f}, {r['class']})"
+                                          for r in top))
+    print(f"open {out / 'summary.md'} (or summary.pdf) to start.")
+    return 1 if res.n_failed else 0

@@ -1,0 +1,42 @@
+"""`stiction history [LOOP]`: the S/J/class trend of a loop (or the loops known) from the database."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("loop", nargs="?", default=None, help="loop name (omit to list the loops)")
+    p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
+                                              "or ~/.local/share/stiction/history.sqlite)")
+    p.add_argument("--limit", type=int, default=None, help="only the last N runs")
+    p.add_argument("--json", action="store_true", help="print the runs as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..history import History, degradation, format_trend
+
+    with History(args.db, readonly=True) as h:
+        if args.loop is None:
+            loops = h.loops()
+            if args.json:
+                print(json.dumps(loops))
+            else:
+                print(f"{len(loops)} loop(s) in {h.path}:")
+                for name in loops:
+                    last = h.runs(name, limit=1)
+                    s = f"S {last[0]['S_pct']:.2f} %" if last and last[0].get("S_pct") is not None else ""
+                    print(f"  {name:<30} {s}")
+            return 0
+        rows = h.runs(args.loop, limit=args.limit)
+        if not rows and args.loop not in h.loops():
+            from ...errors import StictionError
+
+            known = ", ".join(h.loops()[:10]) or "none"
+            raise StictionError(f"no runs of loop {args.loop!r} in {h.path} (loops: {known})")
+    if args.json:
+        print(json.dumps({"loop": args.loop, "runs": rows, "degradation": degradation(rows)}, indent=1))
+    else:
+        print(format_trend(args.loop, rows), end="")
+    return 0

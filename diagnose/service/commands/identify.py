@@ -1,0 +1,138 @@
+"""`stiction identify`: identify stiction (S, J, class) in one loop's record."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+from ...errors import DataError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", metavar="FILE", help="historian export (CSV or another supported layout)")
+    p.add_argument("--op", metavar="COL", help="controller output column (OP, %% of span)")
+    p.add_argument("--pv", metavar="COL", help="process variable column")
+    p.add_argument("--sp", metavar="COL", help="setpoint column")
+    p.add_argument("--mv", metavar="COL", help="valve stem position column (%% of span), if recorded")
+    p.add_argument("--ts", metavar="SECONDS|COL",
+                   help="sample period in seconds (a number), or the name of the timestamp column")
+    p.add_argument("--format", dest="fmt", metavar="LAYOUT", help="file layout override")
+    p.add_argument("--tags", metavar="TOML", help="tag map (TOML) naming each loop's columns")
+    p.add_argument("--loop", metavar="NAME", help="loop to identify when the file holds several")
+    p.add_argument("--json", action="store_true",
+                   help="print exactly one JSON object on stdout (messages go to stderr)")
+
+
+def _read_options(args: argparse.Namespace) -> dict[str, Any]:
+    opts: dict[str, Any] = {}
+    for role in ("op", "pv", "sp", "mv"):
+        v = getattr(args, role)
+        if v is not None:
+            opts[role] = v
+    if args.ts is not None:
+        try:
+            ts_s = float(args.ts)
+        except ValueError:
+            opts["ts"] = args.ts
+        else:
+            if not (math.isfinite(ts_s) and ts_s > 0):
+                raise DataError(f"--ts {args.ts}: the sample period must be a positive number of seconds")
+            opts["ts_s"] = ts_s
+    if args.fmt is not None:
+        opts["fmt"] = args.fmt
+    if args.tags is not None:
+        opts["tags"] = args.tags
+    if args.loop is not None:
+        opts["loop"] = args.loop
+    return opts
+
+
+def select_record(records: list, loop: str | None, source: str):
+    """The record to identify: the named loop (its longest segment), with messages to report."""
+    notes: list[dict[str, str]] = []
+    if not records:
+        raise DataError(f"{source}: no loop found in the file")
+    names = list(dict.fromkeys(r.name for r in records))
+    if loop is not None:
+        chosen = [r for r in records if r.name == loop]
+        if not chosen:
+            raise DataError(f"{source}: no loop named {loop!r} (loops: {', '.join(names)})")
+    elif len(names) > 1:
+        raise DataError(f"{source} holds {len(names)} loops ({', '.join(names)}); choose one with --loop NAME")
+    else:
+        chosen = records
+    rec = max(chosen, key=lambda r: r.n)
+    if len(chosen) > 1:
+        notes.append({"code": "segments",
+                      "message": f"the record is split into {len(chosen)} segments (gaps or mode changes); "
+                                 f"identified the longest ({rec.n} samples)"})
+    return rec, notes
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
+        try:
+            return _clean(obj.item())
+        except (TypeError, ValueError):
+            return obj
+    return obj
+
+
+def summary(d: dict[str, Any]) -> str:
+    """A short human summary of an identification dict."""
+    lines = []
+    verdict = "STICTION" if d["stiction"] else "no stiction"
+    lines.append(f"{d['loop']}: {verdict} (class {d['class']}, confidence {d.get('confidence', 0):.2f})")
+    if d["stiction"]:
+        si, ji = d["S_interval"], d["J_interval"]
+        src = " from OP/MV" if d.get("method") == "op_mv" else ""
+        lines.append(f"  S = {d['S']:.2f} % [{si[0]:.2f}, {si[1]:.2f}]   J = {d['J']:.2f} % "
+                     f"[{ji[0]:.2f}, {ji[1]:.2f}]  (% of valve span{src})")
+    p = d.get("process") or {}
+    if p:
+        extra = f", tau2 {p['tau2_s']:.3g} s" if "tau2_s" in p else ""
+        lines.append(f"  process: {p['kind']}, gain {p['gain']:.3g}, tau {p['tau_s']:.3g} s{extra}, "
+                     f"dead time {p['delay_s']:.3g} s")
+    fit = d.get("fit") or {}
+    if fit.get("rmse") is not None:
+        lines.append(f"  fit: rmse {fit['rmse']:.3g}, r2 {fit['r2']:.3f} (free-run simulation)")
+    o = d.get("oscillation") or {}
+    if o.get("oscillating"):
+        lines.append(f"  oscillating: period {o['period_s']:.3g} s, regularity {o['regularity']:.2f}")
+    else:
+        lines.append("  not oscillating regularly")
+    for w in d.get("warnings", []):
+        lines.append(f"  warning [{w['code']}]: {w['message']}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    import connectors
+
+    from ...identify import identify
+
+    opts = _read_options(args)
+    records = connectors.read_records(args.file, **opts)
+    rec, notes = select_record(records, args.loop, str(args.file))
+    result = identify(rec)
+    d = result.to_dict()
+    d["warnings"] = notes + d["warnings"]
+    if rec.source is None:
+        d["source"] = str(args.file)
+    d = _clean(d)
+    if args.json:
+        sys.stdout.write(json.dumps(d, allow_nan=False) + "\n")
+        for w in d["warnings"]:
+            print(f"warning [{w['code']}]: {w['message']}", file=sys.stderr)
+    else:
+        print(summary(d))
+    return 0

@@ -1,0 +1,235 @@
+"""Results of every run in an SQLite database: the S/J/class trend of each loop.
+
+The database lives at `default_db_path()` (``$STICTION_HOME/history.sqlite``, else
+``$XDG_DATA_HOME/stiction/history.sqlite``, else ``~/.local/share/stiction/history.sqlite``) unless a
+path is given (``--db``). It runs in WAL mode so readers (``stiction history``, batch workers
+looking up a loop's past) never block the writer, and each write is one transaction: a run killed
+half-way leaves every earlier result intact and nothing half-written. A result already stored (same
+loop, input hash and tool version) is not stored twice, so a resumed batch does not duplicate rows.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+from ..errors import StictionError
+
+SCHEMA_VERSION = 1
+
+#: A loop is "degrading" when S rose at each of the last `DEGRADE_RUNS` - 1 steps by at least
+#: `DEGRADE_STEP_PCT` and by at least `DEGRADE_TOTAL_PCT` in all (% of valve span).
+DEGRADE_RUNS = 3
+DEGRADE_STEP_PCT = 0.05
+DEGRADE_TOTAL_PCT = 0.3
+
+_DDL = """
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY,
+    loop TEXT NOT NULL,
+    run_at TEXT NOT NULL,
+    data_start TEXT,
+    source TEXT,
+    input_hash TEXT NOT NULL DEFAULT '',
+    tool_version TEXT NOT NULL DEFAULT '',
+    status TEXT NOT NULL DEFAULT 'ok',
+    class TEXT,
+    S_pct REAL, S_lo REAL, S_hi REAL,
+    J_pct REAL, J_lo REAL, J_hi REAL,
+    confidence REAL,
+    severity REAL,
+    oscillation_period_s REAL,
+    verdict TEXT,
+    result_json TEXT,
+    UNIQUE (loop, input_hash, tool_version)
+);
+CREATE INDEX IF NOT EXISTS runs_loop ON runs (loop, run_at);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
+"""
+
+_COLS = ("loop", "run_at", "data_start", "source", "input_hash", "tool_version", "status", "class",
+         "S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi", "confidence", "severity",
+         "oscillation_period_s", "verdict", "result_json")
+
+
+def default_db_path() -> Path:
+    """Where the history lives unless ``--db`` says otherwise."""
+    home = os.environ.get("STICTION_HOME")
+    if home:
+        return Path(home) / "history.sqlite"
+    xdg = os.environ.get("XDG_DATA_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".local" / "share"
+    return base / "stiction" / "history.sqlite"
+
+
+def utc_now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def row_from_result(result: Mapping[str, Any], *, run_at: str | None = None,
+                    input_hash: str | None = None, status: str = "ok", error: str | None = None
+                    ) -> dict[str, Any]:
+    """The history row for one loop's result (`diagnose.service.pipeline.diagnose_record`)."""
+    from .pipeline import _interval, _num, oscillation_info
+
+    rec = result.get("record") or {}
+    slo, shi = _interval(result.get("S_interval"))
+    jlo, jhi = _interval(result.get("J_interval"))
+    sev = result.get("severity") or {}
+    return {
+        "loop": str(result.get("loop_id") or result.get("loop")),
+        "run_at": run_at or utc_now(),
+        "data_start": rec.get("start"),
+        "source": rec.get("source") or result.get("source"),
+        "input_hash": input_hash or result.get("input_hash") or "",
+        "tool_version": result.get("tool_version") or "",
+        "status": status,
+        "class": result.get("class"),
+        "S_pct": _num(result.get("S")), "S_lo": slo, "S_hi": shi,
+        "J_pct": _num(result.get("J")), "J_lo": jlo, "J_hi": jhi,
+        "confidence": _num(result.get("confidence")),
+        "severity": _num(sev.get("score")) if isinstance(sev, Mapping) else None,
+        "oscillation_period_s": oscillation_info(result)["period_s"],
+        "verdict": error if status != "ok" else result.get("verdict"),
+        "result_json": json.dumps(result, separators=(",", ":"), allow_nan=False) if status == "ok" else None,
+    }
+
+
+class History:
+    """The results database.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        SQLite file; `default_db_path()` when None. Parent folders are created.
+    readonly : bool
+        Open an existing database for reading only (raises when it does not exist).
+    """
+
+    def __init__(self, path: str | os.PathLike | None = None, *, readonly: bool = False) -> None:
+        self.path = Path(path) if path is not None else default_db_path()
+        try:
+            if readonly:
+                if not self.path.exists():
+                    raise StictionError(f"{self.path}: no history database here yet; run "
+                                        "`stiction batch` (or give --db)")
+                self.conn = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.conn = sqlite3.connect(self.path, timeout=30)
+                self.conn.execute("PRAGMA journal_mode=WAL")
+                self.conn.execute("PRAGMA synchronous=NORMAL")
+                with self.conn:
+                    self.conn.executescript(_DDL)
+                    self.conn.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)",
+                                      (str(SCHEMA_VERSION),))
+        except sqlite3.DatabaseError as exc:
+            raise StictionError(f"{self.path}: not a usable history database ({exc}); give another "
+                                "path with --db") from None
+        self.conn.row_factory = sqlite3.Row
+
+    # -- context manager -------------------------------------------------------------------
+    def __enter__(self) -> "History":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.conn.close()
+
+    # -- writing ---------------------------------------------------------------------------
+    def add_rows(self, rows: Iterable[Mapping[str, Any]]) -> int:
+        """Store rows (see `row_from_result`) in one transaction; returns how many were new."""
+        sql = (f"INSERT INTO runs ({', '.join(_COLS)}) VALUES ({', '.join('?' for _ in _COLS)}) "
+               "ON CONFLICT (loop, input_hash, tool_version) DO NOTHING")
+        n = 0
+        with self.conn:  # one transaction: all rows or none
+            for row in rows:
+                cur = self.conn.execute(sql, tuple(row.get(c) for c in _COLS))
+                n += cur.rowcount
+        return n
+
+    def add(self, result: Mapping[str, Any], **kw: Any) -> bool:
+        """Store one loop's result; False when the same (loop, input, version) is already there."""
+        return self.add_rows([row_from_result(result, **kw)]) == 1
+
+    # -- reading ---------------------------------------------------------------------------
+    def runs(self, loop: str, *, limit: int | None = None, status: str | None = "ok",
+             with_result: bool = False) -> list[dict[str, Any]]:
+        """Runs of one loop, oldest first (the last ``limit`` when given)."""
+        cols = [c for c in _COLS if with_result or c != "result_json"]
+        where = "loop = ?" + (" AND status = ?" if status else "")
+        args: list[Any] = [loop] + ([status] if status else [])
+        sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY run_at DESC, id DESC"
+        if limit:
+            sql += f" LIMIT {int(limit)}"
+        rows = [dict(r) for r in self.conn.execute(sql, args)]
+        rows.reverse()
+        return rows
+
+    def loops(self) -> list[str]:
+        return [r[0] for r in self.conn.execute("SELECT DISTINCT loop FROM runs ORDER BY loop")]
+
+    def has(self, loop: str, input_hash: str, tool_version: str) -> bool:
+        cur = self.conn.execute("SELECT 1 FROM runs WHERE loop = ? AND input_hash = ? AND tool_version = ?",
+                                (loop, input_hash, tool_version))
+        return cur.fetchone() is not None
+
+
+def previous_runs(db_path: str | os.PathLike | None, loop: str, *, exclude_hash: str | None = None,
+                  limit: int = 20) -> list[dict[str, Any]]:
+    """Earlier ok runs of a loop, read-only; [] when the database or the loop is not there."""
+    if db_path is None or not Path(db_path).exists():
+        return []
+    try:
+        with History(db_path, readonly=True) as h:
+            rows = h.runs(loop, limit=limit + 1)
+    except (StictionError, sqlite3.Error):
+        return []
+    return [r for r in rows if not exclude_hash or r.get("input_hash") != exclude_hash][-limit:]
+
+
+def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
+                step_pct: float = DEGRADE_STEP_PCT, total_pct: float = DEGRADE_TOTAL_PCT) -> str | None:
+    """A warning when S grew run over run (oldest first rows), else None.
+
+    The last ``runs`` runs with an S must each raise S by at least ``step_pct`` and by at least
+    ``total_pct`` in all (% of valve span).
+    """
+    s = [(r.get("run_at"), r.get("S_pct")) for r in rows if r.get("S_pct") is not None]
+    if len(s) < runs:
+        return None
+    last = s[-runs:]
+    vals = [float(v) for _, v in last]
+    steps = [b - a for a, b in zip(vals, vals[1:])]
+    if all(d >= step_pct for d in steps) and vals[-1] - vals[0] >= total_pct:
+        return (f"S grew over the last {runs} runs, from {vals[0]:.2f} % to {vals[-1]:.2f} % of span "
+                f"({str(last[0][0])[:10]} to {str(last[-1][0])[:10]}): the valve is getting worse; "
+                "plan maintenance.")
+    return None
+
+
+def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
+    """The trend table `stiction history LOOP` prints."""
+    if not rows:
+        return f"{loop}: no runs in the history\n"
+    lines = [f"{loop}: {len(rows)} run(s)",
+             f"{'run (UTC)':<25} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} {'conf':>5} {'sev':>4}"]
+    for r in rows:
+        iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
+              else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
+        S = "-" if r.get("S_pct") is None else f"{r['S_pct']:.2f}"
+        J = "-" if r.get("J_pct") is None else f"{r['J_pct']:.2f}"
+        conf = "-" if r.get("confidence") is None else f"{r['confidence']:.0%}"
+        sev = "-" if r.get("severity") is None else f"{r['severity']:.0f}"
+        lines.append(f"{str(r.get('run_at'))[:25]:<25} {S:>6} {iv:>15} {J:>6} "
+                     f"{str(r.get('class') or '-'):<12} {conf:>5} {sev:>4}")
+    warn = degradation(rows)
+    if warn:
+        lines.append(f"WARNING: {warn}")
+    return "\n".join(lines) + "\n"

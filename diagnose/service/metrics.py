@@ -1,0 +1,84 @@
+"""Optional Prometheus metrics for `stiction monitor` (needs ``prometheus-client``).
+
+Per loop: ``stiction_s_pct``, ``stiction_j_pct``, ``stiction_severity``, ``stiction_confidence``,
+``stiction_detected`` (1/0) from the latest window, ``stiction_windows_total{status}``; from the
+poller (read when Prometheus scrapes, nothing per poll): ``stiction_polls_total``,
+``stiction_polls_failed_total``, ``stiction_polls_missed_total``. Served on 127.0.0.1 unless
+another address is given.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping
+
+from ..errors import StictionError
+
+
+class Metrics:
+    """Prometheus gauges/counters in their own registry, served over HTTP.
+
+    Parameters
+    ----------
+    port : int
+        TCP port (0 picks a free one; see ``.port``).
+    addr : str
+        Listen address (default loopback).
+    poll_stats : callable returning {loop: stats}, optional
+        Poller statistics (objects with ``polls``, ``failed``, ``missed``), read at scrape time.
+    """
+
+    def __init__(self, port: int, *, addr: str = "127.0.0.1",
+                 poll_stats: Callable[[], Mapping[str, Any]] | None = None) -> None:
+        try:
+            from prometheus_client import CollectorRegistry, Counter, Gauge, start_http_server
+            from prometheus_client.core import CounterMetricFamily
+        except ImportError:
+            raise StictionError("--metrics-port needs prometheus-client: pip install 'stiction[prometheus]'") from None
+        self.registry = CollectorRegistry()
+        g = lambda name, doc: Gauge(name, doc, ["loop"], registry=self.registry)  # noqa: E731
+        self.S = g("stiction_s_pct", "Identified S (deadband + stickband), % of valve span")
+        self.J = g("stiction_j_pct", "Identified J (slip jump), % of valve span")
+        self.severity = g("stiction_severity", "Severity score 0-100 of the latest window")
+        self.confidence = g("stiction_confidence", "Confidence in the latest verdict, 0-1")
+        self.detected = g("stiction_detected", "1 when the latest window shows stiction")
+        self.windows = Counter("stiction_windows", "Windows diagnosed", ["loop", "status"], registry=self.registry)
+
+        class _PollCollector:
+            def collect(self_inner):  # noqa: N805
+                stats = poll_stats() if poll_stats is not None else {}
+                fams = [CounterMetricFamily("stiction_polls", "Modbus polls", labels=["loop"]),
+                        CounterMetricFamily("stiction_polls_failed", "Failed Modbus polls", labels=["loop"]),
+                        CounterMetricFamily("stiction_polls_missed", "Missed Modbus poll ticks", labels=["loop"])]
+                for loop, st in stats.items():
+                    fams[0].add_metric([loop], float(st.polls))
+                    fams[1].add_metric([loop], float(st.failed))
+                    fams[2].add_metric([loop], float(st.missed))
+                return fams
+
+        self.registry.register(_PollCollector())
+        try:
+            server = start_http_server(port, addr=addr, registry=self.registry)
+        except OSError as exc:
+            raise StictionError(f"cannot serve metrics on {addr}:{port}: {exc}; pick another --metrics-port") from None
+        self._server = server[0] if isinstance(server, tuple) else server
+        self.port = self._server.server_port if self._server is not None else port
+
+    def observe(self, loop: str, result: Mapping[str, Any]) -> None:
+        """Update the gauges from one window's result."""
+        from .pipeline import stiction_present
+
+        for gauge, value in ((self.S, result.get("S")), (self.J, result.get("J")),
+                             (self.confidence, result.get("confidence")),
+                             (self.severity, (result.get("severity") or {}).get("score"))):
+            if isinstance(value, (int, float)):
+                gauge.labels(loop).set(float(value))
+        self.detected.labels(loop).set(1.0 if stiction_present(result) else 0.0)
+        self.windows.labels(loop, "ok").inc()
+
+    def failed(self, loop: str) -> None:
+        self.windows.labels(loop, "failed").inc()
+
+    def close(self) -> None:
+        if self._server is not None:
+            self._server.shutdown()
+            self._server.server_close()

@@ -1,0 +1,247 @@
+"""Live monitoring: poll loops over Modbus/TCP and diagnose each window as it fills.
+
+`connectors.modbus.ModbusPoller` polls every loop on the event loop of this process and hands each
+full window on as a `LoopRecord`. The window is diagnosed in a separate worker process (so the
+polling never waits for a diagnosis), which writes ``OUT/LOOP/WINDOW.json`` and ``WINDOW.md`` (and
+``latest.json``/``latest.md``), atomically. This process stores each result in the history database
+and updates the optional Prometheus metrics. A device that restarts is reconnected by the poller
+(its lost polls become gaps, never invented values); a window that cannot be diagnosed is logged and
+monitoring goes on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import sys
+import time
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, TextIO
+
+from ..errors import StictionError
+
+
+@dataclass
+class MonitorStats:
+    windows: int = 0
+    diagnosed: int = 0
+    failed: int = 0
+    skipped_short: int = 0
+    errors: list[str] = field(default_factory=list)
+    polls: int = 0
+    polls_failed: int = 0
+    polls_missed: int = 0
+    poll_cpu_s: float = 0.0
+    wall_s: float = 0.0
+
+
+def window_id(record: Any) -> str:
+    """A file-safe name for a window from its first sample's UTC time (``20261122T163000Z``)."""
+    start = str(record.start or "")
+    digits = "".join(ch for ch in start[:19] if ch.isdigit())
+    if len(digits) >= 14:
+        return f"{digits[:8]}T{digits[8:14]}Z" + (f"_s{record.meta.get('segment')}"
+                                                    if (record.meta.get("n_segments") or 1) > 1 else "")
+    return f"w{int(time.time() * 1000)}"
+
+
+def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figures: bool = False) -> dict:
+    """Diagnose one window and write its JSON and Markdown (runs in a worker process)."""
+    from .batch import _worker_setup, safe_name
+    from .pipeline import diagnose
+    from .report import loop_blocks, to_markdown, write_atomic
+
+    _worker_setup()
+    diag = diagnose(record, explain=explain)
+    loop = safe_name(record.name)
+    wid = window_id(record)
+    res = diag.result
+    res["loop_id"] = loop
+    res["window"] = wid
+    res["input_hash"] = f"window:{wid}"
+    d = Path(out_dir) / loop
+    names: list[str] = []
+    if figures:
+        from . import figures as figs
+
+        pngs = figs.loop_figures(diag)
+        for name, png in pngs.items():
+            write_atomic(d / f"{wid}_{name}.png", png)
+        names = list(pngs)
+    md = to_markdown(loop_blocks(res, names), figure_path=f"{wid}_{{name}}.png")
+    text = json.dumps(res, indent=1, allow_nan=False)
+    write_atomic(d / f"{wid}.md", md)
+    write_atomic(d / f"{wid}.json", text)
+    write_atomic(d / "latest.md", md)
+    write_atomic(d / "latest.json", text)
+    return res
+
+
+def _warm_up() -> bool:
+    """Import the diagnosis stack in a fresh worker before the first window arrives."""
+    from .batch import _worker_setup
+
+    _worker_setup()
+    from . import pipeline, report  # noqa: F401
+    from .. import identify  # noqa: F401
+
+    return True
+
+
+class Monitor:
+    """Poll, diagnose windows off the event loop, store and publish the results.
+
+    Parameters
+    ----------
+    config : ModbusConfig or path
+        The poller configuration (`connectors.modbus.load_modbus_config`).
+    out_dir : path
+        Where each window's JSON/Markdown goes (``OUT/LOOP/``).
+    db : path, optional
+        History database (`diagnose.service.history.default_db_path()` when None); ``history=False``
+        leaves it alone.
+    metrics_port : int, optional
+        Serve Prometheus metrics on this local port.
+    window_samples : int, optional
+        Samples per diagnosed window (default: the configuration's).
+    workers : int
+        Diagnosis worker processes (0: diagnose in a thread of this process).
+    min_fraction : float
+        A window shorter than this fraction of ``window_samples`` (a cut or final partial window) is
+        not diagnosed.
+    log : text stream
+        One line per window (default stderr).
+    """
+
+    def __init__(self, config: Any, out_dir: str | os.PathLike, *, db: str | os.PathLike | None = None,
+                 history: bool = True, metrics_port: int | None = None, window_samples: int | None = None,
+                 workers: int = 1, explain: bool | str = False, figures: bool = False,
+                 min_fraction: float = 0.5, log: TextIO | None = None,
+                 on_result: Callable[[dict], Any] | None = None) -> None:
+        from connectors.modbus import ModbusPoller, load_modbus_config
+
+        self.config = config if not isinstance(config, (str, os.PathLike)) else load_modbus_config(config)
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.explain = explain
+        self.figures = figures
+        self.log = log if log is not None else sys.stderr
+        self.on_result = on_result
+        self.window_samples = int(window_samples or self.config.window_samples)
+        self.min_samples = max(int(min_fraction * self.window_samples), 60)
+        self.stats = MonitorStats()
+        self.poller = ModbusPoller(self.config, on_window=self._on_window, window_samples=self.window_samples)
+        self.history = None
+        if history:
+            from .history import History
+
+            self.history = History(db)
+        self.metrics = None
+        if metrics_port is not None:
+            from .metrics import Metrics
+
+            self.metrics = Metrics(metrics_port, poll_stats=lambda: self.poller.stats)
+        self.workers = workers
+        self._pool: Any = None
+        self._pending: set[Any] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    # ------------------------------------------------------------------------------ windows
+    def _submit(self, record: Any) -> Any:
+        self._ensure_pool()
+        return self._pool.submit(diagnose_window, record, str(self.out_dir), self.explain, self.figures)
+
+    def _ensure_pool(self) -> None:
+        if self._pool is None:
+            if self.workers > 0:
+                import multiprocessing as mp
+                from concurrent.futures import ProcessPoolExecutor
+
+                from .batch import _worker_setup
+
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("forkserver"),
+                                                 initializer=_worker_setup)
+                for _ in range(self.workers):
+                    self._pool.submit(_warm_up)
+            else:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(1)
+
+    def _on_window(self, record: Any) -> None:
+        self.stats.windows += 1
+        if record.n < self.min_samples:
+            self.stats.skipped_short += 1
+            return
+        fut = self._submit(record)
+        self._pending.add(fut)
+        loop = self._loop
+        fut.add_done_callback(lambda f: loop.call_soon_threadsafe(self._done, record.name, f)
+                              if loop is not None and not loop.is_closed() else self._done(record.name, f))
+
+    def _done(self, name: str, fut: Future) -> None:
+        self._pending.discard(fut)
+        try:
+            res = fut.result()
+        except Exception as exc:
+            self.stats.failed += 1
+            msg = f"{name}: window not diagnosed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            self.stats.errors.append(msg)
+            print(msg, file=self.log, flush=True)
+            if self.metrics is not None:
+                self.metrics.failed(name)
+            return
+        self.stats.diagnosed += 1
+        if self.history is not None:
+            self.history.add(res)
+        if self.metrics is not None:
+            self.metrics.observe(res.get("loop_id", name), res)
+        print(f"{res.get('loop_id', name)} {res.get('window')}: {res.get('verdict')}", file=self.log, flush=True)
+        if self.on_result is not None:
+            self.on_result(res)
+
+    # ------------------------------------------------------------------------------ running
+    async def run(self, duration_s: float | None = None, *, drain_s: float = 120.0) -> MonitorStats:
+        """Poll for ``duration_s`` seconds (forever when None), then finish pending diagnoses."""
+        self._loop = asyncio.get_running_loop()
+        t0 = time.monotonic()
+        self._ensure_pool()
+        try:
+            await self.poller.run(duration_s)
+            deadline = time.monotonic() + drain_s
+            while self._pending and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+        finally:
+            self.stats.wall_s = time.monotonic() - t0
+            for st in self.poller.stats.values():
+                self.stats.polls += st.polls
+                self.stats.polls_failed += st.failed
+                self.stats.polls_missed += st.missed
+            self.stats.poll_cpu_s = self.poller.cpu_s
+            self.close()
+        return self.stats
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self.history is not None:
+            self.history.close()
+            self.history = None
+        if self.metrics is not None:
+            self.metrics.close()
+            self.metrics = None
+
+
+def run_monitor(config: Any, out_dir: str | os.PathLike, *, duration_s: float | None = None,
+                **kw: Any) -> MonitorStats:
+    """Run a `Monitor` to completion (Ctrl-C stops it cleanly)."""
+    mon = Monitor(config, out_dir, **kw)
+    try:
+        return asyncio.run(mon.run(duration_s))
+    except StictionError:
+        mon.close()
+        raise

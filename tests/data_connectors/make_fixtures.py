@@ -1,0 +1,119 @@
+"""Regenerate the connector test fixtures (seeded). Real exports are trimmed copies of
+../shared/data files (see docs/data-sources.md for their origin and licences).
+
+    python tests/data_connectors/make_fixtures.py [/path/to/shared/data]
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).parent
+
+
+def sim(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    # a sticky-looking limit cycle with noise: OP triangle, PV square-ish
+    op = 50 + 5 * (2 * np.abs((t / 60.0) % 1 - 0.5) * 2 - 1) + rng.normal(0, 0.05, n)
+    pv = 20 + 2 * np.sign(np.sin(2 * np.pi * t / 60.0)) + rng.normal(0, 0.05, n)
+    return op, pv
+
+
+def real(data: Path) -> None:
+    src = data / "plant-dcs-stictiongpt/raw"
+    f = sorted(src.glob("stic_2411FIC20102_1003*"))[0]
+    lines = f.read_bytes().split(b"\n")
+    (HERE / "dcs_2411FIC20102_trim.txt").write_bytes(b"\n".join(lines[:5 + 240]) + b"\n")
+    for name in ("FIC-211_20241121-27.csv",):
+        raw = (data / "historian-exports" / name).read_bytes().split(b"\n")
+        (HERE / "historian_FIC211_trim.csv").write_bytes(b"\n".join(raw[:301]) + b"\n")
+    raw = (data / "isdb-subset/PAP2.csv").read_bytes().split(b"\n")
+    (HERE / "isdb_PAP2_trim.csv").write_bytes(b"\n".join(raw[:301]) + b"\n")
+
+
+def synthetic() -> None:
+    op, pv = sim()
+    t0 = datetime(2024, 3, 1, 8, 0, 0)
+    # wide, semicolon, decimal comma, European dates
+    with open(HERE / "wide_semicolon_comma.csv", "w", encoding="utf-8", newline="") as fh:
+        fh.write("Zeit;FIC101.OP;FIC101.PV;FIC101.SP\r\n")
+        for k in range(op.size):
+            ts = (t0 + timedelta(seconds=k)).strftime("%d.%m.%Y %H:%M:%S")
+            fh.write(f"{ts};{op[k]:.3f};{pv[k]:.3f};20,000\r\n".replace(".", ",", 0))
+    # fix decimal commas in value fields only
+    text = (HERE / "wide_semicolon_comma.csv").read_text(encoding="utf-8").splitlines()
+    out = [text[0]]
+    for line in text[1:]:
+        cells = line.split(";")
+        out.append(";".join([cells[0]] + [c.replace(".", ",") for c in cells[1:]]))
+    (HERE / "wide_semicolon_comma.csv").write_text("\r\n".join(out) + "\r\n", encoding="utf-8")
+    # long/tall with OPC quality codes and vendor text states, two loops, rows not sorted by time
+    rows = []
+    for k in range(200):
+        ts = (t0 + timedelta(seconds=k)).isoformat() + "Z"
+        for tag, v in (("FIC101.OP", op[k]), ("FIC101.PV", pv[k]), ("FIC102.OP", op[k] * 0.9),
+                       ("FIC102.PV", pv[k] + 1)):
+            q = 192
+            val = f"{v:.4f}"
+            if tag == "FIC101.PV" and k in (50, 51):
+                q = 0
+            if tag == "FIC101.PV" and k == 120:
+                val = "I/O Timeout"
+            if tag == "FIC101.OP" and k == 200:
+                val = "1.#QNAN"
+            rows.append(f"{tag},{ts},{val},{q}")
+    rows.sort(key=lambda r: r.split(",")[0])
+    (HERE / "long_opc_quality.csv").write_text("Tag,Timestamp,Value,Quality\n" + "\n".join(rows) + "\n",
+                                               encoding="utf-8")
+    # PI DataLink ragged: compressed archive points, one (time, value) pair per tag
+    tt = np.arange(op.size, dtype=float)
+    from_idx_op = np.arange(0, op.size, 1)
+    from_idx_pv = np.arange(0, op.size, 2)
+    n = max(from_idx_op.size, from_idx_pv.size)
+    lines = ["Timestamp,FIC103.OP,Timestamp,FIC103.PV"]
+    for k in range(n):
+        cells = []
+        for idx, x in ((from_idx_op, op), (from_idx_pv, pv)):
+            if k < idx.size:
+                ts = (t0 + timedelta(seconds=float(tt[idx[k]]))).strftime("%d-%b-%Y %H:%M:%S")
+                cells += [ts, f"{x[idx[k]]:.4f}"]
+            else:
+                cells += ["", ""]
+        lines.append(",".join(cells))
+    (HERE / "pi_datalink_ragged.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    # InfluxDB annotated CSV
+    lines = ["#datatype,string,long,dateTime:RFC3339,dateTime:RFC3339,dateTime:RFC3339,double,string,string,string",
+             "#group,false,false,true,true,false,false,true,true,true",
+             "#default,_result,,,,,,,,",
+             ",result,table,_start,_stop,_time,_value,_field,_measurement,loop"]
+    for ti, (field, x) in enumerate((("OP", op), ("PV", pv))):
+        for k in range(200):
+            ts = (t0 + timedelta(seconds=k)).isoformat() + "Z"
+            lines.append(f",,{ti},2024-03-01T08:00:00Z,2024-03-01T09:00:00Z,{ts},{x[k]:.5f},{field},process,FIC104")
+    (HERE / "influx_annotated.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    # tab-separated wide, naive local times across the Europe/Berlin autumn DST change, 60 s,
+    # newest row first, mode column with a manual stretch
+    lines = ["Timestamp\tTIC105.OP\tTIC105.PV\tTIC105.MODE"]
+    start_utc = datetime(2024, 10, 27, 0, 0, tzinfo=timezone.utc)  # 02:00 CEST
+    from zoneinfo import ZoneInfo
+
+    berlin = ZoneInfo("Europe/Berlin")
+    body = []
+    for k in range(240):
+        local = (start_utc + timedelta(minutes=k)).astimezone(berlin).replace(tzinfo=None)
+        mode = "MAN" if 100 <= k < 130 else "AUTO"
+        body.append(f"{local:%Y-%m-%d %H:%M:%S}\t{op[k]:.3f}\t{pv[k]:.3f}\t{mode}")
+    (HERE / "wide_tab_dst_berlin.tsv").write_text("\n".join(lines + body[::-1]) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    data = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[3] / "shared/data"
+    if data.exists():
+        real(data)
+    synthetic()

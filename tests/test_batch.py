@@ -1,0 +1,185 @@
+"""The nightly batch: discovery, reports, ranking, failures, resume, atomic writes, pools, Dask."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from connectors.historian import write_wide
+from diagnose.service import batch as B
+from diagnose.service.cli import main
+from diagnose.service.history import History
+from diagnose.simulate import sticky_loop
+
+# (name, S, J): a clearly sticky valve, a mildly sticky one, a healthy one
+LOOPS = [("FIC1", 5.0, 2.0), ("FIC2", 1.5, 0.5), ("FIC3", 0.0, 0.0)]
+
+
+def _write_loops(folder: Path, loops=LOOPS, n: int = 2000) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, (name, S, J) in enumerate(loops):
+        rec = sticky_loop(S, J, n=n, noise_std=0.03, load_walk_std=0.02, seed=10 + i, name=name)
+        write_wide(rec.replace(mv=None), folder / f"{name}.csv")
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory):
+    root = tmp_path_factory.mktemp("plant")
+    _write_loops(root / "logs")
+    (root / "logs" / "broken.csv").write_text("time,A.OP,A.PV\n2026-01-01T00:00:00Z,1,oops\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def first_run(plant):
+    out = plant / "out"
+    res = B.run_batch([plant / "logs"], out, workers=1, explain=False, db=plant / "h.sqlite", progress=False)
+    return out, res
+
+
+def test_discover_skips_hidden_foreign_and_output(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "x.csv").write_text("t")
+    (tmp_path / "a" / ".hidden.csv").write_text("t")
+    (tmp_path / "a" / "notes.md").write_text("t")
+    (tmp_path / ".git").mkdir()
+    (tmp_path / ".git" / "y.csv").write_text("t")
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "summary.csv").write_text("t")
+    (tmp_path / "b.txt").write_text("t")
+    files, missing = B.discover([tmp_path, tmp_path / "b.txt", tmp_path / "nope.csv"], exclude=[tmp_path / "out"])
+    assert sorted(f.relative_to(tmp_path).as_posix() for f in files) == ["a/x.csv", "b.txt"]
+    assert [m["status"] for m in missing] == ["failed"] and "nope.csv" in missing[0]["error"]
+
+
+def test_reports_summary_and_ranking(first_run):
+    out, res = first_run
+    ok = [r for r in res.rows if r["status"] == "ok"]
+    assert sorted(r["loop"] for r in ok) == ["FIC1", "FIC2", "FIC3"]
+    for name in ("FIC1", "FIC2", "FIC3"):
+        d = out / "loops" / name
+        for suffix in (".md", ".pdf", ".json"):
+            assert (d / f"{name}{suffix}").stat().st_size > 500
+        assert (d / "trends.png").exists() and (d / "phase.png").exists()
+    sev = [r["severity"] for r in ok]
+    assert sev == sorted(sev, reverse=True) and [r["rank"] for r in ok] == [1, 2, 3]
+    assert ok[0]["loop"] == "FIC1" and ok[-1]["loop"] == "FIC3"   # biggest stiction first, healthy last
+    with open(out / "summary.csv", newline="") as fh:
+        table = list(csv.DictReader(fh))
+    assert [t["loop"] for t in table] == [r["loop"] for r in res.rows]
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["n_loops"] == 4 and doc["n_failed"] == 1
+    md = (out / "summary.md").read_text()
+    assert "[FIC1](loops/FIC1/FIC1.md)" in md and "## Failed loops and files" in md
+    assert (out / "summary.pdf").read_bytes()[:5] == b"%PDF-"
+    assert not [p for p in out.rglob("*.tmp")], "temporary files left behind"
+
+
+def test_a_bad_file_is_recorded_and_the_rest_goes_on(first_run):
+    _, res = first_run
+    bad = [r for r in res.rows if r["status"] != "ok"]
+    assert len(bad) == 1 and bad[0]["source"].endswith("broken.csv") and bad[0]["error"]
+    assert res.n_failed == 1
+
+
+def test_history_gets_one_row_per_loop(first_run, plant):
+    with History(plant / "h.sqlite") as h:
+        assert h.loops() == ["FIC1", "FIC2", "FIC3"]
+        assert len(h.runs("FIC1")) == 1
+
+
+def test_rerun_skips_what_is_done_and_redoes_what_changed(first_run, plant):
+    out, first = first_run
+    again = B.run_batch([plant / "logs"], out, workers=1, explain=False, db=plant / "h.sqlite", progress=False)
+    assert again.n_skipped == 3 and again.n_failed == 1
+    assert [r["loop"] for r in again.rows] == [r["loop"] for r in first.rows]
+    # a changed file is diagnosed again; a loop whose result vanished (killed job) too
+    _write_loops(plant / "logs", [("FIC2", 2.5, 0.5)])
+    (out / "loops" / "FIC3" / "FIC3.json").unlink()
+    third = B.run_batch([plant / "logs"], out, workers=1, explain=False, db=plant / "h.sqlite", progress=False)
+    redone = sorted(r["loop"] for r in third.rows if r["status"] == "ok" and not r.get("skipped"))
+    assert redone == ["FIC2", "FIC3"]
+    with History(plant / "h.sqlite") as h:
+        assert len(h.runs("FIC1")) == 1 and len(h.runs("FIC2")) == 2 and len(h.runs("FIC3")) == 1
+
+
+def test_cli_exit_code_says_whether_any_failed(plant, tmp_path, capsys):
+    good = tmp_path / "good"
+    good.mkdir()
+    (good / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
+    args = ["batch", str(good), "--out", str(tmp_path / "o1"), "--workers", "1", "--no-explain", "--no-pdf",
+            "--db", str(tmp_path / "h.sqlite"), "--quiet"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "1 diagnosed" in out and "summary.md" in out
+    assert main(args[:1] + [str(plant / "logs" / "broken.csv")] + args[2:]) == 1
+    assert "failed: broken" in capsys.readouterr().err
+    assert main(["batch", str(tmp_path / "empty-nothing"), "--out", str(tmp_path / "o3"), "--quiet",
+                 "--db", str(tmp_path / "h.sqlite")]) == 1
+
+
+def test_degradation_reaches_report_and_summary(plant, tmp_path):
+    db = tmp_path / "h.sqlite"
+    with History(db) as h:
+        for i, S in enumerate([1.0, 2.0]):
+            h.add({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}"},
+                  run_at=f"2026-01-0{i + 1}T00:00:00+00:00")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
+    res = B.run_batch([logs], tmp_path / "out", workers=1, explain=False, pdf=False, db=db, progress=False)
+    row = res.rows[0]
+    assert row["S_pct"] > 3.0 and row["degradation"] and "S grew" in row["degradation"]
+    md = (tmp_path / "out" / "loops" / "FIC1" / "FIC1.md").read_text()
+    assert "history.degradation" in md and "## History" in md
+    assert "Degrading valves" in (tmp_path / "out" / "summary.md").read_text()
+
+
+def test_killed_job_resumes(plant, tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "diagnose.service.cli", "batch", str(plant / "logs"), "--out", str(out),
+           "--workers", "1", "--no-explain", "--no-pdf", "--db", str(tmp_path / "h.sqlite"), "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not list(out.glob("loops/*/*.json")):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    done = {p.stem for p in out.glob("loops/*/*.json")}
+    assert 1 <= len(done) < 3 and not (out / "summary.json").exists()
+    res = B.run_batch([plant / "logs"], out, workers=1, explain=False, pdf=False, db=tmp_path / "h.sqlite",
+                      progress=False)
+    skipped = {r["loop"] for r in res.rows if r.get("skipped")}
+    assert skipped == done and sum(r["status"] == "ok" for r in res.rows) == 3
+
+
+def _sj(res):
+    return {r["loop"]: (r["S_pct"], r["J_pct"], r["class"]) for r in res.rows if r["status"] == "ok"}
+
+
+def test_process_pool_and_dask_localcluster_agree(plant, tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("FIC1.csv", "FIC3.csv", "broken.csv"):
+        (logs / name).write_bytes((plant / "logs" / name).read_bytes())
+    kw = dict(explain=False, pdf=False, history=False, progress=False)
+    pool = B.run_batch([logs], tmp_path / "pool", workers=2, **kw)
+    dask = B.run_batch([logs], tmp_path / "dask", workers=1, scheduler="local", **kw)
+    want = _sj(pool)
+    assert sorted(want) == ["FIC1", "FIC3"]
+    assert want["FIC1"][0] == pytest.approx(5.0, abs=0.5) and want["FIC3"][2] == "none"  # the truth
+    got = _sj(dask)
+    assert sorted(got) == sorted(want)
+    for k in want:  # the same computation wherever it runs
+        assert got[k][2] == want[k][2]
+        assert got[k][:2] == pytest.approx(want[k][:2], abs=1e-9)
+    for res in (pool, dask):
+        assert res.n_failed == 1 and (res.out_dir / "loops" / "FIC1" / "FIC1.md").exists()

@@ -1,0 +1,388 @@
+"""Historian connectors: every layout, time handling, tag maps, folders, bad input, fuzzing."""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from connectors import list_sources, read_records
+from connectors.columns import role_of, split_tag
+from connectors.historian import format_wide, read_wide, write_wide
+from connectors.layouts import detect_layout
+from connectors.tagmap import load_tagmap
+from connectors.textio import load_text, quality_good
+from connectors.timebase import parse_times
+from diagnose.errors import ConnectorError
+from diagnose.record import LoopRecord
+
+DATA = Path(__file__).parent / "data_connectors"
+FUZZ = int(os.environ.get("STICTION_FUZZ_EXAMPLES", "150"))  # raise for a longer fuzzing run
+TAGMAP = DATA / "tagmap_historian.toml"
+
+
+def codes(rec):
+    return {f.code for f in rec.findings}
+
+
+def wide_text(n=200, sep=",", header=("time", "FIC1.OP", "FIC1.PV"), seed=0, start_s=0):
+    rng = np.random.default_rng(seed)
+    lines = [sep.join(header)]
+    for k in range(n):
+        lines.append(sep.join([f"2024-05-01T00:{(start_s + k) // 60:02d}:{(start_s + k) % 60:02d}Z",
+                               f"{50 + rng.normal():.4f}", f"{20 + rng.normal():.4f}"]))
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------------------ layouts
+
+@pytest.mark.parametrize("fname, layout", [
+    ("dcs_2411FIC20102_trim.txt", "dcs"), ("historian_FIC211_trim.csv", "wide"),
+    ("isdb_PAP2_trim.csv", "wide"), ("long_opc_quality.csv", "long"),
+    ("pi_datalink_ragged.csv", "ragged"), ("influx_annotated.csv", "influx"),
+    ("wide_semicolon_comma.csv", "wide"), ("wide_tab_dst_berlin.tsv", "wide"),
+])
+def test_layout_detection(fname, layout):
+    assert detect_layout(load_text(DATA / fname)) == layout
+
+
+def test_dcs_export_mv_is_the_controller_output():
+    (rec,) = read_records(DATA / "dcs_2411FIC20102_trim.txt")
+    raw = (DATA / "dcs_2411FIC20102_trim.txt").read_text(encoding="utf-8").splitlines()
+    first = raw[5].split("\t")
+    assert rec.name == "2411FIC20102"
+    assert rec.op[0] == pytest.approx(float(first[1]))      # <tag>.MV -> OP
+    assert rec.pv[0] == pytest.approx(float(first[2]))
+    assert rec.sp[0] == pytest.approx(float(first[3]))      # .SV -> SP
+    assert rec.mv is None
+    assert rec.ts_s == 10.0 and rec.n == 240
+    assert rec.start == "2024-10-02T21:55:00Z"
+    assert rec.meta["format"] == "dcs" and rec.meta["has_mode"] and rec.meta["manual_intervals"] == []
+
+
+def test_historian_export_needs_a_tag_map_and_reads_newest_first():
+    with pytest.raises(ConnectorError, match=r"historian_FIC211_trim\.csv: no OP or PV column.*--op/--pv.*--tags"):
+        read_records(DATA / "historian_FIC211_trim.csv")
+    (rec,) = read_records(DATA / "historian_FIC211_trim.csv", tags=TAGMAP)
+    assert rec.name == "FIC211" and rec.ts_s == 60.0 and rec.n == 300
+    assert rec.meta["order"] == "newest_first" and rec.meta["bom"] is True
+    # oldest first after reading: the file's last data row is the record's first sample
+    last = (DATA / "historian_FIC211_trim.csv").read_text(encoding="utf-8-sig").splitlines()[-1].split(",")
+    assert rec.pv[0] == pytest.approx(float(last[3])) and rec.op[0] == pytest.approx(float(last[4]))
+    assert rec.start == f"{last[1]}T{last[2]}Z"
+    (rec2,) = read_records(DATA / "historian_FIC211_trim.csv", op="FV_211", pv="FT_211")
+    np.testing.assert_allclose(rec2.op, rec.op)
+
+
+def test_tag_map_scales_op_to_percent(tmp_path):
+    tm = tmp_path / "map.toml"
+    tm.write_text('[loops.FIC211]\nop = { tag = "FV_211", range = [20, 70] }\npv = "FT_211"\n')
+    (rec,) = read_records(DATA / "historian_FIC211_trim.csv", tags=tm)
+    (raw,) = read_records(DATA / "historian_FIC211_trim.csv", op="FV_211", pv="FT_211")
+    np.testing.assert_allclose(rec.op, 100 * (raw.op - 20) / 50)
+    assert rec.ranges["op"] == (20.0, 70.0)
+
+
+def test_isdb_seconds_column():
+    (rec,) = read_records(DATA / "isdb_PAP2_trim.csv")
+    assert rec.name == "isdb_PAP2_trim" and rec.ts_s == 1.0 and rec.n == 300 and rec.start is None
+    assert rec.op[:2].tolist() == [18.48, 18.61]
+
+
+def test_long_layout_with_quality_codes_and_text_states():
+    recs = read_records(DATA / "long_opc_quality.csv")
+    assert [r.name for r in recs] == ["FIC101", "FIC102"]
+    r1 = recs[0]
+    bad = next(f for f in r1.findings if f.code == "bad_values")
+    assert bad.data["role"] == "pv" and bad.data["bad_quality"] == 2 and bad.data["text"] == 1
+    assert "I/O Timeout" in bad.data["examples"]
+    gap = next(f for f in r1.findings if f.code == "gap")
+    assert gap.data["filled"] == 3                      # short gaps interpolated, counted
+    assert np.all(np.isfinite(r1.pv)) and r1.n == 200
+    assert "bad_values" not in codes(recs[1])
+
+
+def test_pi_datalink_ragged_two_timestamp_columns():
+    (rec,) = read_records(DATA / "pi_datalink_ragged.csv")
+    assert rec.name == "FIC103" and rec.ts_s == 1.0
+    assert rec.meta["format"] == "ragged"
+    # PV archived every 2 s: odd samples interpolated halfway, not reported as gaps
+    assert "gap" not in codes(rec)
+    text = (DATA / "pi_datalink_ragged.csv").read_text().splitlines()
+    pv0, pv2 = float(text[1].split(",")[3]), float(text[2].split(",")[3])
+    assert rec.pv[1] == pytest.approx((pv0 + pv2) / 2)
+
+
+def test_influx_annotated_csv():
+    (rec,) = read_records(DATA / "influx_annotated.csv")
+    assert rec.name == "FIC104" and rec.n == 200 and rec.meta["format"] == "influx"
+
+
+def test_semicolon_decimal_comma_european_dates():
+    (rec,) = read_records(DATA / "wide_semicolon_comma.csv")
+    assert rec.meta["delimiter"] == "semicolon" and rec.meta["decimal"] == ","
+    assert rec.op[0] == pytest.approx(55.006) and np.all(rec.sp == 20.0)
+    assert rec.start == "2024-03-01T08:00:00Z"
+
+
+def test_dst_local_times_and_mode_column():
+    (naive,) = read_records(DATA / "wide_tab_dst_berlin.tsv")
+    assert "duplicates" in codes(naive)                # the repeated hour read as UTC collides
+    (rec,) = read_records(DATA / "wide_tab_dst_berlin.tsv", tz="Europe/Berlin")
+    assert rec.n == 240 and rec.ts_s == 60.0 and "duplicates" not in codes(rec)
+    assert rec.start == "2024-10-27T00:00:00Z"
+    assert rec.meta["order"] == "newest_first"
+    assert rec.meta["manual_intervals"] == [[100, 130]]
+    man = next(f for f in rec.findings if f.code == "manual_mode")
+    assert man.severity == "warning" and man.data["samples"] == 30
+    with pytest.raises(ConnectorError, match=r"wide_tab_dst_berlin\.tsv:\d+ \(column 'Timestamp'\): local time .* ambiguous"):
+        read_records(DATA / "wide_tab_dst_berlin.tsv", tz="Europe/Berlin", dst="raise")
+
+
+def test_dst_spring_forward_gap_is_shifted():
+    pt = parse_times(["2024-03-31 01:59:00", "2024-03-31 02:30:00", "2024-03-31 03:01:00"], tz="Europe/Berlin")
+    d = np.diff(pt.seconds)
+    assert d[0] == pytest.approx(31 * 60 - 3600 + 3600)  # 02:30 does not exist -> 03:30 CEST = 01:30Z
+    with pytest.raises(ConnectorError, match="does not exist"):
+        parse_times(["2024-03-31 02:30:00"], tz="Europe/Berlin", dst="raise")
+
+
+@pytest.mark.parametrize("texts, expect", [
+    (["2024-11-27 23:59:00", "2024-11-28 00:00:00"], 1732751940.0),
+    (["2024-11-27T23:59:00Z"], 1732751940.0),
+    (["2024-11-27T23:59:00+01:00"], 1732751940.0 - 3600),
+    (["27-Nov-2024 23:59:00"], 1732751940.0),
+    (["11/27/2024 11:59:00 PM"], 1732751940.0),
+    (["27/11/2024 23:59"], 1732751940.0),
+    (["27.11.2024 23:59:00,000"], 1732751940.0),
+    (["2024/11/27 23:59:00"], 1732751940.0),
+    (["1732751940"], 1732751940.0),
+    (["1732751940000"], 1732751940.0),
+])
+def test_vendor_timestamp_formats(texts, expect):
+    assert parse_times(texts).seconds[0] == pytest.approx(expect)
+
+
+def test_day_first_decided_by_the_column():
+    pt = parse_times(["01/02/2024 00:00", "13/02/2024 00:00"])
+    assert pt.seconds[1] - pt.seconds[0] == pytest.approx(12 * 86400)
+
+
+def test_irregular_duplicates_and_long_gap_make_segments():
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.7, 1.3, 400))
+    t = np.concatenate([t[:200], t[200:] + 100.0])             # a 100 s hole
+    rows = ["time_s,OP,PV"] + [f"{a:.3f},{50 + np.sin(a / 9):.4f},{np.cos(a / 9):.4f}" for a in t]
+    rows.insert(50, rows[50])                                   # a duplicated row
+    recs = read_records(io.StringIO("\n".join(rows)), ts_s=1.0)
+    assert len(recs) == 2
+    assert [r.meta["segment"] for r in recs] == [0, 1] and recs[0].meta["n_segments"] == 2
+    c = codes(recs[0])
+    assert {"segment", "irregular_sampling", "duplicates"} <= c
+    # the grid is uniform and values follow the interpolated signal
+    tt = recs[0].t_s + float(t[0])
+    np.testing.assert_allclose(recs[0].op, 50 + np.sin(tt / 9), atol=0.01)
+
+
+def test_too_few_samples_between_gaps():
+    text = "time_s,OP,PV\n" + "".join(f"{k * 100},{k},{k}\n" for k in range(30))
+    with pytest.raises(ConnectorError, match="too few samples"):
+        read_records(io.StringIO(text), ts_s=1.0)
+
+
+def test_many_loops_in_one_file_and_loop_selection():
+    text = "time,A.OP,A.PV,B.OUT,B.MEAS,B.SP\n" + "".join(
+        f"{k},{k % 7},{k % 5},{k % 3},{k % 11},1\n" for k in range(100))
+    recs = read_records(io.StringIO(text))
+    assert [r.name for r in recs] == ["A", "B"] and recs[1].sp is not None
+    (b,) = read_records(io.StringIO(text), loop="B")
+    assert b.name == "B"
+    with pytest.raises(ConnectorError, match="no loop named 'C'"):
+        read_records(io.StringIO(text), loop="C")
+
+
+def test_folder_of_files_merges_a_loop_over_days(tmp_path):
+    (tmp_path / "day1.csv").write_text(wide_text(100, start_s=0))
+    (tmp_path / "day2.csv").write_text(wide_text(100, start_s=100, seed=1))
+    (tmp_path / "notes.md").write_text("not data")
+    assert [Path(p).name for p in list_sources(tmp_path)] == ["day1.csv", "day2.csv"]
+    (rec,) = read_records(tmp_path)
+    assert rec.name == "FIC1" and rec.n == 200
+
+
+def test_folder_with_tag_map_skips_files_without_its_loops(tmp_path):
+    shutil.copy(DATA / "historian_FIC211_trim.csv", tmp_path)
+    shutil.copy(DATA / "isdb_PAP2_trim.csv", tmp_path)
+    recs = read_records(tmp_path, tags=TAGMAP)
+    assert [r.name for r in recs] == ["FIC211"]
+
+
+def test_tag_map_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[loops.X]\nop = 'A'\n")
+    with pytest.raises(ConnectorError, match=r"bad\.toml: loops\.X needs an pv tag"):
+        load_tagmap(bad)
+    bad.write_text("[loops.X\n")
+    with pytest.raises(ConnectorError, match="not valid TOML"):
+        load_tagmap(bad)
+    with pytest.raises(ConnectorError, match="none of the tag map's loops"):
+        read_records(DATA / "isdb_PAP2_trim.csv", tags=TAGMAP)
+
+
+def test_write_then_read_round_trip(tmp_path):
+    rec = LoopRecord("FIC7", 2.0, np.linspace(10, 20, 50), np.linspace(0, 1, 50), sp=np.ones(50),
+                     mv=np.linspace(10, 20, 50))
+    write_wide(rec, tmp_path / "x.csv")
+    back = read_wide(tmp_path / "x.csv")
+    assert back.name == "FIC7" and back.ts_s == 2.0 and back.mv is not None
+    np.testing.assert_allclose(back.op, rec.op, atol=1e-4)
+    assert format_wide(rec).startswith("time,FIC7.OP,FIC7.PV,FIC7.SP,FIC7.POS\n")
+
+
+def test_columns_naming_rule():
+    assert split_tag("LYCDU.CDU.7040-312_LIC63001.MV") == ("LYCDU.CDU.7040-312_LIC63001", "mv")
+    assert role_of("FIC1.MV") == "op" and role_of("MV") == "mv" and role_of("FIC1.SV") == "sp"
+    assert role_of("FIC1.MODE") == "mode" and role_of("time") == "time" and role_of("FT_211") is None
+
+
+def test_quality_schemes():
+    assert quality_good(["192", "0", "216", "64"], "Quality")[0].tolist() == [True, False, True, False]
+    assert quality_good(["0", "1", "2"], "Status")[0].tolist() == [True, False, False]
+    assert quality_good(["100", "20"], "Confidence")[0].tolist() == [True, False]
+    assert quality_good(["Good", "Bad", "Questionable", "Substituted"], "q")[0].tolist() == [True, False, False, False]
+
+
+def test_prefix_rule_for_bare_loop_columns():
+    text = "t,OP,MV,PV_flow_t_h,P1\n" + "".join(f"{k},{k % 9},{k % 9},{k % 4},1\n" for k in range(50))
+    (rec,) = read_records(io.StringIO(text))
+    assert rec.meta["columns"]["pv"] == "PV_flow_t_h" and rec.mv is not None
+
+
+# -------------------------------------------------------------------------------------- bad input
+
+@pytest.mark.parametrize("content, pattern", [
+    (b"", "file is empty"),
+    (b"   \n\n", "file is empty"),
+    (b"time,OP,PV\n", "header only"),
+    (b"time,FIC1.PV,X\n1,2,3\n2,3,4\n", "no OP column found"),
+    (b"time,OP,PV\n" + b"".join(b"%d,Bad,%d\n" % (k, k) for k in range(30)), "only text values"),
+    (b"time,OP,PV\n" + b"".join(b"%d,nan,inf\n" % k for k in range(30)), "only NaN/inf"),
+    (b"time,OP,PV\n1,2,3\n2,3,4\n3,4,5\n", "too few samples"),
+    (b"PK\x03\x04\x14\x00\x06\x00garbage", "zip/Excel"),
+    (b"\x00\x01\x02\x03binary\x00\x00", "binary"),
+    (b"time,OP,PV\n1,2,3\n2,3\n3,4,5\n", r":3: row has 2 fields but the header has 3"),
+    (b'time,OP,PV\n1,2,3\n2,"3,4\n', "unterminated quote"),
+    (b"time,OP,PV\n1,2,3\n2,3,4,5\n", "row has 4 fields"),
+])
+def test_bad_input_one_line_errors(tmp_path, content, pattern):
+    f = tmp_path / "loop.csv"
+    f.write_bytes(content)
+    with pytest.raises(ConnectorError, match=pattern) as ei:
+        read_records(f)
+    msg = str(ei.value)
+    assert msg.startswith(str(f)) and "\n" not in msg
+
+
+def test_missing_file_and_empty_folder(tmp_path):
+    with pytest.raises(ConnectorError, match=r"nope\.csv: file not found"):
+        read_records(tmp_path / "nope.csv")
+    with pytest.raises(ConnectorError, match="folder has no export files"):
+        read_records(tmp_path)
+
+
+def test_newest_first_is_not_an_error():
+    rows = wide_text(100).splitlines()
+    (rec,) = read_records(io.StringIO("\n".join([rows[0]] + rows[1:][::-1])))
+    (fwd,) = read_records(io.StringIO("\n".join(rows)))
+    np.testing.assert_allclose(rec.op, fwd.op)
+    assert rec.meta["order"] == "newest_first"
+
+
+def test_op_never_moves_is_a_warning_finding():
+    text = "time,OP,PV\n" + "".join(f"{k},37.5,{np.sin(k / 5):.4f}\n" for k in range(100))
+    (rec,) = read_records(io.StringIO(text))
+    f = next(f for f in rec.findings if f.code == "frozen" and f.data["role"] == "op")
+    assert f.severity == "warning" and f.data["whole_record"] is True and "never moves" in f.message
+
+
+def test_binary_stream_and_cli_error(tmp_path, capsys):
+    from diagnose.service.cli import main
+
+    f = tmp_path / "x.xlsx"
+    f.write_bytes(b"PK\x03\x04" + bytes(range(256)))
+    assert main(["identify", str(f)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "Traceback" not in err and "x.xlsx" in err
+
+
+@settings(max_examples=FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.binary(max_size=600))
+def test_fuzz_bytes_only_connector_error(data):
+    try:
+        recs = read_records(io.BytesIO(data))
+    except ConnectorError:
+        return
+    assert all(isinstance(r, LoopRecord) for r in recs)
+
+
+_cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                  st.sampled_from(["", "Bad", "I/O Timeout", "1.#QNAN", "12,5", "2024-01-01 00:00:00",
+                                   "27-Nov-2024 23:59:00", '"', "NaN", "-", "1e309"]),
+                  st.text(max_size=6))
+
+
+@settings(max_examples=FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(header=st.lists(st.sampled_from(["time", "OP", "PV", "SP", "FIC1.OP", "FIC1.PV", "Tag", "Value",
+                                         "Timestamp", "date", "_time", "_value", "Quality", "x"]),
+                       min_size=1, max_size=6),
+       rows=st.lists(st.lists(_cell, min_size=0, max_size=7), max_size=40),
+       sep=st.sampled_from([",", ";", "\t"]),
+       fmt=st.sampled_from([None, "wide", "long", "ragged", "influx", "dcs"]))
+def test_fuzz_structured_only_connector_error(header, rows, sep, fmt):
+    text = sep.join(header) + "\n" + "\n".join(sep.join(r) for r in rows)
+    try:
+        recs = read_records(io.StringIO(text), fmt=fmt, min_samples=2)
+    except ConnectorError:
+        return
+    for r in recs:
+        assert np.all(np.isfinite(r.op)) and np.all(np.isfinite(r.pv)) and r.n >= 2
+
+
+def test_findings_and_meta_are_json_serialisable():
+    import json
+
+    for fname in ("dcs_2411FIC20102_trim.txt", "long_opc_quality.csv", "wide_tab_dst_berlin.tsv",
+                  "pi_datalink_ragged.csv"):
+        for rec in read_records(DATA / fname, tz="Europe/Berlin"):
+            json.dumps([f.to_dict() for f in rec.findings], allow_nan=False)
+            json.dumps(dict(rec.meta), allow_nan=False)
+
+
+def test_file_objects_text_and_binary():
+    text = wide_text(60)
+    (a,) = read_records(io.StringIO(text))
+    (b,) = read_records(io.BytesIO(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode()))
+    np.testing.assert_allclose(a.op, b.op)
+    assert b.meta["bom"] is True
+
+
+def test_vendor_variants_two_row_ragged_german_date_time_thousands():
+    n = 40
+    rows = ["FIC1.OP,,FIC1.PV,", "Timestamp,Value,Timestamp,Value"] + [
+        f"27-Nov-2024 10:{k:02d}:00,{50 + k % 5},27-Nov-2024 10:{k:02d}:30,{20 + k % 3}" for k in range(n)]
+    (r,) = read_records(io.StringIO("\n".join(rows)))
+    assert r.name == "FIC1" and r.meta["format"] == "ragged" and r.ts_s == 60.0
+    rows = ["Datum;Zeit;FIC2.OP;FIC2.PV"] + [f"27.11.2024;10:{k:02d}:00;{50 + k % 5},5;{20 + k % 3},25"
+                                             for k in range(n)]
+    (r,) = read_records(io.StringIO("\n".join(rows)))
+    assert r.start == "2024-11-27T10:00:00Z" and r.op[0] == 50.5 and r.pv[1] == 21.25
+    rows = ['"time","FIC3.OP","FIC3.PV"'] + [f'"2024-11-27 10:{k:02d}:00","{50 + k % 5}.5","1,{200 + k}.5"'
+                                             for k in range(n)]
+    (r,) = read_records(io.StringIO("\n".join(rows)))
+    assert r.pv[0] == 1200.5

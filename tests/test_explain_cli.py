@@ -1,0 +1,64 @@
+"""`stiction explain`: one JSON object on stdout, a figure, a human summary, one-line errors."""
+
+import json
+
+import pytest
+
+from connectors.historian import write_wide
+from diagnose.physics.concealed import concealed_loop
+from diagnose.service.cli import main
+
+
+@pytest.fixture(scope="module")
+def csv_with_mv(tmp_path_factory):
+    rec, _ = concealed_loop("asymmetric_stiction", 100, n=3000, with_mv=True)
+    path = tmp_path_factory.mktemp("explain") / "loop.csv"
+    write_wide(rec, path)
+    return path
+
+
+def test_json_is_one_object_and_the_figure_is_written(csv_with_mv, tmp_path, capsys):
+    png = tmp_path / "explain.png"
+    rc = main(["explain", str(csv_with_mv), "--json", "--figure", str(png)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    lines = [ln for ln in out.splitlines() if ln.strip()]
+    assert len(lines) == 1
+    d = json.loads(lines[0])
+    assert {"missing_physics", "baseline_rmse", "improved_rmse", "hypotheses", "mismatch",
+            "explanation", "warnings"} <= set(d)
+    assert d["missing_physics"] == "asymmetric_stiction"
+    assert d["target"] == "mv"           # a valve-side effect is judged on the stem position
+    assert d["improved_rmse"] < d["baseline_rmse"]
+    names = {h["name"] for h in d["hypotheses"]}
+    assert {"actuator_lag", "asymmetric_stiction", "valve_characteristic", "external_disturbance",
+            "time_varying_friction"} <= names
+    assert png.exists() and png.stat().st_size > 10_000
+
+
+def test_human_summary_with_a_subset_of_hypotheses(csv_with_mv, capsys):
+    rc = main(["explain", str(csv_with_mv), "--target", "mv", "--hypotheses", "actuator_lag"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "missing physics" in out and "actuator_lag" in out and "asymmetric" not in out.split("\n")[2]
+
+
+@pytest.mark.parametrize("argv,msg", [
+    (["--mv", "NOPE"], "no column named 'NOPE'"),
+    (["--hypotheses", "gremlins"], "unknown hypothesis 'gremlins'"),
+    (["--train-fraction", "0.95"], "--train-fraction 0.95"),
+])
+def test_bad_input_is_one_line_and_exit_1(csv_with_mv, capsys, argv, msg):
+    rc = main(["explain", str(csv_with_mv), *argv])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert err.startswith("error: ") and msg in err and "Traceback" not in err
+
+
+def test_target_mv_needs_the_stem_position(tmp_path, capsys):
+    rec, _ = concealed_loop("none", 2, n=600)
+    path = tmp_path / "nomv.csv"
+    write_wide(rec, path)
+    rc = main(["explain", str(path), "--target", "mv"])
+    assert rc == 1
+    assert "stem position" in capsys.readouterr().err

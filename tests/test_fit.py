@@ -1,0 +1,154 @@
+"""Hammerstein fit: process models, recovery of S and J, the direct valve fit, bad input."""
+
+import numpy as np
+import pytest
+
+from diagnose.errors import DataError, NotFittedError
+from diagnose.fit import (ErrorSurface, HammersteinFit, StictionEstimator, ValveFit, fit_hammerstein,
+                          fit_valve)
+from diagnose.process_model import ProcessModel
+from diagnose.simulate import FOPTD, SOPTD, Integrating, sticky_loop
+from diagnose.stiction_model import stiction_batch, stiction_class
+
+
+def _open_loop(process, u, ts_s):
+    out = [process.reset(u[0], ts_s)]
+    for v in u[1:]:
+        out.append(process.step(v))
+    return np.asarray(out)
+
+
+@pytest.mark.parametrize("model,sim", [
+    (ProcessModel("foptd", gain=1.7, tau_s=12.0, delay_s=3.0, bias=2.0),
+     FOPTD(gain=1.7, tau_s=12.0, delay_s=3.0, bias=2.0)),
+    (ProcessModel("soptd", gain=-0.8, tau_s=20.0, delay_s=2.0, bias=5.0, tau2_s=5.0),
+     SOPTD(gain=-0.8, tau1_s=20.0, tau2_s=5.0, delay_s=2.0, bias=5.0)),
+])
+def test_process_model_equals_the_simulator(model, sim):
+    rng = np.random.default_rng(3)
+    u = 50 + np.cumsum(rng.normal(0, 1, 400))
+    np.testing.assert_allclose(model.simulate(u, 1.0), _open_loop(sim, u, 1.0), rtol=0, atol=1e-9)
+
+
+def test_integrating_model_equals_the_simulator_up_to_a_constant():
+    rng = np.random.default_rng(4)
+    u = 40 + np.cumsum(rng.normal(0, 0.5, 300))
+    model = ProcessModel("integrating", gain=0.02, tau_s=4.0, delay_s=2.0, bias=50.0, u_balance_pct=40.0)
+    ref = _open_loop(Integrating(gain=0.02, delay_s=2.0, tau_s=4.0, u_balance=40.0, bias=50.0), u, 1.0)
+    diff = model.simulate(u, 1.0) - ref
+    assert np.ptp(diff) < 1e-9
+
+
+def test_process_model_rejects_an_unknown_kind():
+    with pytest.raises(DataError, match="unknown process kind"):
+        ProcessModel("ramp", gain=1, tau_s=1, delay_s=0, bias=0)
+    d = ProcessModel("soptd", gain=1, tau_s=3, delay_s=1, bias=0, tau2_s=1).to_dict()
+    assert d["kind"] == "soptd" and d["tau2_s"] == 1.0
+
+
+@pytest.fixture(scope="module")
+def sticky():
+    rec = sticky_loop(4.0, 1.5, n=2000, ts_s=1.0, gain=1.5, tau_s=20.0, delay_s=3.0,
+                      noise_std=0.02, load_walk_std=0.01, seed=1)
+    return rec, fit_hammerstein(rec.op, rec.pv, rec.ts_s)
+
+
+def test_recovers_S_J_and_the_process_of_a_sticky_loop(sticky):
+    rec, fit = sticky
+    assert isinstance(fit, HammersteinFit)
+    assert fit.S_pct == pytest.approx(4.0, rel=0.1)
+    assert fit.J_pct == pytest.approx(1.5, rel=0.3)
+    assert stiction_class(fit.S_pct, fit.J_pct) == "undershoot"
+    assert fit.S_interval_pct[0] <= fit.S_pct <= fit.S_interval_pct[1]
+    assert fit.J_interval_pct[0] <= fit.J_pct <= fit.J_interval_pct[1]
+    assert fit.process.kind in ("foptd", "soptd")
+    assert fit.process.gain == pytest.approx(1.5, rel=0.3)
+    assert 1.0 <= fit.process.delay_s <= 6.0
+
+
+def test_error_surface_has_its_minimum_near_the_fit(sticky):
+    _, fit = sticky
+    s = fit.surface
+    assert isinstance(s, ErrorSurface)
+    assert s.cost.shape == (s.S_grid_pct.shape[0], s.J_grid_pct.shape[0])
+    assert s.S_grid_pct[0] == 0.0                      # the linear model's row
+    i, _ = np.unravel_index(np.argmin(s.cost), s.cost.shape)
+    assert abs(s.S_grid_pct[i] - fit.S_pct) < 1.5
+    assert s.cost[0].min() > 1.5 * s.cost.min()        # no stiction fits clearly worse
+    assert np.isfinite(s.bound) and s.bound >= fit.cost * (1 - 1e-6)
+    assert fit.cost <= s.cost.min() * (1 + 1e-6)         # refinement never ends above the grid
+
+
+def test_simulate_reproduces_the_valve_and_the_pv(sticky):
+    rec, fit = sticky
+    mv_hat, pv_hat = fit.simulate(rec.op)
+    assert mv_hat.shape == pv_hat.shape == rec.op.shape
+    np.testing.assert_array_equal(mv_hat, stiction_batch(rec.op, [fit.S_pct], [fit.J_pct], [fit.f0])[0])
+    err = np.abs(mv_hat - rec.mv)[200:]
+    assert np.median(err) < 0.5                        # % of span
+    short_mv, short_pv = fit.simulate(rec.op[:300])    # any OP series
+    assert short_pv.shape == (300,)
+
+
+def test_a_healthy_valve_gives_little_stiction():
+    rec = sticky_loop(0.0, 0.0, n=2000, gain=1.0, tau_s=15.0, delay_s=2.0, noise_std=0.02,
+                      load_walk_std=0.02, seed=5)
+    fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s)
+    lin = fit_hammerstein(rec.op, rec.pv, rec.ts_s, stiction=False)
+    assert lin.S_pct == 0.0 and lin.J_pct == 0.0
+    assert fit.cost >= 0.9 * lin.cost                  # the valve model buys (almost) nothing
+
+
+def test_train_mask_holds_out_the_rest(sticky):
+    rec, _ = sticky
+    train = np.zeros(rec.n, bool)
+    train[: rec.n // 2] = True
+    fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s, train=train)
+    held = fit.heldout_cost(rec.op, rec.pv, ~train)
+    assert np.isfinite(held) and held > 0
+    assert fit.S_pct == pytest.approx(4.0, rel=0.15)
+
+
+def test_fit_valve_on_op_mv_is_exact_on_exact_data():
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.01, seed=1)
+    vf = fit_valve(rec.op, rec.mv, rec.ts_s)
+    assert isinstance(vf, ValveFit)
+    assert vf.S_pct == pytest.approx(3.0, abs=0.1)
+    assert vf.J_pct == pytest.approx(1.0, abs=0.15)
+    assert vf.rmse < 0.1
+    assert vf.gain == pytest.approx(1.0, abs=0.05)
+    assert vf.simulate(rec.op).shape == rec.op.shape
+
+
+@pytest.mark.parametrize("op,pv,match", [
+    (np.full(200, 50.0), np.linspace(0, 1, 200), "OP is constant"),
+    (np.linspace(0, 1, 200), np.full(200, 3.0), "PV is constant"),
+    (np.linspace(0, 1, 20), np.linspace(0, 1, 20), "at least"),
+    (np.r_[np.linspace(0, 1, 199), np.nan], np.linspace(0, 1, 200), "finite"),
+    (np.linspace(0, 1, 200), np.linspace(0, 1, 150), "equal length"),
+])
+def test_bad_input_raises_a_data_error(op, pv, match):
+    with pytest.raises(DataError, match=match):
+        fit_hammerstein(op, pv, 1.0)
+
+
+def test_op_outside_the_span_is_shifted_and_simulate_undoes_it():
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.01, seed=2)
+    op = rec.op - rec.op.mean()                        # mean-centred, like ISDB CHEM10
+    fit = fit_hammerstein(op, rec.pv, 1.0)
+    assert fit.op_offset_pct != 0.0
+    mv_hat, _ = fit.simulate(op)
+    assert abs(np.median(mv_hat - op)) < 2.0
+
+
+def test_estimator_contract(sticky):
+    rec, _ = sticky
+    est = StictionEstimator(n_S=8, n_J=8)
+    with pytest.raises(NotFittedError):
+        est.simulate(rec.op)
+    assert est.fit(rec) is est
+    assert est.S_pct_ > 2.0 and est.class_ in ("undershoot", "deadband", "no_offset")
+    mv_hat, pv_hat = est.simulate(rec.op)
+    assert pv_hat.shape == rec.pv.shape
+    valve = StictionEstimator(use_mv=True).fit(rec)
+    assert valve.S_pct_ == pytest.approx(4.0, abs=0.2)

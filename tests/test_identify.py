@@ -1,0 +1,110 @@
+"""identify(): verdict, class, JSON contract, OP/MV path, oscillation context, bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from diagnose.errors import DataError
+from diagnose.identify import Identification, identify
+from diagnose.oscillation import acf, oscillation_context
+from diagnose.record import Finding, LoopRecord
+from diagnose.simulate import sticky_loop
+from diagnose.stiction_model import CLASSES
+
+REQUIRED = {"loop": str, "stiction": bool, "class": str, "S": float, "J": float, "S_interval": list,
+            "J_interval": list, "process": dict, "fit": dict, "oscillation": dict, "warnings": list}
+
+
+def _no_mv(rec):
+    return rec.replace(mv=None)
+
+
+@pytest.fixture(scope="module")
+def sticky_result():
+    rec = sticky_loop(4.0, 1.5, n=2000, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=1, name="FIC101")
+    return identify(_no_mv(rec))
+
+
+def test_a_sticky_loop_is_detected_and_classed(sticky_result):
+    res = sticky_result
+    assert isinstance(res, Identification)
+    assert res.stiction and res.cls == "undershoot"
+    assert res.S_pct == pytest.approx(4.0, rel=0.1)
+    assert res.method == "op_pv"
+    assert res.detection["improvement"] > res.detection["threshold"]
+    assert res.oscillation.oscillating and res.oscillation.period_s > 0
+    assert 0.5 < res.confidence <= 1.0
+    assert res.fit is not None and res.valve_fit is None
+
+
+def test_to_dict_holds_the_issue_contract(sticky_result):
+    d = sticky_result.to_dict()
+    for key, typ in REQUIRED.items():
+        assert isinstance(d[key], typ), key
+    assert d["class"] in CLASSES
+    assert set(d["fit"]) >= {"rmse", "r2"}
+    assert d["S_interval"][0] <= d["S"] <= d["S_interval"][1]
+    assert set(d["process"]) >= {"kind", "gain", "tau_s", "delay_s"}
+    assert 0.0 <= d["confidence"] <= 1.0
+    json.dumps(d, allow_nan=False)                       # strict JSON
+
+
+def test_a_healthy_loop_reports_none_with_zero_S_and_J():
+    rec = sticky_loop(0.0, 0.0, n=2000, gain=1.0, tau_s=15.0, delay_s=2.0, noise_std=0.05,
+                      load_walk_std=0.02, seed=11)
+    res = identify(_no_mv(rec))
+    d = res.to_dict()
+    assert d["stiction"] is False and d["class"] == "none"
+    assert d["S"] == 0.0 and d["J"] == 0.0
+
+
+def test_op_mv_record_is_fitted_directly():
+    rec = sticky_loop(3.0, 3.0, n=1500, noise_std=0.02, load_walk_std=0.01, seed=3)
+    res = identify(rec)
+    assert res.method == "op_mv" and res.valve_fit is not None
+    assert res.stiction and res.cls == "no_offset"
+    assert res.S_pct == pytest.approx(3.0, abs=0.2)
+
+
+def test_a_valve_that_never_moves_is_a_result_with_a_warning():
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.02, load_walk_std=0.01, seed=3)
+    stuck = rec.replace(mv=np.full(rec.n, 42.0))
+    d = identify(stuck).to_dict()
+    assert d["stiction"] is True
+    assert any(w["code"] == "valve_not_moving" for w in d["warnings"])
+    assert d["S"] > 0
+
+
+@pytest.mark.parametrize("op,pv,match", [
+    (np.full(300, 50.0), np.random.default_rng(0).normal(size=300), "OP is constant"),
+    (np.linspace(40, 60, 300), np.full(300, 1.0), "PV is constant"),
+    (np.linspace(40, 60, 20), np.linspace(0, 1, 20), "at least"),
+])
+def test_unusable_records_raise_data_errors(op, pv, match):
+    with pytest.raises(DataError, match=match):
+        identify(LoopRecord(name="X", ts_s=1.0, op=op, pv=pv))
+
+
+def test_compression_hedges_the_verdict(sticky_result):
+    rec = sticky_loop(4.0, 1.5, n=2000, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=1, name="FIC101")
+    comp = Finding("compression", "OP looks swinging-door compressed", "warning", {})
+    rec = _no_mv(rec).replace(findings=(comp,), meta={"quality_checked": True})
+    res = identify(rec)
+    assert res.confidence <= 0.5 < sticky_result.confidence
+    codes = [w["code"] for w in res.to_dict()["warnings"]]
+    assert "data_quality.compression" in codes
+
+
+def test_oscillation_context_finds_the_period_of_a_noisy_sine():
+    rng = np.random.default_rng(2)
+    t = np.arange(2000.0)
+    osc = oscillation_context(np.sin(2 * np.pi * t / 80) + 0.2 * rng.normal(size=t.size), 0.5)
+    assert osc.oscillating
+    assert osc.period_s == pytest.approx(40.0, rel=0.05)     # 80 samples at 0.5 s
+    calm = oscillation_context(rng.normal(size=2000), 1.0)
+    assert not calm.oscillating
+    r = acf(np.sin(t / 5))
+    assert r[0] == pytest.approx(1.0)

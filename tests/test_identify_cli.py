@@ -1,0 +1,92 @@
+"""`stiction identify`: JSON on stdout only, human summary, --ts, loops/segments, bad files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from connectors.historian import write_wide
+from diagnose.errors import DataError
+from diagnose.record import LoopRecord
+from diagnose.service.cli import main
+from diagnose.service.commands.identify import select_record
+from diagnose.simulate import sticky_loop
+
+KEYS = {"loop", "stiction", "class", "S", "J", "S_interval", "J_interval", "process", "fit",
+        "oscillation", "warnings"}
+
+
+@pytest.fixture(scope="module")
+def sticky_csv(tmp_path_factory):
+    rec = sticky_loop(4.0, 1.5, n=1500, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=1, name="FIC7").replace(mv=None)
+    path = tmp_path_factory.mktemp("cli") / "fic7.csv"
+    write_wide(rec, path)
+    return path
+
+
+def test_json_output_is_exactly_one_object(sticky_csv, capsys):
+    assert main(["identify", str(sticky_csv), "--json"]) == 0
+    out = capsys.readouterr().out
+    d = json.loads(out)                                  # the whole stdout parses
+    assert out.strip().count("\n") == 0
+    assert KEYS <= set(d)
+    assert d["loop"] == "FIC7" and d["stiction"] is True and d["class"] == "undershoot"
+    assert 3.5 < d["S"] < 4.5
+
+
+def test_human_summary(sticky_csv, capsys):
+    assert main(["identify", str(sticky_csv)]) == 0
+    out = capsys.readouterr().out
+    assert "FIC7: STICTION" in out and "S = " in out and "process:" in out
+
+
+def test_ts_seconds_overrides_the_sample_period(sticky_csv, capsys):
+    assert main(["identify", str(sticky_csv), "--ts", "2", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["ts_s"] == 2.0
+    assert d["oscillation"]["period_s"] is None or d["oscillation"]["period_s"] > 0
+
+
+def test_constant_op_is_a_one_line_error(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    rec = LoopRecord(name="FIC8", ts_s=1.0, op=np.full(400, 37.0), pv=rng.normal(size=400))
+    path = tmp_path / "flat.csv"
+    write_wide(rec, path)
+    assert main(["identify", str(path), "--json"]) == 1
+    cap = capsys.readouterr()
+    assert cap.out == ""
+    err = cap.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "OP is constant" in err[0]
+    assert "Traceback" not in cap.err
+
+
+def test_missing_file_is_a_one_line_error(tmp_path, capsys):
+    assert main(["identify", str(tmp_path / "nope.csv")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "Traceback" not in err
+
+
+def test_stuck_valve_exits_zero_with_a_warning(tmp_path, capsys):
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.02, load_walk_std=0.01, seed=3, name="FV3")
+    rec = rec.replace(mv=np.full(rec.n, 20.0))
+    path = tmp_path / "stuck.csv"
+    write_wide(rec, path)
+    assert main(["identify", str(path), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert any(w["code"] == "valve_not_moving" for w in d["warnings"])
+
+
+def _rec(name, n, seg=0):
+    return LoopRecord(name=name, ts_s=1.0, op=np.linspace(0, 1, n), pv=np.linspace(0, 1, n),
+                      meta={"segment": seg})
+
+
+def test_several_loops_need_loop_and_segments_take_the_longest():
+    recs = [_rec("A", 100), _rec("B", 100)]
+    with pytest.raises(DataError, match="2 loops .*A, B.*--loop"):
+        select_record(recs, None, "f.csv")
+    with pytest.raises(DataError, match="no loop named 'C'"):
+        select_record(recs, "C", "f.csv")
+    rec, notes = select_record([_rec("A", 100, 0), _rec("A", 300, 1), _rec("B", 50)], "A", "f.csv")
+    assert rec.n == 300 and notes[0]["code"] == "segments"

@@ -1,0 +1,247 @@
+"""Modbus/TCP poller against a real pymodbus server in another process (and pyModbusTCP as peer)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import socket
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from connectors.modbus import (ModbusPoller, decode_registers, encode_value, load_modbus_config,
+                               parse_modbus_config, plan_blocks)
+from connectors.modbus_sim import default_config_text, free_port
+from diagnose.errors import ConnectorError, ModbusReadError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+MIXED = """
+period_s = {period}
+timeout_s = 0.3
+window_samples = 1000
+reconnect_min_s = 0.1
+reconnect_max_s = 0.5
+
+[devices.plc]
+host = "127.0.0.1"
+port = {port}
+device_id = 1
+
+[loops.F_ABCD]
+op = {{ address = 0, type = "float32", order = "ABCD" }}
+pv = {{ address = 2, type = "float32", order = "ABCD" }}
+[loops.F_CDAB]
+op = {{ address = 10, type = "float32", order = "CDAB" }}
+pv = {{ address = 12, type = "float32", order = "CDAB", table = "input" }}
+[loops.F_BADC]
+op = {{ address = 20, type = "float32", order = "BADC" }}
+pv = {{ address = 22, type = "float32", order = "BADC" }}
+[loops.F_DCBA]
+op = {{ address = 30, type = "float32", order = "DCBA" }}
+pv = {{ address = 32, type = "float32", order = "DCBA" }}
+[loops.I16]
+op = {{ address = 40, type = "int16", scale = 0.01 }}
+pv = {{ address = 41, type = "uint16", scale = 0.002, offset = 0.0 }}
+sp = {{ address = 42, type = "int32", order = "CDAB", scale = 0.001 }}
+mv = {{ address = 44, type = "uint16", range = [0, 10000] }}
+"""
+
+
+def start_server(args, timeout_s=30.0):
+    p = subprocess.Popen([sys.executable, "-m", "connectors.modbus_sim", *args], cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    line = p.stdout.readline()
+    if not line.startswith("READY"):
+        p.kill()
+        raise RuntimeError(f"simulator did not start: {line!r} {p.stderr.read()[-2000:]}")
+    assert time.monotonic() - t0 < timeout_s
+    return p, int(line.split()[1])
+
+
+def stop(p):
+    p.terminate()
+    try:
+        p.wait(5)
+    except subprocess.TimeoutExpired:
+        p.kill()
+
+
+@pytest.fixture
+def mixed_server(tmp_path):
+    port = free_port()
+    cfg_path = tmp_path / "map.toml"
+    cfg_path.write_text(MIXED.format(port=port, period=0.1))
+    p, _ = start_server(["--port", str(port), "--config", str(cfg_path), "--ts", "0.1", "--samples", "600"])
+    yield load_modbus_config(cfg_path), port
+    stop(p)
+
+
+# -------------------------------------------------------------------------------------- decoding
+
+@pytest.mark.parametrize("order, regs", [("ABCD", [0x3F80, 0x0000]), ("CDAB", [0x0000, 0x3F80]),
+                                         ("BADC", [0x803F, 0x0000]), ("DCBA", [0x0000, 0x803F])])
+def test_float32_orders_known_vectors(order, regs):
+    assert decode_registers(regs, "float32", order) == 1.0
+    assert encode_value(1.0, "float32", order) == regs
+
+
+@pytest.mark.parametrize("dtype", ["float32", "int32", "uint32", "int16", "uint16"])
+@pytest.mark.parametrize("order", ["ABCD", "CDAB", "BADC", "DCBA"])
+def test_encode_decode_round_trip(dtype, order):
+    vals = {"float32": [-123.25, 0.0, 3.5e5], "int32": [-70000, 5, 2 ** 31 - 1], "uint32": [0, 70000],
+            "int16": [-32768, -1, 1234], "uint16": [0, 65535, 4321]}[dtype]
+    for v in vals:
+        assert decode_registers(encode_value(v, dtype, order), dtype, order) == v
+
+
+def test_config_errors(tmp_path):
+    with pytest.raises(ConnectorError, match="Modbus config file not found"):
+        load_modbus_config(tmp_path / "none.toml")
+    base = tomllib.loads(MIXED.format(port=1, period=1))
+    base["loops"]["F_ABCD"]["op"]["order"] = "XYZW"
+    with pytest.raises(ConnectorError, match=r"loops\.F_ABCD\.op\.order 'XYZW'"):
+        parse_modbus_config(base)
+    base = tomllib.loads(MIXED.format(port=1, period=1))
+    del base["loops"]["I16"]["pv"]
+    with pytest.raises(ConnectorError, match=r"loops\.I16 needs an pv register"):
+        parse_modbus_config(base)
+
+
+def test_blocks_group_contiguous_registers():
+    cfg = parse_modbus_config(tomllib.loads(MIXED.format(port=1, period=1)))
+    blocks = plan_blocks(list(cfg.loops.values()), 1)
+    spans = sorted((b.table, b.address, b.count, len(b.members)) for b in blocks)
+    assert spans == [("holding", 0, 4, 2), ("holding", 10, 2, 1), ("holding", 20, 4, 2),
+                     ("holding", 30, 4, 2), ("holding", 40, 5, 4), ("input", 12, 2, 1)]
+
+
+# ------------------------------------------------------------------------------ against a server
+
+def test_all_orders_and_scaled_ints_live(mixed_server):
+    cfg, _ = mixed_server
+    poller = ModbusPoller(cfg)
+    first = asyncio.run(poller.read_once())
+    time.sleep(0.6)
+    second = asyncio.run(ModbusPoller(cfg).read_once())
+    for name, vals in first.items():
+        for role, v in vals.items():
+            assert math.isfinite(v) and -20 < v < 120, (name, role, v)  # a wrong order gives garbage
+    # every float order decodes the same simulated loop family (OP near 50 %, PV near 50)
+    for name in ("F_ABCD", "F_CDAB", "F_BADC", "F_DCBA"):
+        assert 30 < first[name]["op"] < 70 and 45 < first[name]["pv"] < 55
+    i16 = first["I16"]
+    assert abs(i16["op"] * 100 - round(i16["op"] * 100)) < 1e-6      # int16 * 0.01
+    assert abs(i16["sp"] - 50.0) < 0.01 and 0 <= i16["mv"] <= 100
+    assert any(abs(first[n]["op"] - second[n]["op"]) > 1e-6 for n in first)  # values change live
+
+
+def test_independent_peer_reads_the_same_registers(mixed_server):
+    from pyModbusTCP.client import ModbusClient
+
+    cfg, port = mixed_server
+    peer = ModbusClient(host="127.0.0.1", port=port, unit_id=1, timeout=2.0, auto_open=True)
+    for _ in range(5):
+        ours = asyncio.run(ModbusPoller(cfg).read_once())
+        regs = peer.read_holding_registers(0, 45)
+        again = asyncio.run(ModbusPoller(cfg).read_once())
+        assert regs is not None
+        theirs = {o: decode_registers(regs[a:a + 2], "float32", o)
+                  for o, a in (("ABCD", 0), ("CDAB", 10), ("BADC", 20), ("DCBA", 30))}
+        if all(ours[f"F_{o}"]["op"] == pytest.approx(v) or again[f"F_{o}"]["op"] == pytest.approx(v)
+               for o, v in theirs.items()):
+            break
+    else:
+        pytest.fail(f"pyModbusTCP read {theirs}, we read {ours}")
+    peer.close()
+
+
+def test_wrong_device_id_and_missing_register(mixed_server):
+    cfg, port = mixed_server
+    text = MIXED.format(port=port, period=0.1).replace("device_id = 1", "device_id = 7")
+    with pytest.raises(ModbusReadError, match="device id 7 does not answer"):
+        asyncio.run(ModbusPoller(parse_modbus_config(tomllib.loads(text))).read_once())
+    text = MIXED.format(port=port, period=0.1).replace("address = 40,", "address = 4000,")
+    with pytest.raises(ModbusReadError, match=r"registers 4000\.\.4000 do not exist .*check the register map of I16"):
+        asyncio.run(ModbusPoller(parse_modbus_config(tomllib.loads(text))).read_once())
+
+
+def test_server_restart_gives_a_gap_and_recovery(tmp_path):
+    port = free_port()
+    cfg = parse_modbus_config(tomllib.loads(default_config_text(port, 2, period_s=0.1, window_samples=1000,
+                                                                timeout_s=0.3)))
+    cfg = type(cfg)(**{**cfg.__dict__, "reconnect_min_s": 0.1, "reconnect_max_s": 0.4})
+    args = ["--port", str(port), "--loops", "2", "--ts", "0.1", "--samples", "600"]
+    p, _ = start_server(args)
+    windows = []
+    poller = ModbusPoller(cfg, on_window=windows.append, min_samples=5)
+
+    async def scenario():
+        task = asyncio.ensure_future(poller.run(7.0))
+        await asyncio.sleep(2.0)
+        stop(p)                                     # server goes away mid-run
+        await asyncio.sleep(1.5)
+        p2, _ = await asyncio.get_running_loop().run_in_executor(None, start_server, args)
+        try:
+            return await task, p2
+        except BaseException:
+            stop(p2)
+            raise
+
+    stats, p2 = asyncio.run(scenario())
+    stop(p2)
+    st = stats["SIM000"]
+    assert st.failed > 5 and st.good > 30 and st.polls >= 60
+    recs = [r for r in windows if r.name == "SIM000"]
+    assert len(recs) >= 2                                          # before and after the outage
+    gap = next(f for f in recs[0].findings if f.code == "gap")
+    assert gap.data["lost"] >= 5
+    assert all(np.all(np.isfinite(r.op)) for r in recs)           # nothing invented
+    assert recs[-1].meta["t_first_s"] > recs[0].meta["t_last_s"]
+
+
+def test_down_device_does_not_stall_the_others(mixed_server):
+    cfg, port = mixed_server
+    hole = socket.socket()                     # accepts TCP connections, never answers Modbus
+    hole.bind(("127.0.0.1", 0))
+    hole.listen(8)
+    dead = free_port()                         # nothing listening at all
+    text = MIXED.format(port=port, period=0.1).replace("]\nop =", ']\ndevice = "plc"\nop =')
+    text += f"""
+[devices.mute]
+host = "127.0.0.1"
+port = {hole.getsockname()[1]}
+[devices.gone]
+host = "127.0.0.1"
+port = {dead}
+[loops.MUTE]
+device = "mute"
+op = 0
+pv = 2
+[loops.GONE]
+device = "gone"
+op = 0
+pv = 2
+"""
+    cfg2 = parse_modbus_config(tomllib.loads(text))
+
+    def boom(rec):
+        raise RuntimeError("consumer bug")
+
+    poller = ModbusPoller(cfg2, on_window=boom, window_samples=5, min_samples=3)
+    try:
+        stats = asyncio.run(poller.run(2.0))
+    finally:
+        hole.close()
+    assert poller.callback_errors and "consumer bug" in poller.callback_errors[0][1]  # polling went on
+    assert stats["MUTE"].good == 0 and stats["GONE"].good == 0
+    assert "no answer" in (stats["MUTE"].last_error or "")
+    assert "cannot connect" in (stats["GONE"].last_error or "")
+    for name in ("F_ABCD", "I16"):
+        assert stats[name].good >= 17 and stats[name].missed == 0, stats[name]

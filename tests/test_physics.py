@@ -1,0 +1,228 @@
+"""Missing physics: the augmented valve, the plant parts, localisation, the hypothesis registry
+contract, and explain on records with a concealed effect (few records, fast settings; the full proof
+is benchmarks/validate_physics.py)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from diagnose.errors import DataError
+from diagnose.physics import REGISTRY, PhysicsHypothesis, explain, locate
+from diagnose.physics.concealed import EFFECTS, concealed_loop
+from diagnose.physics.hypotheses import Context, register
+from diagnose.physics.model import Stage, Structure, predict, refine_plain, train_sse
+from diagnose.physics.plant import (AsymmetricStictionValve, AugmentedValve, CharacteristicProcess,
+                                    DriftingStictionValve, LaggedValve, equal_percentage)
+from diagnose.physics.valve import augmented_valve, characteristic
+from diagnose.process_model import ProcessModel
+from diagnose.simulate import FOPTD, simc_pi, simulate_loop
+from diagnose.stiction_model import stiction_batch
+
+KEYS = {"missing_physics", "baseline_rmse", "improved_rmse", "hypotheses", "mismatch", "explanation",
+        "warnings"}
+
+
+def _walk(n=2000, seed=0):
+    rng = np.random.default_rng(seed)
+    return 50 + np.cumsum(rng.normal(0, 0.8, n))
+
+
+# --- the augmented valve ----------------------------------------------------------------------------
+
+def test_plain_augmented_valve_equals_the_stiction_kernel():
+    x = _walk()
+    S = np.array([0.0, 2.0, 3.0, 4.0, 1.0])
+    J = np.array([0.0, 0.0, 3.0, 6.0, 0.5])
+    f0 = np.array([1, -1, 1, -1, 1])
+    a = augmented_valve(x, S_up=S, J_up=J, f0=f0)
+    assert np.array_equal(a, stiction_batch(x, S, J, f0))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_kernel_equals_the_step_by_step_plant_valve(seed):
+    rng = np.random.default_rng(seed)
+    x = _walk(1500, seed)
+    kw = dict(S_up=rng.uniform(0.5, 5), J_up=rng.uniform(0, 4), S_dn=rng.uniform(0.5, 5),
+              J_dn=rng.uniform(0, 4), dS_pct_per_s=rng.uniform(-1e-3, 1e-3),
+              dJ_pct_per_s=rng.uniform(-1e-3, 1e-3), tau_lag_s=rng.uniform(0, 5), ts_s=0.5,
+              f0=int(rng.choice([1, -1])))
+    ref = AugmentedValve(kw["S_up"], kw["J_up"], kw["S_dn"], kw["J_dn"], dS_pct_per_s=kw["dS_pct_per_s"],
+                         dJ_pct_per_s=kw["dJ_pct_per_s"], tau_lag_s=kw["tau_lag_s"], ts_s=0.5, f0=kw["f0"])
+    y = [ref.reset(x[0])] + [ref.step(v) for v in x[1:]]
+    assert np.array_equal(np.array(y), augmented_valve(x, **kw))
+
+
+def test_plant_parts_hide_their_effect():
+    x = _walk(3000, 4)
+    plain = stiction_batch(x, [3.0], [1.0], [1])[0]
+    lag = LaggedValve(3.0, 1.0, 4.0)
+    y_lag = np.array([lag.reset(x[0])] + [lag.step(v) for v in x[1:]])
+    # the lag smooths jumps: the largest one-sample move shrinks
+    assert np.abs(np.diff(y_lag)).max() < 0.6 * np.abs(np.diff(plain)).max()
+    asym = AsymmetricStictionValve(4.0, 1.0, 1.0, 0.5)
+    y_a = np.array([asym.reset(x[0])] + [asym.step(v) for v in x[1:]])
+    assert not np.array_equal(y_a, stiction_batch(x, [4.0], [1.0], [1])[0])
+    drift = DriftingStictionValve(1.0, 0.5, dS_pct_per_s=2e-3, dJ_pct_per_s=1e-3)
+    y_d = np.array([drift.reset(x[0])] + [drift.step(v) for v in x[1:]])
+    # friction grows: the valve sits stuck more of the time late in the record
+    still = np.diff(y_d) == 0
+    assert still[2000:].mean() > still[:1000].mean()
+    proc = CharacteristicProcess(FOPTD(gain=1.0, tau_s=5.0, delay_s=0.0), R=20.0)
+    assert proc.reset(50.0, 1.0) == pytest.approx(equal_percentage(50.0, 20.0))
+    with pytest.raises(DataError, match="rangeability"):
+        CharacteristicProcess(FOPTD(), R=0.5)
+
+
+def test_characteristic_is_affine_in_the_plant_equal_percentage():
+    y = np.linspace(0, 100, 51)
+    c = math.log(25.0)
+    ours = characteristic(y, c)
+    plant = np.array([equal_percentage(v, 25.0) for v in y])
+    A = np.column_stack([ours, np.ones_like(ours)])
+    coef, res, *_ = np.linalg.lstsq(A, plant, rcond=None)
+    assert np.allclose(A @ coef, plant, atol=1e-9)
+    assert characteristic(y, 0.0)[10] == y[10]
+
+
+# --- localisation -----------------------------------------------------------------------------------
+
+def test_locate_finds_slips_direction_and_a_foreign_peak():
+    n, ts = 4000, 1.0
+    t = np.arange(n)
+    # a stem that jumps every 50 samples, alternating direction (limit cycle of 100 s)
+    stem = np.repeat(np.where(np.arange(n // 50) % 2 == 0, 40.0, 44.0), 50)
+    rng = np.random.default_rng(0)
+    r = rng.normal(0, 0.1, n)
+    slips = np.flatnonzero(np.diff(stem)) + 1
+    for s in slips:
+        r[s:s + 3] += 1.0                         # energy just after slips
+    r[(t // 50) % 2 == 1] += 0.3                  # residual mean depends on direction
+    r += 0.5 * np.sin(2 * np.pi * t / 37.0)       # a load at 37 s, not a harmonic of 100 s
+    m = locate(r, stem, stem, ts, response_s=0.0)
+    s = m.summary
+    assert s["events"]["n_slips"] == slips.size
+    assert s["events"]["after_slip_energy_ratio"] > 2.0
+    assert abs(s["direction"]["mean_difference"]) > 0.2
+    assert s["frequency"]["limit_cycle_period_s"] == pytest.approx(100.0)
+    assert s["frequency"]["residual_peak_period_s"] == pytest.approx(37.0, rel=0.03)
+    assert not s["frequency"]["peak_at_limit_cycle_harmonic"]
+    json.dumps(s, allow_nan=False)
+
+
+def test_locate_marks_a_drifting_residual_and_its_windows():
+    n = 3000
+    rng = np.random.default_rng(1)
+    r = rng.normal(0, 0.1, n) * np.linspace(0.5, 4.0, n)
+    stem = np.full(n, 50.0)
+    m = locate(r, stem, stem + rng.normal(0, 1, n), 1.0)
+    assert m.summary["drift"]["last_over_first"] > 2.0
+    assert m.summary["windows"] and m.summary["windows"][0]["start_s"] > 1500
+
+
+# --- hypothesis registry contract ---------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_stage():
+    rec, truth = concealed_loop("none", 7, n=1500)
+    n = rec.n
+    train = np.zeros(n, bool)
+    train[100:1000] = True
+    stage = Stage("loop", rec.op, rec.pv, rec.ts_s, train)
+    proc = ProcessModel("foptd", truth["gain"], truth["tau_s"], truth["delay_s"], 0.0)
+    ref, sse = refine_plain(stage, Structure.plain(truth["S_pct"], truth["J_pct"], 1, proc), rounds=1)
+    return stage, ref, sse
+
+
+def test_registry_holds_the_five_hypotheses():
+    assert {"actuator_lag", "asymmetric_stiction", "valve_characteristic", "external_disturbance",
+            "time_varying_friction"} <= set(REGISTRY)
+    with pytest.raises(ValueError, match="already registered"):
+        register(REGISTRY["actuator_lag"])
+
+
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+def test_every_registered_hypothesis_keeps_the_contract(name, small_stage):
+    stage, ref, ref_sse = small_stage
+    h = REGISTRY[name]
+    assert isinstance(h, PhysicsHypothesis)
+    assert h.name == name and h.param_names and h.n_extra >= 1 and h.side in ("valve", "process")
+    fitted = h.fit(stage, ref, Context(limit_cycle_period_s=None))
+    assert fitted.name == name and fitted.stage == "loop"
+    assert set(h.param_names) <= set(fitted.params)
+    assert all(isinstance(v, float) for v in fitted.params.values())
+    # the augmented model nests the plain one: its search must not train (much) worse
+    assert fitted.train_sse <= ref_sse * 1.02
+    assert fitted.train_sse == pytest.approx(train_sse(stage, [fitted.structure])[0], rel=1e-6)
+    y_hat, _, _ = predict(stage, fitted.structure)
+    assert y_hat.shape == (stage.n,) and np.all(np.isfinite(y_hat))
+
+
+def test_hypotheses_refuse_a_stage_they_cannot_test(small_stage):
+    stage, ref, _ = small_stage
+    vstage = Stage("valve", stage.x, stage.x, stage.ts_s, stage.train)
+    with pytest.raises(DataError, match="cannot be tested"):
+        REGISTRY["external_disturbance"].fit(vstage, ref)
+
+
+# --- explain on concealed data (a few records; the benchmark runs many) -------------------------------
+
+def _check_json(ex):
+    d = ex.to_dict()
+    assert KEYS <= set(d)
+    text = json.dumps(d, allow_nan=False)
+    back = json.loads(text)
+    for h in back["hypotheses"]:
+        assert {"name", "params", "heldout_rmse", "accepted"} <= set(h)
+    if back["missing_physics"] is None:
+        assert back["improved_rmse"] == back["baseline_rmse"]
+    else:
+        assert back["improved_rmse"] < back["baseline_rmse"]
+    return back
+
+
+def test_explain_leaves_a_clean_loop_alone():
+    rec, _ = concealed_loop("none", 3, n=2000)
+    ex = explain(rec, target="pv")
+    d = _check_json(ex)
+    assert d["missing_physics"] is None
+    assert not any(h["accepted"] for h in d["hypotheses"])
+
+
+@pytest.mark.parametrize("effect,seed,with_mv", [
+    ("asymmetric_stiction", 100, True),
+    ("time_varying_friction", 101, False),
+    ("valve_characteristic", 100, False),
+])
+def test_explain_names_a_concealed_effect_and_the_error_falls(effect, seed, with_mv):
+    rec, truth = concealed_loop(effect, seed, n=3000, with_mv=with_mv)
+    ex = explain(rec, target="auto" if with_mv else "pv")
+    d = _check_json(ex)
+    assert d["missing_physics"] == effect
+    assert d["improved_rmse"] < 0.7 * d["baseline_rmse"]
+    fd = ex.figure_data()
+    assert fd["observed"].shape == fd["improved"].shape == (rec.n,)
+    assert 0 < fd["train_end_s"] < rec.duration_s
+
+
+def test_explain_rejects_what_it_cannot_use():
+    rec, _ = concealed_loop("none", 1, n=200)
+    with pytest.raises(DataError, match="at least"):
+        explain(rec)
+    rec, _ = concealed_loop("none", 1, n=600)
+    with pytest.raises(DataError, match="stem position"):
+        explain(rec, target="mv")
+    with pytest.raises(DataError, match="unknown hypothesis"):
+        explain(rec, hypotheses=["gremlins"])
+    with pytest.raises(DataError, match="train_fraction"):
+        explain(rec, train_fraction=0.99)
+
+
+def test_concealed_generator_is_seeded_and_complete():
+    for e in EFFECTS:
+        a, ta = concealed_loop(e, 5, n=400)
+        b, tb = concealed_loop(e, 5, n=400)
+        assert np.array_equal(a.pv, b.pv) and ta == tb and ta["effect"] == e
+    with pytest.raises(DataError, match="unknown effect"):
+        concealed_loop("gremlins", 0)
