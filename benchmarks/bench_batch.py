@@ -3,7 +3,7 @@
 Simulates ``--loops`` closed loops of ``--samples`` samples (seeded mix of classes, S 0..6 %, J
 0..6 %, FOPTD/SOPTD/integrating), writes them as wide CSV (not timed), then runs
 ``stiction batch`` on them with full reports (figures, Markdown, PDF, JSON, summary; the
-missing-physics stage unless ``--no-explain``) once with 1 worker and once with 2, each in a fresh
+missing-physics stage as ``--explain``, default auto) once with 1 worker and once with 2, each in a fresh
 subprocess (so imports and pool start-up are counted and the peak RSS of every process is
 measured). Prints a Markdown fragment for docs/_bench_service.md; the 1000-loop time is measured
 when ``--loops 1000`` is given, else extrapolated from the 2-worker throughput (and says so).
@@ -47,7 +47,7 @@ def make_loops(folder: Path, n_loops: int, n_samples: int, seed: int = 0) -> Non
         write_wide(rec.replace(mv=None) if i % 2 else rec, folder / f"L{i:04d}.csv")
 
 
-def run_batch(logs: Path, out: Path, workers: int, explain: bool) -> dict:
+def run_batch(logs: Path, out: Path, workers: int, explain: str) -> dict:
     """One `stiction batch` in a subprocess; wall time and the largest RSS of any process."""
     code = ("import resource, sys, time\n"
             "from diagnose.service.cli import main\n"
@@ -56,7 +56,7 @@ def run_batch(logs: Path, out: Path, workers: int, explain: bool) -> dict:
             "print('BENCH', rc, el, ru_s.ru_maxrss, ru_c.ru_maxrss, ru_s.ru_utime + ru_s.ru_stime, "
             "ru_c.ru_utime + ru_c.ru_stime)\n")
     args = ["batch", str(logs), "--out", str(out), "--workers", str(workers), "--quiet",
-            "--db", str(out.parent / f"{out.name}.sqlite")] + ([] if explain else ["--no-explain"])
+            "--db", str(out.parent / f"{out.name}.sqlite"), "--explain", explain]
     proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True)
     line = [ln for ln in proc.stdout.splitlines() if ln.startswith("BENCH")]
     if not line:
@@ -64,17 +64,24 @@ def run_batch(logs: Path, out: Path, workers: int, explain: bool) -> dict:
     _, rc, el, rss_self, rss_child, cpu_self, cpu_child = line[-1].split()
     summary = json.loads((out / "summary.json").read_text())
     per_loop = [r.get("seconds") for r in summary["loops"] if r.get("seconds")]
+    stages: dict[str, list[float]] = {}
+    for f in out.glob("loops/*/*.json"):
+        for k, v in json.loads(f.read_text()).get("timings_s", {}).items():
+            stages.setdefault(k, []).append(float(v))
     return {"workers": workers, "rc": int(rc), "wall_s": float(el), "loops": summary["n_loops"],
             "failed": summary["n_failed"], "peak_rss_mib": max(int(rss_self), int(rss_child)) / 1024,
             "cpu_s": float(cpu_self) + float(cpu_child),
-            "median_loop_s": float(np.median(per_loop)) if per_loop else float("nan")}
+            "median_loop_s": float(np.median(per_loop)) if per_loop else float("nan"),
+            "stages": {k: {"median_s": round(float(np.median(v)), 3), "max_s": round(max(v), 3), "n": len(v)}
+                       for k, v in stages.items()}}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--loops", type=int, default=16)
     ap.add_argument("--samples", type=int, default=10_000)
-    ap.add_argument("--no-explain", action="store_true", help="leave the missing-physics stage out")
+    ap.add_argument("--explain", choices=["auto", "on", "off"], default="auto",
+                    help="missing-physics stage, as `stiction batch --explain` (default auto)")
     ap.add_argument("--workers", default="1,2", help="worker counts to compare (default 1,2)")
     ap.add_argument("--keep", default=None, help="keep the data and outputs in this folder")
     args = ap.parse_args()
@@ -84,7 +91,7 @@ def main() -> None:
     if not logs.exists():
         make_loops(logs, args.loops, args.samples)
     gen_s = time.perf_counter() - t0
-    explain = not args.no_explain
+    explain = args.explain
     results = []
     for w in [int(x) for x in args.workers.split(",")]:
         out = root / f"out_w{w}"
@@ -96,7 +103,7 @@ def main() -> None:
     print(f"### Batch throughput ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})\n")
     print(f"Data: {args.loops} simulated loops x {args.samples} samples at 1 s (seeded mix of classes and "
           f"processes, half with MV), wide CSV, generated in {gen_s:.0f} s (not timed). Full reports: "
-          f"figures, Markdown, PDF, JSON, summary; missing-physics stage {'on' if explain else 'off'}. "
+          f"figures, Markdown, PDF, JSON, summary; NARX-SP free run; missing-physics stage `--explain {explain}`. "
           f"Machine: {len(os.sched_getaffinity(0))} CPUs usable of {os.cpu_count()} "
           f"({platform.processor() or platform.machine()}), "
           f"load average before the last run {load[0]:.1f}.\n")
@@ -106,6 +113,10 @@ def main() -> None:
         print(f"| {r['workers']} | {r['wall_s']:.1f} | {r['loops'] / r['wall_s']:.3f} | "
               f"{base['wall_s'] / r['wall_s']:.2f}x | {r['cpu_s']:.0f} | {r['median_loop_s']:.2f} | "
               f"{r['peak_rss_mib']:.0f} | {r['failed']} |")
+    print("\nPer-loop stage times in the workers (median / max seconds, loops that ran the stage), "
+          f"{results[-1]['workers']} workers:\n")
+    for k, v in results[-1]["stages"].items():
+        print(f"- {k}: {v['median_s']:.2f} / {v['max_s']:.2f} s ({v['n']} loops)")
     best = results[-1]
     t1000 = best["wall_s"] / best["loops"] * 1000
     how = "measured" if args.loops >= 1000 else f"extrapolated from {args.loops} loops"

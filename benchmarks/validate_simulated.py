@@ -139,7 +139,9 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, **identify_opts) 
         row = {"loop": case.record.name, "true_class": case.cls, "true_S": case.S_pct, "true_J": case.J_pct,
                "class": res.cls, "stiction": res.stiction, "S": res.S_pct, "J": res.J_pct,
                "S_fit": res.fitted_S_pct, "J_fit": res.fitted_J_pct,
-               "improvement": res.detection.get("improvement"), "confidence": res.confidence,
+               "improvement": res.detection.get("improvement"), "t_stat": res.detection.get("t_stat"),
+               "insample": res.detection.get("insample_improvement"),
+               "confidence": res.confidence,
                "time_s": dt, **case.info}
         if res.process is not None:
             row.update({"fit_kind": res.process.kind, "fit_gain": res.process.gain,

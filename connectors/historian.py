@@ -9,19 +9,13 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import os
 import tempfile
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import IO, Iterable
 
-import numpy as np
-
-from diagnose.errors import ConnectorError
 from diagnose.record import LoopRecord
-
-from .columns import role_of, split_tag
 
 EPOCH = datetime(2026, 1, 1, tzinfo=timezone.utc)
 

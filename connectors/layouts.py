@@ -30,6 +30,7 @@ TAG_HEADERS = {"tag", "tagname", "tag_name", "name", "point", "pointname", "poin
 VALUE_HEADERS = {"value", "val", "_value", "reading", "wert", "valeur"}
 QUALITY_HEADERS = {"quality", "q", "status", "confidence", "qualitycode", "quality_code",
                    "opc_quality", "qualitat", "qualität"}
+PI_FLAG_HEADERS = {"questionable", "substituted", "isquestionable", "issubstituted"}
 SKIP_HEADERS = {"id", "index", "row", "#", "no", "nr", "unnamed: 0", ""}
 
 
@@ -263,6 +264,7 @@ def parse_long(text: Text, options: dict) -> Table:
     if not body:
         raise ConnectorError("header only, no data rows", path=label, line=rows.lines[0])
     _check_rect(Rows(body, lines), len(header), label)
+    col = _Columns(body, len(header))
     tag_j = next((j for j, h in enumerate(lower) if h in TAG_HEADERS), None)
     val_j = next((j for j, h in enumerate(lower) if h in VALUE_HEADERS), None)
     if tag_j is None or val_j is None:
@@ -280,33 +282,55 @@ def parse_long(text: Text, options: dict) -> Table:
                              "name it with --ts", path=label, line=rows.lines[0])
     q_j = next((j for j, h in enumerate(lower) if h in QUALITY_HEADERS), None)
     if len(time_j) == 2:
-        tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(_column(body, time_j[0]), _column(body, time_j[1]))]
+        tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(col(time_j[0]), col(time_j[1]))]
     else:
-        tcells = _column(body, time_j[0])
+        tcells = col(time_j[0])
     t, absolute, tfmt = _times(tcells, lines, label, header[time_j[0]], options)
     dec = _decimal_comma(body, [val_j], d)
-    num = to_numbers(_column(body, val_j), dec)
+    num = to_numbers(col(val_j), dec)
     bad_q = np.zeros(len(body), bool)
     scheme = None
     if q_j is not None:
-        good, scheme = quality_good(_column(body, q_j), header[q_j])
+        good, scheme = quality_good(col(q_j), header[q_j])
         bad_q = ~good & np.isfinite(num.values)
-    tags = np.array([c.strip() for c in _column(body, tag_j)], dtype=object)
+    for j, h in enumerate(lower):  # PI flag columns: Questionable / Substituted = True -> bad
+        if h in PI_FLAG_HEADERS:
+            flag = np.array([c.strip().lower() in ("true", "1", "yes", "y") for c in col(j)])
+            bad_q |= flag & np.isfinite(num.values)
+            if "pi_flags" not in (scheme or ""):
+                scheme = (scheme + "+" if scheme else "") + "pi_flags"
+    codes: dict[str, int] = {}
+    inverse = np.fromiter((codes.setdefault(c.strip(), len(codes)) for c in col(tag_j)), dtype=np.int64,
+                          count=len(body))
+    names = list(codes)                                   # in order of first appearance
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.searchsorted(inverse[order], np.arange(len(names) + 1))
+    first_row = {names[g]: int(order[bounds[g]]) for g in range(len(names))}
+    vcells = col(val_j)
     series: list[Series] = []
-    text_mask = np.isnan(num.values)
-    for tag in dict.fromkeys(tags.tolist()):
+    for g in range(len(names)):
+        tag = names[g]
         if not tag:
             continue
-        m = tags == tag
-        x = num.values[m].copy()
-        nq = int(np.count_nonzero(bad_q[m]))
-        x[bad_q[m]] = np.nan
-        cells = [c for c, mm in zip(_column(body, val_j), m) if mm]
-        sub = to_numbers(cells, dec)
-        series.append(Series(tag, t[m], x, n_text=sub.n_text, n_nonfinite=sub.n_nonfinite,
-                             n_bad_quality=nq, n_blank=sub.n_blank, examples=sub.examples,
-                             first_line=lines[int(np.argmax(m))], column=header[val_j]))
-    del text_mask
+        idx = order[bounds[g]:bounds[g + 1]]
+        x = num.values[idx].copy()
+        bq = bad_q[idx]
+        x[bq] = np.nan
+        kind = num.kind[idx] if num.kind is not None else None
+        n_text = int(np.count_nonzero(kind == 2)) if kind is not None else 0
+        examples: list[str] = []
+        if n_text:
+            seen: dict[str, int] = {}
+            for k in idx[kind == 2][:1000]:
+                c = vcells[k].strip()[:30]
+                seen[c] = seen.get(c, 0) + 1
+            examples = [k for k, _ in sorted(seen.items(), key=lambda kv: -kv[1])[:4]]
+        series.append(Series(str(tag), t[idx], x, n_text=n_text,
+                             n_nonfinite=int(np.count_nonzero(kind == 3)) if kind is not None else 0,
+                             n_bad_quality=int(np.count_nonzero(bq)),
+                             n_blank=int(np.count_nonzero(kind == 1)) if kind is not None else 0,
+                             examples=examples, first_line=lines[first_row[tag]], column=header[val_j],
+                             cells=[vcells[k] for k in idx] if n_text else None))
     meta = {"format": "long", "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
             "encoding": text.encoding, "bom": text.bom, "time_format": tfmt, "quality_scheme": scheme}
     return Table(series, label, absolute, meta, raw_columns=header)
@@ -358,7 +382,7 @@ def parse_ragged(text: Text, options: dict) -> Table:
             num = to_numbers([vcells[k] for k in keep], dec)
             series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                                  n_blank=num.n_blank, examples=num.examples, first_line=tl[0],
-                                 column=name))
+                                 column=name, cells=[vcells[k] for k in keep] if num.n_text else None))
         j += 2
     if not series:
         raise ConnectorError("no timestamp/value column pairs found for the ragged layout", path=label,

@@ -147,7 +147,7 @@ class ModbusConfig:
     timeout_s: float = 0.5
     window_samples: int = 600
     reconnect_min_s: float = 0.5
-    reconnect_max_s: float = 10.0
+    reconnect_max_s: float = 5.0
     path: str | None = None
 
 
@@ -220,7 +220,7 @@ def parse_modbus_config(data: Mapping[str, Any], path: str | None = None) -> Mod
     if not period_s > 0:
         raise _err("period_s must be > 0", path)
     return ModbusConfig(devices, loops, period_s, timeout_s, int(data.get("window_samples", 600)),
-                        float(data.get("reconnect_min_s", 0.5)), float(data.get("reconnect_max_s", 10.0)), path)
+                        float(data.get("reconnect_min_s", 0.5)), float(data.get("reconnect_max_s", 5.0)), path)
 
 
 def load_modbus_config(path: str | os.PathLike) -> ModbusConfig:

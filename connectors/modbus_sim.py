@@ -49,7 +49,8 @@ def default_config_text(port: int | list[int], n_loops: int, *, order: str = "AB
     its own read request (a harder load).
     """
     ports = [port] if isinstance(port, int) else list(port)
-    lines = [f"period_s = {period_s}", f"timeout_s = {timeout_s}", f"window_samples = {window_samples}", ""]
+    lines = [f"period_s = {period_s}", f"timeout_s = {timeout_s}", f"window_samples = {window_samples}",
+             "reconnect_min_s = 0.2", "reconnect_max_s = 1.0", ""]
     for d, p in enumerate(ports):
         lines += [f"[devices.sim{d if len(ports) > 1 else ''}]", f'host = "{host}"', f"port = {p}",
                   f"device_id = {device_id}", ""]

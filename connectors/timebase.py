@@ -31,6 +31,7 @@ import numpy as np
 from diagnose.errors import ConnectorError
 
 DST_POLICIES = ("infer", "earliest", "latest", "raise")
+_SECONDS_NAMES = {"t", "ts", "t_s", "time_s", "seconds", "sec", "s", "elapsed", "elapsed_s"}
 _EPOCH = datetime(1970, 1, 1)
 
 # (regex that a sample must match, strptime formats to try, day-first flag or None)
@@ -158,6 +159,15 @@ def parse_times(texts: Sequence[str], *, tz: str | None = None, dst: str = "infe
             return ParsedTimes(num / 1000.0, True, "epoch_ms", "UTC")
         if fin.size and np.all(fin > 9e8) and np.all(fin < 5e9) and np.all(fin == np.round(fin)):
             return ParsedTimes(num, True, "epoch_s", "UTC")
+        name = (column or "").strip().lower()
+        if (fin.size > 1 and np.all(fin > 20000) and np.all(fin < 80000) and name not in _SECONDS_NAMES
+                and np.median(np.abs(np.diff(fin))) < 1.0):
+            # Excel serial days (1899-12-30 epoch), naive local time: read via calendar strings
+            base = datetime(1899, 12, 30)
+            iso = ["" if not np.isfinite(v) else (base + timedelta(days=float(v))).isoformat(timespec="milliseconds")
+                   for v in num]
+            pt = parse_times(iso, tz=tz, dst=dst, label=label, column=column, lines=lines)
+            return ParsedTimes(pt.seconds, True, "excel_serial", pt.tz)
         return ParsedTimes(num, False, "seconds", None)
     nonblank = [k for k, t in enumerate(texts) if t]
     if not nonblank:
@@ -362,9 +372,10 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float) ->
     good = inside & (span <= max_gap_s * (1 + 1e-9))
     out[good] = vals[good]
     out[exact_end] = xv[-1]
-    # interpolation across a missing/bad sample: interval longer than 1.5 grid steps
     step = float(grid[1] - grid[0]) if grid.size > 1 else max_gap_s
-    on_sample = np.abs(grid - t0) <= 1e-6 * step
+    on_sample = (j > 0) & (np.abs(grid - t0) <= 1e-6 * step)
+    out[on_sample] = xv[jj - 1][on_sample]   # a grid point on a sample keeps it, even beside a long gap
+    # interpolation across a missing/bad sample: interval longer than 1.5 grid steps
     filled = int(np.count_nonzero(good & (span > 1.5 * step) & ~on_sample))
     return out, filled
 

@@ -40,6 +40,8 @@ from .stiction_model import _batch_kernel, stiction_batch
 MIN_SAMPLES = 50
 #: Default noise prefilter time constant, in samples (see `fit_hammerstein`, ``hp_tau_s``).
 AUTO_HP_SAMPLES = 10.0
+#: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
+DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
 AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
 
@@ -700,7 +702,8 @@ def _nelder_mead(f, x0, steps, *, max_iter: int = 60, tol: float = 1e-3):
     return simplex[i], values[i]
 
 
-def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: bool) -> _Best:
+def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: bool, max_iter: int = 60,
+                        tol: float = 1e-3) -> _Best:
     """Refine S, J (and the lags, dead time fixed) of one candidate by Nelder-Mead.
 
     Both starting directions are scored at every point; the better one counts.
@@ -731,7 +734,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
         f = lambda v: cost(np.concatenate([v, [0.0]]))  # noqa: E731
     else:
         f = cost
-    xb, fb = _nelder_mead(f, x0, steps)
+    xb, fb = _nelder_mead(f, x0, steps, max_iter=max_iter, tol=tol)
     if fixed:
         xb = np.concatenate([xb, [0.0]])
     if fb >= cur.sse:
@@ -772,7 +775,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     structure: tuple | None = None, hp_tau_s: float | str | None = "auto",
                     n_starts: int = 3, tau_range_s: tuple[float, float] | None = None,
                     min_delay_s: float | None = None, max_samples: int | None = 4000,
-                    surface: bool = True, gain_fixed: float | None = None) -> HammersteinFit:
+                    surface: bool = True, gain_fixed: float | None = None,
+                    J_ratios=None, dense_S: int = 36, dense_ratios: int = 17) -> HammersteinFit:
     """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
 
     Parameters
@@ -818,6 +822,11 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     max_samples : int or None
         Longer records are searched on block averages of about this many samples first, then
         refined at the full rate (None: always full rate).
+    J_ratios : sequence of float, optional
+        J/S ratios of the global grid (default `DEFAULT_J_RATIOS`).
+    dense_S, dense_ratios : int
+        Size of the dense (S, J/S in 0..2) grid run at the few process structures the global grid
+        picked.
     gain_fixed : float, optional
         Fix the process gain (PV units per %) instead of fitting it (the direct valve fit uses 1).
     surface : bool
@@ -893,7 +902,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
 
         if stiction:
             # 2. global grid: (S, J/S) x a coarse set of lags and dead times
-            ratios = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0])
+            ratios = np.asarray(J_ratios if J_ratios is not None else DEFAULT_J_RATIOS, float)
             Sg0, Rg0, Fg0 = np.meshgrid(S_grid, ratios, [1.0, -1.0], indexing="ij")
             Sg0, Jg0, Fg0 = Sg0.ravel(), (Sg0 * Rg0).ravel(), Fg0.ravel()
             if structure is None:
@@ -920,21 +929,41 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     starts.append(cand)
                 if len(starts) >= n_starts:
                     break
-            # 3. from each start: process structure for that valve, then Nelder-Mead on (S, J, lags)
+            # 3. the process structure for each start's valve ...
             results = [best]
+            cfgs = []
             for S0, J0, p, F0, c0 in starts:
                 cur = _Best(S0, J0, F0, gcfg.take(p), c0)
+                if structure is None:
+                    q, sq = best_structure(cur.S, cur.J, cur.F)
+                    if sq < cur.sse:
+                        cur = _Best(cur.S, cur.J, cur.F, all_cfg.take(q), sq)
+                results.append(cur)
+                key = (cur.cfg.kind[0], float(cur.cfg.tau[0]), float(cur.cfg.tau2[0]), int(cur.cfg.d[0]))
+                if key not in [k for k, _ in cfgs]:
+                    cfgs.append((key, cur.cfg))
+            # 4. ... a dense (S, J, f0) grid at those structures (the valley in S and J is narrow)
+            ent = [k for k, _ in cfgs]
+            dcfg = _make_configs(ent, ts_s)
+            S_dense = _s_grid(x, dense_S, float(S_grid[-1]))
+            Sd, Rd, Fd = np.meshgrid(S_dense, np.linspace(0.0, 2.0, dense_ratios), [1.0, -1.0], indexing="ij")
+            Sd, Jd, Fd = Sd.ravel(), (Sd * Rd).ravel(), Fd.ravel()
+            sse_d, _ = prob.sse(Sd, Jd, Fd, dcfg)
+            for p in range(len(dcfg)):
+                i = int(np.argmin(sse_d[:, p]))
+                results.append(_Best(float(Sd[i]), float(Jd[i]), float(Fd[i]), dcfg.take(p), float(sse_d[i, p])))
+            # 5. refine the best few: structure polish and Nelder-Mead on (S, J, lags)
+            results.sort(key=lambda r: r.sse)
+            refined = []
+            for cur in results[: max(2, n_starts)]:
                 for rnd in range(refine_rounds):
-                    if structure is None:
-                        if rnd == 0:
-                            q, sq = best_structure(cur.S, cur.J, cur.F)
-                            cq = all_cfg.take(q)
-                        else:
-                            cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
+                    if structure is None and rnd > 0:
+                        cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
                         if sq < cur.sse:
                             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
                     cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None)
-                results.append(cur)
+                refined.append(cur)
+            results = refined + results
             best = min(results, key=lambda r: r.sse)
         return best
 
@@ -987,7 +1016,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                  load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
                                  hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
                                  tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
-                                 surface=False, gain_fixed=gain_fixed)
+                                 surface=False, gain_fixed=gain_fixed, J_ratios=J_ratios,
+                                 dense_S=dense_S, dense_ratios=dense_ratios)
         best = refine_from(coarse)
     else:
         best = search()
@@ -997,6 +1027,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]))
     if stiction and best.S > 0:
         best = _zoom(prob, best, rounds=2, size=9, span=0.06)
+        if structure is None:
+            best = _nelder_mead_refine(prob, best, ts_s, fixed=False, max_iter=100, tol=1e-6)
 
     surface_cost = None
     if stiction and surface:
@@ -1165,6 +1197,10 @@ def fit_valve(op_pct, mv_pct, ts_s: float = 1.0, *, train=None, stiction: bool =
     """
     lag_hi = max_lag_s if max_lag_s is not None else 5.0 * ts_s
     opts.setdefault("load_order", 0)
+    # The stem position shows the valve itself: a dense global grid is affordable (the linear part
+    # is only a small actuator lag) and needed (on clean data the optimum is a narrow valley).
+    opts.setdefault("n_S", 40)
+    opts.setdefault("J_ratios", np.linspace(0.0, 2.0, 13))
     h = fit_hammerstein(op_pct, mv_pct, ts_s, train=train, stiction=stiction, kinds=("foptd",),
                         max_delay_s=max_delay_s if max_delay_s is not None else 3.0 * ts_s,
                         tau_range_s=(0.05 * ts_s, lag_hi), hp_tau_s=None, min_delay_s=0.0,

@@ -169,6 +169,13 @@ def test_vendor_timestamp_formats(texts, expect):
     assert parse_times(texts).seconds[0] == pytest.approx(expect)
 
 
+def test_excel_serial_days_in_a_timestamp_column():
+    pt = parse_times(["45623.5", "45623.50069444444"], column="Timestamp")
+    assert pt.absolute and pt.fmt == "excel_serial"
+    assert pt.seconds[0] == pytest.approx(1732708800.0) and pt.seconds[1] - pt.seconds[0] == pytest.approx(60, abs=0.01)
+    assert not parse_times(["45623.5", "45624.5"], column="t").absolute   # a seconds column stays seconds
+
+
 def test_day_first_decided_by_the_column():
     pt = parse_times(["01/02/2024 00:00", "13/02/2024 00:00"])
     assert pt.seconds[1] - pt.seconds[0] == pytest.approx(12 * 86400)
@@ -386,3 +393,25 @@ def test_vendor_variants_two_row_ragged_german_date_time_thousands():
                                              for k in range(n)]
     (r,) = read_records(io.StringIO("\n".join(rows)))
     assert r.pv[0] == 1200.5
+
+
+def test_long_layout_pi_flag_columns():
+    lines = ["Tag,Timestamp,Value,Questionable,Substituted"]
+    for k in range(60):
+        ts = f"2024-03-01T08:{k:02d}:00Z"
+        lines.append(f"L1.OP,{ts},{50 + k % 4},{'True' if k == 10 else 'False'},False")
+        lines.append(f"L1.PV,{ts},{20 + k % 3},False,{'True' if k in (20, 21) else 'False'}")
+    (r,) = read_records(io.StringIO("\n".join(lines)))
+    bad = {f.data["role"]: f.data["bad_quality"] for f in r.findings if f.code == "bad_values"}
+    assert bad == {"op": 1, "pv": 2} and r.meta["quality_scheme"] == "pi_flags"
+
+
+def test_to_grid_interpolates_short_gaps_only():
+    from connectors.timebase import to_grid
+
+    t = np.array([0, 1, 2, 5, 6, 20, 21], float)
+    x = np.array([0, 1, 2, 5, 6, 20, 21], float)
+    g, filled = to_grid(t, x, np.arange(22.0), max_gap_s=3.0)
+    np.testing.assert_allclose(g[:7], np.arange(7.0))           # 3 s gap filled
+    assert np.all(np.isnan(g[7:20])) and g[20] == 20 and g[21] == 21
+    assert filled == 2

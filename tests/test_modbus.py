@@ -245,3 +245,22 @@ pv = 2
     assert "cannot connect" in (stats["GONE"].last_error or "")
     for name in ("F_ABCD", "I16"):
         assert stats[name].good >= 17 and stats[name].missed == 0, stats[name]
+
+
+def test_window_records_cut_at_lost_polls_without_inventing_values():
+    from connectors.modbus import LoopConfig, RegisterMap, window_records
+
+    lc = LoopConfig("L", "d", {"op": RegisterMap(0), "pv": RegisterMap(2), "sp": RegisterMap(4)})
+    n = 100
+    t = list(1000.0 + np.arange(n))
+    op = list(50 + np.sin(np.arange(n) / 3))
+    pv = list(np.cos(np.arange(n) / 3))
+    for k in (40, 41, 42, 90):
+        op[k] = math.nan
+    sp = [1.0] * n
+    recs = window_records(lc, t, {"op": op, "pv": pv, "sp": sp, "mv": [math.nan] * n}, 1.0, 20)
+    assert [r.n for r in recs] == [40, 47]                       # 0-39, 43-89; 91-99 too short
+    assert recs[1].meta["t_first_s"] == 1043.0 and recs[1].sp is not None and recs[1].mv is None
+    gap = next(f for f in recs[0].findings if f.code == "gap")
+    assert gap.data["lost"] == 4 and gap.data["outages"] == [[40, 43], [90, 91]]
+    assert recs[0].start == "1970-01-01T00:16:40Z"

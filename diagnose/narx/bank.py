@@ -225,7 +225,7 @@ def train_bank_model(S_pct: float, J_pct: float, seed: int = 0, **kwargs) -> tup
     from .networks import NarxSP
     torch.set_num_threads(1)
     scale = signal_scale(S_pct, J_pct)
-    ds = make_dataset(S_pct, J_pct, scale=scale)
+    ds = make_dataset(S_pct, J_pct, scale=scale, bank=True)
     net = NarxSP(seed=seed, **kwargs).fit(ds.x_train, ds.y_train, ds.x_val, ds.y_val)
     one = net.predict_one_step(ds.x_test, ds.y_test)
     free = net.free_run(ds.x_test, ds.y_test[:2])
@@ -258,8 +258,9 @@ def train_bank(cases=None, seed: int = 0, progress=None, **kwargs) -> tuple[dict
         "version": BANK_VERSION,
         "network": "narxsp (gated NARX-SP network, diagnose.narx.networks.NarxSP)",
         "protocol": {"plant": "two-parameter stiction model, f0=+1, at rest at x[0]",
-                     "signals": "shared/notes/narx-protocol.md train/validation/test sines, "
-                                "amplitudes x scale, scale = max(1, (S+J)/8)",
+                     "signals": "bank_train_signal (6000), bank_validation_signal (4000), "
+                                "protocol test signal (2000); amplitudes x scale, "
+                                "scale = max(1, (S+J)/8) (diagnose/narx/protocol.py)",
                      "score_from": SCORE_FROM, "seed": seed,
                      "training": "Adam + annealed gates, least-squares heads, slip threshold "
                                  "picked on validation free-run RMSE (docs/narx.md)"},

@@ -498,6 +498,16 @@ class NarxSP(NarxNetwork):
             loss = torch.mean((pred - target[None, :]) ** 2, dim=1)
             loss.sum().backward()
             opt.step()
+        theta_grad = mod.theta_s.detach().numpy().copy()
+        # Hard gates: alternate least-squares heads and the loss-minimising slip-threshold interval
+        # (a stump fit on |d|) a few times, so that heads fitted to a misplaced threshold do not
+        # stay wrong.
+        for _ in range(3):
+            self._polish(mod, d, dx, dy, target)
+            with torch.no_grad():
+                for k in range(mod.theta_s.shape[0]):
+                    lo, hi = self._theta_interval(mod, k, d, dx, dy, target)
+                    mod.theta_s[k] = 0.5 * (lo + hi)
         self._polish(mod, d, dx, dy, target)
         # restart with the lowest hard-gate training loss
         with torch.no_grad():
@@ -508,7 +518,7 @@ class NarxSP(NarxNetwork):
         # selection, the protocol's rule); without validation data the trained value is kept,
         # clipped into the interval.
         lo, hi = self._theta_interval(mod, best, d, dx, dy, target)
-        self.theta_grad_ = float(mod.theta_s[best].detach())
+        self.theta_grad_ = float(theta_grad[best])
         self.theta_interval_ = (lo, hi)
         cands = lo + (hi - lo) * (np.arange(self.candidates) + 0.5) / self.candidates
         scores = []

@@ -77,8 +77,35 @@ class Dataset:
     scale: float = 1.0
 
 
-def make_dataset(S_pct: float, J_pct: float, *, scale: float = 1.0) -> Dataset:
-    """Train/validation/test series for one (S, J) case under the protocol (f0 = +1)."""
-    xs = [train_signal(scale=scale), validation_signal(scale=scale), test_signal(scale=scale)]
+def bank_train_signal(n: int = 6000, scale: float = 1.0) -> np.ndarray:
+    """Bank training input: 50 + s (10 sin(2 pi t/97.3) + 1.0 sin(2 pi t/731) + 0.3 sin(2 pi t/17.9)).
+
+    Richer than the protocol's training sine (whose integer period puts every slip at nearly the
+    same phase): slips fall at many phases, which pins the slip threshold more tightly.
+    """
+    t = np.arange(n, dtype=float)
+    return 50.0 + scale * (10.0 * np.sin(2 * np.pi * t / 97.3) + 1.0 * np.sin(2 * np.pi * t / 731.0)
+                           + 0.3 * np.sin(2 * np.pi * t / 17.9))
+
+
+def bank_validation_signal(n: int = 4000, scale: float = 1.0) -> np.ndarray:
+    """Bank validation input: 50 + s (9 sin(2 pi t/113) + 1.0 sin(2 pi t/277) + 0.4 sin(2 pi t/23.1))."""
+    t = np.arange(n, dtype=float)
+    return 50.0 + scale * (9.0 * np.sin(2 * np.pi * t / 113.0) + 1.0 * np.sin(2 * np.pi * t / 277.0)
+                           + 0.4 * np.sin(2 * np.pi * t / 23.1))
+
+
+def make_dataset(S_pct: float, J_pct: float, *, scale: float = 1.0, bank: bool = False) -> Dataset:
+    """Train/validation/test series for one (S, J) case (f0 = +1).
+
+    ``bank=False``: the fixed protocol's signals (Table I). ``bank=True``: the bank protocol, with
+    richer training and validation inputs (`bank_train_signal`, `bank_validation_signal`); the test
+    signal is the protocol's in both, amplitudes times ``scale``.
+    """
+    if bank:
+        xs = [bank_train_signal(scale=scale), bank_validation_signal(scale=scale),
+              test_signal(scale=scale)]
+    else:
+        xs = [train_signal(scale=scale), validation_signal(scale=scale), test_signal(scale=scale)]
     ys = [stiction_reference(x, S_pct, J_pct, 1) for x in xs]
     return Dataset(float(S_pct), float(J_pct), xs[0], ys[0], xs[1], ys[1], xs[2], ys[2], float(scale))

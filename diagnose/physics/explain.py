@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import DataError, StictionWarning
 from ..record import LoopRecord
 from .baseline import Baseline, _grid_baseline, make_baseline
-from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, Fitted, get
+from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, Fitted, get
 from .locate import Mismatch, locate, slips_and_reversals
 from .model import Stage, Structure, effective_n, predict, refine_plain, rmse
 
@@ -214,6 +214,8 @@ class _StageRun:
     ref_rmse: float
     mismatch: Mismatch
     fitted: list = field(default_factory=list)   # (Fitted, y_hat, HypothesisResult)
+    loc_hat: np.ndarray | None = None
+    loc_stem: np.ndarray | None = None
 
 
 def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: bool,
@@ -249,9 +251,19 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         ref, ref_sse = refine_plain(stage, ref)
         ref_hat, ref_stem, _ = predict(stage, ref)
         ho = stage.heldout
-    mism = locate(stage.y - base.y_hat, base.stem_hat, stage.x, stage.ts_s, train=stage.train,
-                  response_s=_response_s(base.structure, stage))
-    ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat)
+    # locate on the residual of the better-trained of the two plain models (the fitting stage's
+    # baseline, or the same structure refit by the searches here)
+    tr = stage.train
+    base_tr = float(np.sum((stage.y - base.y_hat)[tr] ** 2))
+    if ref_sse < base_tr:
+        located_on, loc_hat, loc_stem, loc_struct = "reference", ref_hat, ref_stem, ref
+    else:
+        located_on, loc_hat, loc_stem, loc_struct = "baseline", base.y_hat, base.stem_hat, base.structure
+    mism = locate(stage.y - loc_hat, loc_stem, stage.x, stage.ts_s, train=stage.train,
+                  response_s=_response_s(loc_struct, stage))
+    mism.summary["located_on"] = located_on
+    ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat,
+                  baseline=base.structure)
     fits = {h.name: h.fit(stage, ref, ctx) for h in hyps}
     # Searches over rough output-error surfaces: a hypothesis may win only because its search found
     # a better plain valve. Project every fitted model back onto the plain one, refit, and let the
@@ -265,13 +277,15 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     if best_sse < ref_sse * (1.0 - 1e-6):
         ref, ref_sse = best_ref, best_sse
         ref_hat, _, _ = predict(stage, ref)
-        ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat)
+        ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat,
+                  baseline=base.structure)
         for h in hyps:
             again = h.fit(stage, ref, ctx)
             if again.train_sse < fits[h.name].train_sse:
                 fits[h.name] = again
     ref_rmse = rmse((stage.y - ref_hat)[ho])
     run = _StageRun(stage, base, base_rmse, ref, ref_hat, ref_rmse, mism)
+    run.loc_hat, run.loc_stem = loc_hat, loc_stem
     e_ref = (stage.y - ref_hat)[ho]
     sse_ref = float(e_ref @ e_ref)
     n_eff = effective_n(e_ref)
@@ -283,7 +297,12 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         r_h = rmse(e)
         red = 1.0 - r_h / ref_rmse if ref_rmse > 0 else 0.0
         dbic = n_eff * math.log(max(sse, 1e-300) / max(sse_ref, 1e-300)) + fitted.n_extra * math.log(n_eff)
-        ok = bool(red >= min_reduction and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic < 0
+        need = min_reduction
+        on_lc = (fitted.name == "external_disturbance" and ExternalDisturbance.at_limit_cycle(
+            fitted.params.get("period_s"), mism.limit_cycle_period_s))
+        if on_lc:
+            need = 2.0 * min_reduction   # a load on the loop's own period: stricter
+        ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic < 0
                   and fitted.train_sse < ref_sse
                   and all(math.isfinite(v) for v in fitted.params.values()))
         tr = stage.train
@@ -404,13 +423,19 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
                          "message": f"{c.name} explains the held-out data almost as well as {w.name} "
                                     f"(RMSE {c.heldout_rmse:.4g} vs {w.heldout_rmse:.4g}); the data cannot "
                                     "tell them apart"})
+        if w.name == "external_disturbance" and ExternalDisturbance.at_limit_cycle(
+                w.params.get("period_s"), runs[winner[0]].mismatch.limit_cycle_period_s):
+            warn.append({"code": "physics.entrained",
+                         "message": "the load's period is the loop's own oscillation period: an external "
+                                    "oscillation entraining the loop, or a model error at the limit cycle, "
+                                    "cannot be told apart from these data"})
         if w.params.get("tau_s") is not None and w.name == "actuator_lag" and w.params["tau_s"] < 0.75 * record.ts_s:
             warn.append({"code": "physics.sub_sample",
                          "message": "the fitted lag is shorter than one sample; the sampling is too coarse to "
                                     "resolve it"})
     else:
         ss = np.std(stage.y[stage.heldout]) or 1.0
-        if base_rmse > 0.5 * ss:
+        if min(base_rmse, run.ref_rmse) > 0.5 * ss:
             warn.append({"code": "physics.unexplained",
                          "message": "the baseline misses much of the held-out data but no hypothesis "
                                     "explains it significantly; see the located windows"})
@@ -446,9 +471,12 @@ def _arrays(run: _StageRun, improved_hat: np.ndarray, record: LoopRecord, n_tr: 
     t = np.arange(st.n) * st.ts_s
     s = m.summary
     return {
-        "t_s": t, "observed": st.y, "baseline": run.baseline.y_hat, "improved": improved_hat,
-        "residual_baseline": st.y - run.baseline.y_hat, "residual_improved": st.y - improved_hat,
-        "op_pct": st.x, "stem_hat_pct": run.baseline.stem_hat, "train_end_s": float(n_tr * st.ts_s),
+        "t_s": t, "observed": st.y, "baseline": run.baseline.y_hat, "reference": run.ref_hat,
+        "improved": improved_hat, "residual_baseline": st.y - run.baseline.y_hat,
+        "residual_located": st.y - run.loc_hat, "located_on": s.get("located_on", "baseline"),
+        "residual_improved": st.y - improved_hat,
+        "op_pct": st.x, "stem_hat_pct": run.loc_stem, "train_end_s": float(n_tr * st.ts_s),
+        "train_start_s": float(int(np.argmax(st.train)) * st.ts_s),
         "windows": [(w["start_s"], w["end_s"]) for w in s["windows"]],
         "window_t_s": a["window_t_s"], "window_rms": a["window_rms"],
         "profile_lag_s": a["profile_lag_s"], "after_slip_profile": a["after_slip_profile"],
@@ -468,7 +496,8 @@ def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
     run = runs[report_stage]
     what = "MV (stem position) from OP" if report_stage == "valve" else "PV from OP"
     hints = run.mismatch.summary.get("hints", [])
-    parts = [f"Baseline ({run.baseline.source}) simulating {what}: held-out RMSE {base_rmse:.4g}."]
+    parts = [f"Baseline ({run.baseline.source}) simulating {what}: held-out RMSE {base_rmse:.4g}; "
+             f"the same structure refit here: {run.ref_rmse:.4g}."]
     if hints:
         parts.append("Residual: " + "; ".join(hints) + ".")
     if winner:

@@ -34,22 +34,25 @@ def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0
 
     ax = fig.add_subplot(gs[0, :])
     ax.plot(t, d["observed"], color="0.3", lw=0.8, label="recorded")
-    ax.plot(t, d["baseline"], color="tab:red", lw=0.8, label="baseline")
+    ax.plot(t, d["baseline"], color="tab:red", lw=0.8, label="baseline (fitting stage)")
+    if "reference" in d:
+        ax.plot(t, d["reference"], color="tab:orange", lw=0.8, ls="--", label="plain model refit")
     if d.get("missing_physics"):
         ax.plot(t, d["improved"], color="tab:blue", lw=0.8, label=f"with {name}")
     ax.axvline(d["train_end_s"], color="k", ls="--", lw=0.8)
     ax.text(d["train_end_s"], ax.get_ylim()[1], " held out ->", va="top", fontsize=8)
     ax.set_ylabel(f"{d.get('target', 'pv').upper()} [{unit}]")
     ax.set_title(title or f"missing physics: {name}")
-    ax.legend(loc="lower left", fontsize=8, ncol=3)
+    ax.legend(loc="lower left", fontsize=8, ncol=4)
 
     ax = fig.add_subplot(gs[1, :])
-    ax.plot(t, d["residual_baseline"], color="tab:red", lw=0.6, label="baseline residual")
+    ax.plot(t, d.get("residual_located", d["residual_baseline"]), color="tab:red", lw=0.6,
+            label=f"{d.get('located_on', 'baseline')} residual")
     if d.get("missing_physics"):
         ax.plot(t, d["residual_improved"], color="tab:blue", lw=0.6, label="improved residual")
     for a, b in d.get("windows", []):
         ax.axvspan(a, b, color="orange", alpha=0.25)
-    ax.plot(d["window_t_s"], d["window_rms"], color="k", lw=1.2, label="window RMS (baseline)")
+    ax.plot(d["window_t_s"], d["window_rms"], color="k", lw=1.2, label="window RMS")
     slips = np.asarray(d.get("slip_t_s", []))
     if slips.size:
         lo = ax.get_ylim()[0]
@@ -61,7 +64,7 @@ def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0
 
     ax = fig.add_subplot(gs[2, 0])
     ax.plot(d["profile_lag_s"], d["after_slip_profile"], "o-", ms=3)
-    ax.axhline(float(np.sqrt(np.mean(np.square(d["residual_baseline"])))), color="0.5", ls=":",
+    ax.axhline(float(np.sqrt(np.mean(np.square(d.get("residual_located", d["residual_baseline"]))))), color="0.5", ls=":",
                label="overall RMS")
     ax.set_xlabel("time after a slip [s]")
     ax.set_ylabel("residual RMS")

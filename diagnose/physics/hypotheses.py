@@ -62,6 +62,7 @@ class Context:
 
     limit_cycle_period_s: float | None = None
     residual: np.ndarray | None = None
+    baseline: Structure | None = None
 
 
 class PhysicsHypothesis:
@@ -250,14 +251,16 @@ class ValveCharacteristic(PhysicsHypothesis):
         # The gain change distorts the plain fit's S and J: for the most promising exponents the
         # valve is searched again globally.
         cs = [c for c in np.linspace(-4.0, 4.5, 18) if abs(c) > 1e-6]
-        S, J = reference.S_up_pct, reference.J_up_pct
-        pairs = sj_local(S, J, s_span=0.06, n_s=7, j_span=0.2, n_j=3, j_zero=False)
-        cands = [_with_sj(reference, s, j).replace(char_c=float(c)) for c in cs for s, j in pairs]
-        sse = train_sse(stage, cands).reshape(len(cs), len(pairs))
-        order = np.argsort(sse.min(axis=1))[:3]
+        starts = []
+        for origin in [reference] + ([context.baseline] if context.baseline is not None else []):
+            S, J = origin.S_up_pct, origin.J_up_pct
+            pairs = sj_local(S, J, s_span=0.06, n_s=7, j_span=0.2, n_j=3, j_zero=False)
+            cands = [_with_sj(origin, s, j).replace(char_c=float(c)) for c in cs for s, j in pairs]
+            sse = train_sse(stage, cands).reshape(len(cs), len(pairs))
+            for i in np.argsort(sse.min(axis=1))[:3 if origin is reference else 2]:
+                starts.append(cands[int(i) * len(pairs) + int(np.argmin(sse[i]))])
         results = []
-        for i in order:
-            st = cands[int(i) * len(pairs) + int(np.argmin(sse[i]))]
+        for st in starts:
             st, _ = refit_dynamics(stage, st, rounds=1)
             st = global_sj(stage, st)
             st, _ = refit_dynamics(stage, st, rounds=1)
@@ -285,8 +288,29 @@ class ExternalDisturbance(PhysicsHypothesis):
     n_extra = 3
     description = "oscillating external load"
 
-    def candidate_periods(self, stage: Stage, reference: Structure, context: Context, k: int = 3) -> list[float]:
-        """Periods of the largest residual spectral peaks away from the limit cycle's harmonics."""
+    @staticmethod
+    def _peaks(sig: np.ndarray, ts_s: float, plc: float | None, k: int) -> list[float]:
+        m = sig.shape[0]
+        sig = sig - np.polyval(np.polyfit(np.arange(m), sig, 1), np.arange(m))
+        nfft = 4 * int(2 ** math.ceil(math.log2(m)))
+        P = np.abs(np.fft.rfft(sig * np.hanning(m), nfft)) ** 2
+        f = np.fft.rfftfreq(nfft, ts_s)
+        T = m * ts_s
+        ok = (f >= 3.0 / T) & (f <= 0.4 / ts_s)
+        if plc:
+            flc = 1.0 / plc
+            # harmonics only: a load can entrain the loop so that the oscillation runs at its period
+            for h in range(2, 12):
+                ok &= np.abs(f - h * flc) > max(0.07 * h * flc, 1.5 / T)
+        idx = np.flatnonzero(ok[1:-1] & (P[1:-1] >= P[:-2]) & (P[1:-1] >= P[2:])) + 1
+        if idx.size == 0:
+            return []
+        return [float(1.0 / f[i]) for i in idx[np.argsort(P[idx])[::-1][:k]]]
+
+    def candidate_periods(self, stage: Stage, reference: Structure, context: Context) -> list[float]:
+        """Periods of the largest spectral peaks away from the limit cycle's harmonics: of the plain
+        model's residual, and of OP (a well-rejected load shows in OP more than in the residual,
+        because the plain fit bends to follow it)."""
         if context.residual is not None:
             r = np.asarray(context.residual, float)
         else:
@@ -294,47 +318,35 @@ class ExternalDisturbance(PhysicsHypothesis):
             r = stage.y - y_hat
         n = stage.n_fit
         tr = stage.train[:n]
-        r = r[:n][tr]
-        m = r.shape[0]
-        r = r - np.polyval(np.polyfit(np.arange(m), r, 1), np.arange(m))
-        nfft = 4 * int(2 ** math.ceil(math.log2(m)))
-        P = np.abs(np.fft.rfft(r * np.hanning(m), nfft)) ** 2
-        f = np.fft.rfftfreq(nfft, stage.ts_s)
-        T = m * stage.ts_s
-        ok = (f >= 3.0 / T) & (f <= 0.4 / stage.ts_s)
-        if context.limit_cycle_period_s:
-            flc = 1.0 / context.limit_cycle_period_s
-            for h in range(1, 12):
-                ok &= np.abs(f - h * flc) > max(0.07 * h * flc, 1.5 / T)
-        idx = np.flatnonzero(ok[1:-1] & (P[1:-1] >= P[:-2]) & (P[1:-1] >= P[2:])) + 1
-        if idx.size == 0:
-            return []
-        top = idx[np.argsort(P[idx])[::-1][:k]]
-        return [float(1.0 / f[i]) for i in top]
+        T = tr.sum() * stage.ts_s
+        plc = context.limit_cycle_period_s
+        cands = self._peaks(r[:n][tr], stage.ts_s, plc, 3) + self._peaks(stage.x[:n][tr], stage.ts_s, plc, 2)
+        out: list[float] = []
+        for p in cands:
+            if all(abs(1.0 / p - 1.0 / q) > 1.5 / T for q in out):
+                out.append(p)
+        return out
 
     def _search(self, stage, reference, context):
         periods = self.candidate_periods(stage, reference, context)
         if not periods:
             return reference
         T = stage.train.sum() * stage.ts_s
-        best, best_c = reference, math.inf
+        results = []
         for p in periods:
             f0 = 1.0 / p
-            fs = f0 + np.linspace(-1.0, 1.0, 21) / T
-            cands = [reference.replace(period_s=float(1.0 / f)) for f in fs if f > 0]
-            s, c = best_of(stage, cands)
-            f1 = 1.0 / s.period_s
-            cands = [reference.replace(period_s=float(1.0 / f)) for f in f1 + np.linspace(-0.1, 0.1, 11) / T]
-            s, c = best_of(stage, cands)
-            if c < best_c:
-                best, best_c = s, c
-        # the plain fit bent its valve and process to follow the load through OP: search again
-        best, _ = refit_dynamics(stage, best, rounds=1)
-        best = global_sj(stage, best)
-        best, _ = refit_dynamics(stage, best, rounds=1)
-        f1 = 1.0 / best.period_s
-        best, _ = best_of(stage, [best.replace(period_s=float(1.0 / f))
-                                  for f in f1 + np.linspace(-0.1, 0.1, 11) / T])
+            cands = [reference.replace(period_s=float(1.0 / f)) for f in f0 + np.linspace(-1.0, 1.0, 21) / T
+                     if f > 0]
+            st, _ = best_of(stage, cands)
+            # the plain fit bent its valve and process to follow the load through OP: search again
+            st, _ = refit_dynamics(stage, st, rounds=1)
+            st = global_sj(stage, st)
+            st, _ = refit_dynamics(stage, st, rounds=1)
+            f1 = 1.0 / st.period_s
+            st, c = best_of(stage, [st.replace(period_s=float(1.0 / f))
+                                    for f in f1 + np.linspace(-0.15, 0.15, 13) / T])
+            results.append((c, st))
+        best = min(results, key=lambda t: t[0])[1]
         best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
         return best
 
@@ -343,6 +355,13 @@ class ExternalDisturbance(PhysicsHypothesis):
             return {"period_s": float("nan"), "amplitude": 0.0}
         a, b = coef[-2], coef[-1]
         return {"period_s": struct.period_s, "amplitude": float(math.hypot(a, b))}
+
+    @staticmethod
+    def at_limit_cycle(period_s: float | None, limit_cycle_period_s: float | None) -> bool:
+        """Whether a load period sits on the loop's own oscillation period (within 8 %)."""
+        if not period_s or not limit_cycle_period_s or not math.isfinite(period_s):
+            return False
+        return abs(period_s / limit_cycle_period_s - 1.0) < 0.08
 
 
 class TimeVaryingFriction(PhysicsHypothesis):

@@ -228,6 +228,7 @@ def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
     from . import figures as figs
     from .report import loop_blocks, to_markdown
 
+    t0 = time.perf_counter()
     d = _loop_dir(cfg, loop_id)
     d.mkdir(parents=True, exist_ok=True)
     for stale in d.glob(".*.tmp"):  # left by a killed job
@@ -243,6 +244,8 @@ def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
         from .pdf import to_pdf
 
         write_atomic(d / f"{loop_id}.pdf", to_pdf(blocks, pngs, title=f"Stiction report {loop_id}"))
+    timings = diag.result.setdefault("timings_s", {})
+    timings["report"] = round(time.perf_counter() - t0, 4)  # figures, Markdown, PDF
     write_atomic(d / f"{loop_id}.json", json.dumps(diag.result, indent=1, allow_nan=False))
     return f"loops/{loop_id}/{loop_id}.md"
 
@@ -267,9 +270,7 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
         warn = degrade(hist + [{"run_at": "this run", "S_pct": diag.result.get("S")}]) if hist else None
         if warn:
             diag.result["degradation"] = warn
-        t0 = time.perf_counter()
         report = write_loop_outputs(cfg, diag, loop_id, history_rows=hist, degradation=warn)
-        diag.result["timings_s"]["report"] = round(time.perf_counter() - t0, 4)
         row = loop_row(diag.result, report, degradation=warn)
         row["_result"] = diag.result
         return row

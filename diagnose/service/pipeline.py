@@ -36,7 +36,7 @@ S_SATURATION_PCT = 5.0
 #: S below this (% of span) is reported as minor.
 S_MINOR_PCT = 1.0
 #: ``explain="auto"`` runs the missing-physics stage when the fit's free-run r2 on PV is below this.
-EXPLAIN_AUTO_R2 = 0.8
+EXPLAIN_AUTO_R2 = 0.5
 
 
 @functools.lru_cache(maxsize=1)

@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
     p.add_argument("--explain", choices=["auto", "on", "off"], default="auto",
                    help="run the missing-physics stage: auto (default) only where the fitted model "
-                        "leaves a mismatch (free-run r2 on PV < 0.8), on for every loop, off")
+                        "leaves a mismatch (free-run r2 on PV < 0.5), on for every loop, off")
     p.add_argument("--no-explain", dest="explain", action="store_const", const="off",
                    help="same as --explain off")
     p.add_argument("--narx", action=argparse.BooleanOptionalAction, default=True,

@@ -1,0 +1,201 @@
+"""Speed and accuracy of `fit_hammerstein` against a plain scipy differential-evolution fit.
+
+Both fits minimise the *same* cost: the prediction-error cost of `diagnose.fit` (valve model ->
+first-order-plus-dead-time process, gain and load by least squares, the same noise prefilter),
+evaluated by the same compiled kernel. Differential evolution searches (S, J, f0, log tau, dead
+time) directly (scipy defaults: popsize 15, tol 0.01, no polishing); `fit_hammerstein` runs its
+grid + refinement (and also searches SOPTD and integrating structures). Both run in the same
+process on the same loops, so machine load affects both.
+
+Also times the whole ``stiction identify FILE --json`` command on a 10 000-sample loop
+(interpreter start and imports included) against a bare ``python -c pass``.
+
+Run:  python benchmarks/bench_fit.py [--loops 8] [--cli-runs 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from diagnose.fit import (_burn_in, _make_configs, _op_offset, _Problem, _score_weights,  # noqa: E402
+                          fit_hammerstein)
+from validate_simulated import make_case  # noqa: E402
+
+
+def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel"):
+    """Plain differential evolution over (S, J, f0, log tau, delay) on the same cost."""
+    from scipy.optimize import differential_evolution
+
+    x = np.asarray(op, float)
+    x = x + _op_offset(x)
+    n = x.shape[0]
+    w = _score_weights(n, None, _burn_in(x, 0.05))
+    prob = _Problem(x, np.asarray(pv, float), ts_s, w, 2, hp_tau_s)
+    lo, hi = np.percentile(x, [0.5, 99.5])
+    smax = float(hi - lo)
+    dmax = int(min(n * ts_s / 10.0, 60 * ts_s) / ts_s)
+
+    def unpack(v):
+        S, J, f, lt, d = v
+        return S, J, (1.0 if f >= 0 else -1.0), math.exp(lt), int(d)
+
+    if engine == "kernel":
+        def cost(v):
+            S, J, f, tau, d = unpack(v)
+            cfg = _make_configs([("foptd", tau, 0.0, d)], ts_s)
+            return float(prob.sse([S], [J], [f], cfg)[0][0, 0])
+    else:
+        # plain: the reference valve in Python, scipy.signal.lfilter, numpy least squares
+        from scipy.signal import lfilter
+
+        from diagnose.fit import _legendre_basis
+        from diagnose.stiction_model import stiction_reference
+
+        a = math.exp(-ts_s / hp_tau_s) if hp_tau_s else None
+        hp = (lambda v: lfilter([1.0, -1.0], [1.0, -a], v - v[0], axis=0)) if a is not None else (lambda v: v)
+        B = _legendre_basis(n, 2)
+        Bf = hp(B[:, 1:]) if a is not None else B
+        ws = w > 0
+        yf = hp(np.asarray(pv, float))
+        ynorm = prob.y_std
+
+        def cost(v):
+            S, J, f, tau, d = unpack(v)
+            mv = stiction_reference(x, S, J, int(f))
+            u = np.concatenate([np.full(d, mv[0]), mv[: n - d]]) - mv[0]
+            al = math.exp(-ts_s / tau)
+            z = lfilter([1.0 - al], [1.0, -al], u)
+            A = np.column_stack([hp(z), Bf])
+            coef, *_ = np.linalg.lstsq(A[ws], yf[ws], rcond=None)
+            r = (yf - A @ coef)[ws]
+            return float(r @ r) / ynorm ** 2
+
+    bounds = [(0.0, smax), (0.0, 1.5 * smax), (-1.0, 1.0), (math.log(0.5 * ts_s), math.log(n * ts_s / 4)),
+              (1.0, dmax + 0.999)]
+    res = differential_evolution(cost, bounds, seed=seed, maxiter=maxiter, polish=False)
+    S, J, f, tau, d = unpack(res.x)
+    return {"S": S, "J": J, "tau_s": tau, "delay_s": d * ts_s, "cost": res.fun, "nfev": res.nfev}
+
+
+def compare(n_loops: int, seed: int, plain_too: bool = True) -> dict:
+    warm = make_case(1, np.random.default_rng(0), n=500).record
+    fit_hammerstein(warm.op, warm.pv, warm.ts_s)          # load the compiled kernels first
+    rng = np.random.default_rng(seed)
+    rows = []
+    i = 0
+    while len(rows) < n_loops:
+        case = make_case(i, rng)
+        i += 1
+        if case.cls == "none" or case.info["kind"] == "integrating":
+            continue      # DE here searches FOPTD only: compare on self-regulating sticky loops
+        rec = case.record
+        t0 = time.perf_counter()
+        ours = fit_hammerstein(rec.op, rec.pv, rec.ts_s)
+        t_ours = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        de = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="kernel")
+        t_de = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        plain = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="plain") if plain_too else None
+        t_plain = time.perf_counter() - t0
+        # our cost in the same units as DE's (the kernel's scaled SSE)
+        x = rec.op + ours.op_offset_pct
+        w = _score_weights(rec.n, None, _burn_in(x, 0.05))
+        prob = _Problem(x, rec.pv, rec.ts_s, w, 2, ours.hp_tau_s)
+        p = ours.process
+        cfg = _make_configs([(p.kind, p.tau_s, p.tau2_s, int(round(p.delay_s / rec.ts_s)))], rec.ts_s)
+        c_ours = float(prob.sse([ours.S_pct], [ours.J_pct], [ours.f0], cfg)[0][0, 0])
+        row = {"loop": rec.name, "class": case.cls, "S_true": case.S_pct, "J_true": case.J_pct,
+               "ours_S": ours.S_pct, "ours_J": ours.J_pct, "ours_cost": c_ours, "ours_s": t_ours,
+               "de_S": de["S"], "de_J": de["J"], "de_cost": de["cost"], "de_s": t_de, "de_nfev": int(de["nfev"])}
+        if plain is not None:
+            row.update({"plain_S": plain["S"], "plain_J": plain["J"], "plain_cost": plain["cost"],
+                        "plain_s": t_plain, "plain_nfev": int(plain["nfev"])})
+        rows.append(row)
+        print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
+
+    def rel(a, b):
+        return abs(a - b) / b
+
+    def med(vals):
+        vals = list(vals)
+        return statistics.median(vals) if vals else None
+
+    out = {"loops": len(rows),
+           "median_time_ours_s": med(r["ours_s"] for r in rows),
+           "median_time_de_s": med(r["de_s"] for r in rows),
+           "median_speedup": med(r["de_s"] / r["ours_s"] for r in rows),
+           "median_rel_err_S_ours": med(rel(r["ours_S"], r["S_true"]) for r in rows),
+           "median_rel_err_S_de": med(rel(r["de_S"], r["S_true"]) for r in rows),
+           "median_rel_err_J_ours": med(rel(r["ours_J"], r["J_true"]) for r in rows if r["J_true"] > 0),
+           "median_rel_err_J_de": med(rel(r["de_J"], r["J_true"]) for r in rows if r["J_true"] > 0),
+           "ours_cost_lower_or_equal_vs_de": int(sum(r["ours_cost"] <= r["de_cost"] * (1 + 1e-9) for r in rows))}
+    if rows and "plain_s" in rows[0]:
+        out.update({"median_time_plain_de_s": med(r["plain_s"] for r in rows),
+                    "median_speedup_vs_plain": med(r["plain_s"] / r["ours_s"] for r in rows),
+                    "median_rel_err_S_plain": med(rel(r["plain_S"], r["S_true"]) for r in rows),
+                    "median_rel_err_J_plain": med(rel(r["plain_J"], r["J_true"]) for r in rows
+                                                                if r["J_true"] > 0),
+                    "ours_cost_lower_or_equal_vs_plain": int(sum(r["ours_cost"] <= r["plain_cost"] * (1 + 1e-9)
+                                                                 for r in rows))})
+    return {"summary": out, "rows": rows}
+
+
+def cli_timing(runs: int) -> dict:
+    from connectors.historian import write_wide
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=10000, noise_std=0.05, load_walk_std=0.01, seed=4, name="FIC10K")
+    rec = rec.replace(mv=None)
+    tmp = Path(tempfile.mkdtemp()) / "loop10k.csv"
+    write_wide(rec, tmp)
+    exe = str(Path(sys.executable).parent / "stiction")
+    subprocess.run([exe, "identify", str(tmp), "--json"], capture_output=True, check=True)  # warm cache
+    t_cli, t_py = [], []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        subprocess.run([exe, "identify", str(tmp), "--json"], capture_output=True, check=True)
+        t_cli.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "pass"], capture_output=True, check=True)
+        t_py.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import numpy, numba"], capture_output=True, check=True)
+    t_imp = time.perf_counter() - t0
+    return {"samples": rec.n, "runs": runs, "identify_wall_s_min": min(t_cli),
+            "identify_wall_s_median": statistics.median(t_cli), "python_pass_s_median": statistics.median(t_py),
+            "python_import_numpy_numba_s": t_imp}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--loops", type=int, default=8)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--cli-runs", type=int, default=5)
+    ap.add_argument("--json")
+    args = ap.parse_args(argv)
+    res = {"cli": cli_timing(args.cli_runs)}
+    print(json.dumps(res["cli"], indent=2), flush=True)
+    res["fit_vs_de"] = compare(args.loops, args.seed)
+    print(json.dumps(res["fit_vs_de"]["summary"], indent=2))
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
