@@ -51,7 +51,7 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         Loop name when the file holds one loop.
     fmt : {"auto", "wide", "long", "ragged", "influx", "dcs"}, optional
         Layout override (default auto-detect).
-    tags : path or `connectors.tagmap.TagMap`, optional
+    tags : path, parsed TOML dict or `connectors.tagmap.TagMap`, optional
         Tag map (TOML): loops, roles, ranges for scaling OP/MV to % of span.
     tz : str, optional
         Time zone of naive timestamps (IANA name or ``+hh:mm``; default UTC).
@@ -78,7 +78,7 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
     """
     from .layouts import parse
     from .records import build_records, merge_specs, specs_from_table
-    from .tagmap import TagMap, load_tagmap
+    from .tagmap import TagMap, load_tagmap, parse_tagmap
     from .textio import load_text
 
     unknown = set(options) - set(OPTIONS)
@@ -88,7 +88,12 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
     tags = options.pop("tags", None)
     tagmap = None
     if tags is not None:
-        tagmap = tags if isinstance(tags, TagMap) else load_tagmap(tags)
+        if isinstance(tags, TagMap):
+            tagmap = tags
+        elif isinstance(tags, dict):
+            tagmap = parse_tagmap(tags)
+        else:
+            tagmap = load_tagmap(tags)
         for k, v in tagmap.options.items():
             options.setdefault("fmt" if k == "format" else k, v)
     if "format" in options:

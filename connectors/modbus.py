@@ -157,6 +157,15 @@ def _err(msg: str, path: str | None) -> ConnectorError:
 
 def parse_modbus_config(data: Mapping[str, Any], path: str | None = None) -> ModbusConfig:
     """A `ModbusConfig` from parsed TOML data (see the module docstring)."""
+    try:
+        return _parse_modbus_config(data, path)
+    except (TypeError, ValueError, AttributeError, KeyError) as exc:
+        raise _err(f"bad value in the Modbus config ({type(exc).__name__}: {exc})", path) from None
+
+
+def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusConfig:
+    if not isinstance(data, Mapping):
+        raise _err("the Modbus config must be a TOML table", path)
     devs_raw = data.get("devices")
     loops_raw = data.get("loops")
     if not isinstance(devs_raw, dict) or not devs_raw:
@@ -217,8 +226,12 @@ def parse_modbus_config(data: Mapping[str, Any], path: str | None = None) -> Mod
                 raise _err(f"loops.{name} needs an {need} register", path)
         loops[name] = LoopConfig(name, dev, regs, int(spec["device_id"]) if "device_id" in spec else None)
     period_s = float(data.get("period_s", 1.0))
-    if not period_s > 0:
+    if not (math.isfinite(period_s) and period_s > 0):
         raise _err("period_s must be > 0", path)
+    if not (math.isfinite(timeout_s) and timeout_s > 0):
+        raise _err("timeout_s must be > 0", path)
+    if int(data.get("window_samples", 600)) < 2:
+        raise _err("window_samples must be at least 2", path)
     return ModbusConfig(devices, loops, period_s, timeout_s, int(data.get("window_samples", 600)),
                         float(data.get("reconnect_min_s", 0.5)), float(data.get("reconnect_max_s", 5.0)), path)
 

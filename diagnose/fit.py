@@ -942,6 +942,12 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                 key = (cur.cfg.kind[0], float(cur.cfg.tau[0]), float(cur.cfg.tau2[0]), int(cur.cfg.d[0]))
                 if key not in [k for k, _ in cfgs]:
                     cfgs.append((key, cur.cfg))
+            # ... plus the linear model's structure and the global grid's own picks
+            extra = [best.cfg] + [gcfg.take(p) for _, _, p, _, _ in starts]
+            for c in extra:
+                key = (c.kind[0], float(c.tau[0]), float(c.tau2[0]), int(c.d[0]))
+                if key not in [k for k, _ in cfgs]:
+                    cfgs.append((key, c))
             # 4. ... a dense (S, J, f0) grid at those structures (the valley in S and J is narrow)
             ent = [k for k, _ in cfgs]
             dcfg = _make_configs(ent, ts_s)

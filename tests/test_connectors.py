@@ -87,6 +87,9 @@ def test_tag_map_scales_op_to_percent(tmp_path):
     (raw,) = read_records(DATA / "historian_FIC211_trim.csv", op="FV_211", pv="FT_211")
     np.testing.assert_allclose(rec.op, 100 * (raw.op - 20) / 50)
     assert rec.ranges["op"] == (20.0, 70.0)
+    (same,) = read_records(DATA / "historian_FIC211_trim.csv",
+                           tags={"loops": {"FIC211": {"op": {"tag": "FV_211", "range": [20, 70]}, "pv": "FT_211"}}})
+    np.testing.assert_allclose(same.op, rec.op)
 
 
 def test_isdb_seconds_column():

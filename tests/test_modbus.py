@@ -264,3 +264,27 @@ def test_window_records_cut_at_lost_polls_without_inventing_values():
     gap = next(f for f in recs[0].findings if f.code == "gap")
     assert gap.data["lost"] == 4 and gap.data["outages"] == [[40, 43], [90, 91]]
     assert recs[0].start == "1970-01-01T00:16:40Z"
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_leaf = st.one_of(st.integers(-5, 70000), st.floats(allow_nan=True), st.text(max_size=5), st.booleans(),
+                  st.lists(st.integers(-3, 3), max_size=3))
+_role = st.one_of(_leaf, st.dictionaries(st.sampled_from(["address", "type", "order", "table", "scale", "offset",
+                                                          "range", "device_id"]), _leaf, max_size=5))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.fixed_dictionaries({
+    "period_s": _leaf, "timeout_s": _leaf,
+    "devices": st.dictionaries(st.sampled_from(["a", "b"]), st.dictionaries(
+        st.sampled_from(["host", "port", "device_id", "timeout_s"]), _leaf, max_size=4), max_size=2),
+    "loops": st.dictionaries(st.sampled_from(["L1", "L2"]), st.dictionaries(
+        st.sampled_from(["device", "op", "pv", "sp", "device_id"]), _role, max_size=5), max_size=2)}))
+def test_fuzz_modbus_config_only_connector_error(data):
+    try:
+        cfg = parse_modbus_config(data)
+    except ConnectorError:
+        return
+    assert cfg.loops and cfg.devices and cfg.period_s > 0
