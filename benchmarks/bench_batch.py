@@ -68,8 +68,10 @@ def run_batch(logs: Path, out: Path, workers: int, explain: str) -> dict:
     for f in out.glob("loops/*/*.json"):
         for k, v in json.loads(f.read_text()).get("timings_s", {}).items():
             stages.setdefault(k, []).append(float(v))
+    worker_rss = max([r.get("worker_peak_rss_mib") or 0 for r in summary["loops"]] + [0])
     return {"workers": workers, "rc": int(rc), "wall_s": float(el), "loops": summary["n_loops"],
-            "failed": summary["n_failed"], "peak_rss_mib": max(int(rss_self), int(rss_child)) / 1024,
+            "failed": summary["n_failed"],
+            "peak_rss_mib": max(int(rss_self) / 1024, int(rss_child) / 1024, worker_rss),
             "cpu_s": float(cpu_self) + float(cpu_child),
             "median_loop_s": float(np.median(per_loop)) if per_loop else float("nan"),
             "stages": {k: {"median_s": round(float(np.median(v)), 3), "max_s": round(max(v), 3), "n": len(v)}

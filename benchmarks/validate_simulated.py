@@ -31,6 +31,9 @@ from diagnose.simulate import (LinearValve, PIDController, make_process, random_
 from diagnose.stiction_model import StictionValve  # noqa: E402
 
 CLASS_ORDER = ("none", "deadband", "undershoot", "no_offset", "overshoot")
+#: A sticky valve that moved fewer times than this in the record is stuck for practical purposes:
+#: OP and PV cannot show its stiction (reported separately).
+MIN_MOVES = 10
 
 
 @dataclass
@@ -120,6 +123,12 @@ def evaluate(rows: list[dict]) -> dict:
     kinds = sorted({r["kind"] for r in rows})
     out["per_kind_accuracy"] = {k: float(np.mean([r["class"] == r["true_class"] for r in rows if r["kind"] == k]))
                                 for k in kinds}
+    moved = [r for r in rows if r["true_class"] == "none" or r["mv_moves"] >= MIN_MOVES]
+    if len(moved) < len(rows):
+        out["loops_valve_moved"] = len(moved)
+        out["class_accuracy_valve_moved"] = float(np.mean([r["class"] == r["true_class"] for r in moved]))
+        st = [r for r in moved if r["true_class"] != "none"]
+        out["sticky_detected_rate_valve_moved"] = float(np.mean([r["stiction"] for r in st])) if st else None
     t = np.array([r["time_s"] for r in rows])
     out["time_s_median"] = float(np.median(t))
     out["time_s_max"] = float(np.max(t))

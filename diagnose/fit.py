@@ -40,6 +40,8 @@ from .stiction_model import _batch_kernel, stiction_batch
 MIN_SAMPLES = 50
 #: Default noise prefilter time constant, in samples (see `fit_hammerstein`, ``hp_tau_s``).
 AUTO_HP_SAMPLES = 10.0
+#: Records longer than ``max_samples`` are searched on block averages of about this many samples.
+COARSE_SAMPLES = 2000
 #: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
 DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
@@ -820,8 +822,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         Smallest dead time searched (default one sample: logged PV cannot respond to the OP logged
         at the same instant, and allowing it lets the fit explain PV through the controller).
     max_samples : int or None
-        Longer records are searched on block averages of about this many samples first, then
-        refined at the full rate (None: always full rate).
+        Longer records are searched on block averages of about `COARSE_SAMPLES` samples first,
+        then refined at the full rate (None: always full rate).
     J_ratios : sequence of float, optional
         J/S ratios of the global grid (default `DEFAULT_J_RATIOS`).
     dense_S, dense_ratios : int
@@ -903,7 +905,10 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         if stiction:
             # 2. global grid: (S, J/S) x a coarse set of lags and dead times
             ratios = np.asarray(J_ratios if J_ratios is not None else DEFAULT_J_RATIOS, float)
-            Sg0, Rg0, Fg0 = np.meshgrid(S_grid, ratios, [1.0, -1.0], indexing="ij")
+            # both starting directions for the direct valve fit (clean data: f0 matters for long);
+            # the dense grid below covers both for the Hammerstein fit
+            f_set = [1.0, -1.0] if gain_fixed is not None else [1.0]
+            Sg0, Rg0, Fg0 = np.meshgrid(S_grid, ratios, f_set, indexing="ij")
             Sg0, Jg0, Fg0 = Sg0.ravel(), (Sg0 * Rg0).ravel(), Fg0.ravel()
             if structure is None:
                 span_s = n * ts_s
@@ -1011,7 +1016,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         return cur
 
     if max_samples is not None and n > max_samples and structure is None:
-        q = int(math.ceil(n / max_samples))
+        q = int(math.ceil(n / min(max_samples, COARSE_SAMPLES)))
         nd = n // q
         xd = x[: nd * q].reshape(nd, q).mean(axis=1)
         yd = y[: nd * q].reshape(nd, q).mean(axis=1)

@@ -258,7 +258,7 @@ def train_bank(cases=None, seed: int = 0, progress=None, **kwargs) -> tuple[dict
         "version": BANK_VERSION,
         "network": "narxsp (gated NARX-SP network, diagnose.narx.networks.NarxSP)",
         "protocol": {"plant": "two-parameter stiction model, f0=+1, at rest at x[0]",
-                     "signals": "bank_train_signal (6000), bank_validation_signal (4000), "
+                     "signals": "bank_train_signal (6000), bank_validation_signal (40000), "
                                 "protocol test signal (2000); amplitudes x scale, "
                                 "scale = max(1, (S+J)/8) (diagnose/narx/protocol.py)",
                      "score_from": SCORE_FROM, "seed": seed,

@@ -27,7 +27,6 @@ free-run error is kept. The network never calls the stiction model.
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -439,18 +438,32 @@ class NarxSP(NarxNetwork):
         Adam iterations (full batch).
     lr : float
         Adam learning rate (parameters are in % of span).
+    seed : int
+        Seed of torch's generator (jitter of the initial thresholds).
     restarts : int
         Initial slip thresholds trained side by side (spread over quantiles of |x(t) - y(t-1)|);
-        the one with the lowest validation free-run RMSE is kept (training loss without validation).
+        after the hard-gate refinement the one with the lowest hard-gate training loss is kept.
     beta_max : float
         Final gate steepness factor of the annealing schedule (geometric from 1).
+    candidates : int
+        Slip thresholds tried inside the training data's loss-minimising interval; the
+        validation free-run RMSE picks among them (docs/narx.md, "Threshold selection").
+
+    Attributes
+    ----------
+    params_ : ndarray
+        Exported weights for the compiled free-run loop (theta_s, theta_m, a_m, a_s, c_s, tau, ...).
+    theta_interval_ : tuple of float
+        The slip-threshold interval the training data allow, % of span.
+    fit_time_s_ : float
+        Training wall-clock time.
     """
 
     kind = "narxsp"
 
     def __init__(self, *, epochs: int = 600, lr: float = 0.05, seed: int = 0, restarts: int = 8,
-                 beta_max: float = 300.0, candidates: int = 401, hidden: int = 0):
-        super().__init__(hidden=hidden, epochs=epochs, lr=lr, seed=seed)
+                 beta_max: float = 300.0, candidates: int = 401):
+        super().__init__(hidden=0, epochs=epochs, lr=lr, seed=seed)
         self.restarts = restarts
         self.candidates = candidates
         self.beta_max = beta_max

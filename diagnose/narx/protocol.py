@@ -88,7 +88,7 @@ def bank_train_signal(n: int = 6000, scale: float = 1.0) -> np.ndarray:
                            + 0.3 * np.sin(2 * np.pi * t / 17.9))
 
 
-def bank_validation_signal(n: int = 4000, scale: float = 1.0) -> np.ndarray:
+def bank_validation_signal(n: int = 40_000, scale: float = 1.0) -> np.ndarray:
     """Bank validation input: 50 + s (9 sin(2 pi t/113) + 1.0 sin(2 pi t/277) + 0.4 sin(2 pi t/23.1))."""
     t = np.arange(n, dtype=float)
     return 50.0 + scale * (9.0 * np.sin(2 * np.pi * t / 113.0) + 1.0 * np.sin(2 * np.pi * t / 277.0)

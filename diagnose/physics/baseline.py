@@ -7,7 +7,6 @@ fails) a small grid fit of the same structure.
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 
@@ -15,7 +14,8 @@ import numpy as np
 
 from ..errors import StictionError, StictionWarning
 from ..process_model import ProcessModel
-from .model import IDENTITY, global_sj, Stage, Structure, _linear_fit, best_of, refine_plain, refine_sj, refit_dynamics, stems, train_sse
+from .model import (IDENTITY, Stage, Structure, _linear_fit, global_sj, refine_plain, refit_dynamics, stems,
+                    train_sse)
 
 
 @dataclass(frozen=True, eq=False)

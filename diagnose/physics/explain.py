@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import DataError, StictionWarning
 from ..record import LoopRecord
 from .baseline import Baseline, _grid_baseline, make_baseline
-from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, Fitted, get
+from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, get
 from .locate import Mismatch, locate, slips_and_reversals
 from .model import Stage, Structure, effective_n, predict, refine_plain, rmse
 
@@ -51,12 +51,14 @@ class HypothesisResult:
     reduction: float
     delta_bic: float
     n_extra: int
+    train_delta_bic: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "params": {k: _num(v) for k, v in self.params.items()},
                 "heldout_rmse": _num(self.heldout_rmse), "accepted": bool(self.accepted),
                 "stage": self.stage, "target": _TARGET[self.stage], "train_rmse": _num(self.train_rmse),
                 "heldout_reduction": _num(self.reduction), "delta_bic": _num(self.delta_bic),
+                "train_delta_bic": _num(self.train_delta_bic),
                 "n_extra_params": int(self.n_extra)}
 
 
@@ -270,7 +272,8 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     # reference take the best; then refit the hypotheses from it and keep each one's better fit.
     best_ref, best_sse = ref, ref_sse
     for f in fits.values():
-        for p in _plain_projections(f.structure):
+        mid = int(np.mean(np.flatnonzero(stage.train))) if stage.train.any() else 0
+        for p in _plain_projections(f.structure, mid, stage.ts_s):
             r, c = refine_plain(stage, p, rounds=1)
             if c < best_sse:
                 best_ref, best_sse = r, c
@@ -289,6 +292,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     e_ref = (stage.y - ref_hat)[ho]
     sse_ref = float(e_ref @ e_ref)
     n_eff = effective_n(e_ref)
+    n_eff_tr = effective_n((stage.y - ref_hat)[stage.train])
     for h in hyps:
         fitted = fits[h.name]
         y_hat, _, _ = predict(stage, fitted.structure)
@@ -302,19 +306,23 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
             fitted.params.get("period_s"), mism.limit_cycle_period_s))
         if on_lc:
             need = 2.0 * min_reduction   # a load on the loop's own period: stricter
+        # the added physics must also explain the training data significantly better (a model that
+        # trains no better but happens to extrapolate better is search luck, not physics)
+        dbic_tr = (n_eff_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
+                   + fitted.n_extra * math.log(n_eff_tr))
         ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic < 0
-                  and fitted.train_sse < ref_sse
+                  and dbic_tr < 0
                   and all(math.isfinite(v) for v in fitted.params.values()))
         tr = stage.train
         tr_rmse = rmse((stage.y - y_hat)[tr])
         res = HypothesisResult(name=fitted.name, params=dict(fitted.params), heldout_rmse=r_h,
                                accepted=ok, stage=stage.name, train_rmse=tr_rmse, reduction=red,
-                               delta_bic=dbic, n_extra=fitted.n_extra)
+                               delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr)
         run.fitted.append((fitted, y_hat, res))
     return run
 
 
-def _plain_projections(s: Structure) -> list[Structure]:
+def _plain_projections(s: Structure, n_mid: int = 0, ts_s: float = 1.0) -> list[Structure]:
     """The plain models nearest to an augmented one (extra physics removed)."""
     base = s.replace(tau_lag_s=0.0, char_c=0.0, period_s=None, dS_pct_per_s=0.0, dJ_pct_per_s=0.0)
     out = []
@@ -324,6 +332,10 @@ def _plain_projections(s: Structure) -> list[Structure]:
             out.append(base.replace(S_up_pct=S, S_dn_pct=S, J_up_pct=J, J_dn_pct=J))
     elif s.dS_pct_per_s or s.dJ_pct_per_s:
         out.append(base)
+        if n_mid:
+            t = n_mid * ts_s
+            S, J = max(s.S_up_pct + s.dS_pct_per_s * t, 0.0), max(s.J_up_pct + s.dJ_pct_per_s * t, 0.0)
+            out.append(base.replace(S_up_pct=S, S_dn_pct=S, J_up_pct=J, J_dn_pct=J))
     else:
         out.append(base)
     return out
@@ -439,8 +451,6 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
             warn.append({"code": "physics.unexplained",
                          "message": "the baseline misses much of the held-out data but no hypothesis "
                                     "explains it significantly; see the located windows"})
-    if report_stage == "loop" and record.mv is not None and target == "auto" and winner is None and "valve" in runs:
-        pass
 
     text = _text(record, winner, runs, report_stage, base_rmse, improved_rmse)
     summary = dict(run.mismatch.summary)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 from numba import njit
@@ -134,8 +134,6 @@ def stems(stage: Stage, structs: Sequence[Structure], n: int | None = None) -> n
     """Simulated stem positions (rows) of many structures over the stage's input."""
     n = stage.n if n is None else n
     x = stage.x[:n]
-    if stage.name == "process":
-        return np.broadcast_to(x, (len(structs), n))
     arr = lambda f: np.array([f(s) for s in structs], dtype=float)  # noqa: E731
     return augmented_valve(x, S_up=arr(lambda s: s.S_up_pct), J_up=arr(lambda s: s.J_up_pct),
                            S_dn=arr(lambda s: s.S_dn_pct), J_dn=arr(lambda s: s.J_dn_pct),
@@ -335,20 +333,6 @@ def sj_local(S_pct: float, J_pct: float, *, s_span: float, n_s: int, j_span: flo
             out.append((float(S0 * ms), float(max(J0 * mj, 0.0))))
         if j_zero:
             out.append((float(S0 * ms), 0.0))
-    return out
-
-
-def sj_grid(S_pct: float, J_pct: float, *, s_mult: Iterable[float], j_mult: Iterable[float],
-            floor_pct: float = 0.2) -> list[tuple[float, float]]:
-    """Candidate (S, J) pairs around a centre (multiplicative, with a floor for tiny values)."""
-    S0 = max(S_pct, floor_pct)
-    J0 = max(J_pct, floor_pct * 0.5)
-    out = []
-    for ms in s_mult:
-        for mj in j_mult:
-            out.append((S0 * ms, J0 * mj))
-    if J_pct <= floor_pct:
-        out += [(S0 * ms, 0.0) for ms in s_mult]
     return out
 
 

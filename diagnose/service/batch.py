@@ -306,6 +306,11 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
     except Exception as exc:
         return {"path": str(p), "digest": None, "rows": [failure_row(safe_name(p.stem), str(p), _one_line(exc))]}
     rows = [process_record(cfg, rec, p, digest) for rec in records]
+    import resource
+
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    for r in rows:
+        r["worker_peak_rss_mib"] = round(rss, 1)
     return {"path": str(p), "digest": digest, "rows": rows}
 
 

@@ -44,7 +44,8 @@ def _figure(w_in: float, h_in: float) -> Any:
 
 def _png(fig: Any) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    # fast zlib level: files ~1.5x larger, encoding several times faster
+    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": 1})
     return buf.getvalue()
 
 

@@ -25,6 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="only these cases, e.g. '3:1,1:3' (S:J in %% of span); default the grid")
     s = sub.add_parser("show", help="list the bank's models")
     s.add_argument("--json", action="store_true", help="print the list as JSON")
+    s.add_argument("--figure", default=None,
+                   help="also write a PNG of the robustness maps of the paper's four base cases")
     q = sub.add_parser("select", help="the bank model for an identified (S, J)")
     q.add_argument("--S", type=float, required=True, help="S, %% of span")
     q.add_argument("--J", type=float, required=True, help="J, %% of span")
@@ -82,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
         sel = bank.select(args.S, args.J)
         print(json.dumps({"narx": sel.to_dict(), "warning": sel.warning()}))
         return 0
+    if args.figure:
+        _map_figure(bank, args.figure)
+        print(f"wrote {args.figure}", file=sys.stderr)
     rows = [{"model": m.name, "S": m.S_pct, "J": m.J_pct, "class": m.cls,
              "rmse_one_step": m.metrics["rmse_one_step"], "rmse_free_run": m.metrics["rmse_free_run"],
              "cdc": m.metrics["cdc"], "train_s": m.metrics["train_s"],
@@ -98,3 +103,33 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['model']:<22}{r['S']:>6g}{r['J']:>7g}  {r['class']:<11}{r['rmse_one_step']:>9.4f}"
               f"{r['rmse_free_run']:>10.4f}{r['train_s']:>9.1f}{r['robust_radius']:>10.2f}")
     return 0
+
+
+def _map_figure(bank, path) -> None:
+    """Free-run RMSE maps of the bank models for the paper's base cases, robust region outlined."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ...narx.bank import MAP_J, MAP_S
+    from .reproduce import _savefig
+    thr = bank.manifest["robust_threshold_pct"]
+    S, J = np.asarray(MAP_S), np.asarray(MAP_J)
+    fig, axes = plt.subplots(1, 4, figsize=(15, 3.9), sharey=True)
+    for ax, (Sb, Jb) in zip(axes, [(1.0, 0.0), (1.0, 1.0), (1.0, 3.0), (3.0, 1.0)]):
+        m = bank.models[[i for i, mm in enumerate(bank.models)
+                         if (mm.S_pct, mm.J_pct) == (Sb, Jb)][0]]
+        ks, kj = S <= 6.0, J <= 6.0
+        z = m.robust_map[np.ix_(ks, kj)].T
+        im = ax.pcolormesh(S[ks], J[kj], z, vmin=0, vmax=2.0, cmap="viridis", shading="nearest")
+        ax.contour(S[ks], J[kj], z, levels=[thr], colors="w", linewidths=1.5)
+        ax.plot([0, 6], [0, 6], "w:", lw=0.8)
+        ax.plot(Sb, Jb, "r*", ms=14)
+        ax.set_title(f"{m.name} ({m.cls})", fontsize=9)
+        ax.set_xlabel("plant S, % of span")
+    axes[0].set_ylabel("plant J, % of span")
+    fig.colorbar(im, ax=axes, label="free-run RMSE, % of span (white: robust limit)")
+    fig.suptitle("Robustness maps of bank models (red star: training case)")
+    _savefig(fig, path)
+    plt.close(fig)
