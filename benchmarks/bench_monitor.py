@@ -43,8 +43,8 @@ def main() -> None:
     cfg = root / "plant.toml"
     cfg.write_text(default_config_text(port, args.loops, period_s=args.period, window_samples=args.window,
                                        stride=args.stride))
-    sim = subprocess.Popen([sys.executable, "-m", "connectors.modbus_sim", "--port", str(port), "--loops",
-                            str(args.loops), "--ts", str(args.period)], stdout=subprocess.PIPE, text=True)
+    sim = subprocess.Popen([sys.executable, "-m", "connectors.modbus_sim", "--port", str(port), "--config",
+                            str(cfg), "--ts", str(args.period)], stdout=subprocess.PIPE, text=True)
     try:
         line = sim.stdout.readline()
         if not line.startswith("READY"):

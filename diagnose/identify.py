@@ -344,7 +344,14 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
             stiction = False
         # confidence: how far the evidence is from the decision boundary
         t_margin = abs(det["t_stat"] - T_CRIT) / T_CRIT if math.isfinite(det["t_stat"]) else 3.0
-        margin = min(t_margin, abs(imp - threshold) / 0.05) if stiction else max(0.0, min(t_margin, 3.0))
+        if stiction and det["rule"] == "heldout":
+            margin = min(t_margin, abs(imp - threshold) / 0.05)
+        elif stiction:
+            margin = ins / 0.1             # in-sample / sharp evidence: the size of the improvement
+        else:
+            # no stiction: distance below the held-out and in-sample thresholds
+            margin = max(0.0, min(t_margin if det["t_stat"] < T_CRIT else 0.0,
+                                  (INSAMPLE_THRESHOLD - ins) / INSAMPLE_THRESHOLD * 3.0, 3.0))
         confidence = 0.5 + 0.5 * math.tanh(margin)
         if r2 < 0.2 and method == "op_pv":
             confidence *= 0.8

@@ -146,7 +146,7 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
 def test_killed_job_resumes(plant, tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "diagnose.service.cli", "batch", str(plant / "logs"), "--out", str(out),
-           "--workers", "1", "--no-explain", "--no-pdf", "--db", str(tmp_path / "h.sqlite"), "--quiet"]
+           "--workers", "1", "--no-explain", "--no-narx", "--no-pdf", "--db", str(tmp_path / "h.sqlite"), "--quiet"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list(out.glob("loops/*/*.json")):
@@ -155,8 +155,8 @@ def test_killed_job_resumes(plant, tmp_path):
     proc.wait()
     done = {p.stem for p in out.glob("loops/*/*.json")}
     assert 1 <= len(done) < 3 and not (out / "summary.json").exists()
-    res = B.run_batch([plant / "logs"], out, workers=1, explain=False, pdf=False, db=tmp_path / "h.sqlite",
-                      progress=False)
+    res = B.run_batch([plant / "logs"], out, workers=1, explain=False, narx=False, pdf=False,
+                      db=tmp_path / "h.sqlite", progress=False)
     skipped = {r["loop"] for r in res.rows if r.get("skipped")}
     assert skipped == done and sum(r["status"] == "ok" for r in res.rows) == 3
 
@@ -170,7 +170,7 @@ def test_process_pool_and_dask_localcluster_agree(plant, tmp_path):
     logs.mkdir()
     for name in ("FIC1.csv", "FIC3.csv", "broken.csv"):
         (logs / name).write_bytes((plant / "logs" / name).read_bytes())
-    kw = dict(explain=False, pdf=False, history=False, progress=False)
+    kw = dict(explain=False, narx=False, pdf=False, history=False, progress=False)  # torch-free workers
     pool = B.run_batch([logs], tmp_path / "pool", workers=2, **kw)
     dask = B.run_batch([logs], tmp_path / "dask", workers=1, scheduler="local", **kw)
     want = _sj(pool)

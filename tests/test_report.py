@@ -50,6 +50,11 @@ def test_markdown_has_every_section_and_its_figures(written, sticky_diag):
         assert f"]({name}.png)" in md
         assert (md_path.parent / f"{name}.png").stat().st_size > 1000
     assert not list(md_path.parent.glob(".*.tmp")), "a temporary file was left behind"
+    import os
+
+    umask = os.umask(0)
+    os.umask(umask)
+    assert md_path.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's private 0600
 
 
 def test_json_beside_report_is_the_result(written, sticky_diag):

@@ -41,6 +41,9 @@ def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0
         ax.plot(t, d["improved"], color="tab:blue", lw=0.8, label=f"with {name}")
     ax.axvline(d["train_end_s"], color="k", ls="--", lw=0.8)
     ax.text(d["train_end_s"], ax.get_ylim()[1], " held out ->", va="top", fontsize=8)
+    if d.get("train_start_s", 0.0) > 0:
+        ax.axvspan(0.0, d["train_start_s"], color="0.85", alpha=0.5, lw=0)
+        ax.text(0.0, ax.get_ylim()[1], " not scored (initial state)", va="top", fontsize=7)
     ax.set_ylabel(f"{d.get('target', 'pv').upper()} [{unit}]")
     ax.set_title(title or f"missing physics: {name}")
     ax.legend(loc="lower left", fontsize=8, ncol=4)
