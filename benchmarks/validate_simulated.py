@@ -149,7 +149,7 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, **identify_opts) 
                "class": res.cls, "stiction": res.stiction, "S": res.S_pct, "J": res.J_pct,
                "S_fit": res.fitted_S_pct, "J_fit": res.fitted_J_pct,
                "improvement": res.detection.get("improvement"), "t_stat": res.detection.get("t_stat"),
-               "insample": res.detection.get("insample_improvement"),
+               "insample": res.detection.get("insample_improvement"), "rule": res.detection.get("rule"),
                "confidence": res.confidence,
                "time_s": dt, **case.info}
         if res.process is not None:
@@ -158,7 +158,7 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, **identify_opts) 
         rows.append(row)
         if verbose:
             print(f"{row['loop']} {case.cls:10s} S={case.S_pct:5.2f} J={case.J_pct:5.2f} {row['kind']:11s} -> "
-                  f"{res.cls:10s} S={row['S_fit']:5.2f} J={row['J_fit']:5.2f} imp={row['improvement']:.3f} "
+                  f"{res.cls:10s} S={row['S_fit']:5.2f} J={row['J_fit']:5.2f} rule={row['rule']} "
                   f"moves={row['mv_moves']} {dt:.2f}s", flush=True)
     return rows, evaluate(rows)
 

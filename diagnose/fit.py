@@ -778,7 +778,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     n_starts: int = 3, tau_range_s: tuple[float, float] | None = None,
                     min_delay_s: float | None = None, max_samples: int | None = 4000,
                     surface: bool = True, gain_fixed: float | None = None,
-                    J_ratios=None, dense_S: int = 36, dense_ratios: int = 17) -> HammersteinFit:
+                    J_ratios=None, dense_S: int = 30, dense_ratios: int = 15,
+                    dense_structures: int = 6) -> HammersteinFit:
     """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
 
     Parameters
@@ -829,6 +830,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     dense_S, dense_ratios : int
         Size of the dense (S, J/S in 0..2) grid run at the few process structures the global grid
         picked.
+    dense_structures : int
+        How many of the global grid's best structures (by their best valve) join the dense grid.
     gain_fixed : float, optional
         Fix the process gain (PV units per %) instead of fitting it (the direct valve fit uses 1).
     surface : bool
@@ -947,8 +950,10 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                 key = (cur.cfg.kind[0], float(cur.cfg.tau[0]), float(cur.cfg.tau2[0]), int(cur.cfg.d[0]))
                 if key not in [k for k, _ in cfgs]:
                     cfgs.append((key, cur.cfg))
-            # ... plus the linear model's structure and the global grid's own picks
-            extra = [best.cfg] + [gcfg.take(p) for _, _, p, _, _ in starts]
+            # ... plus the linear model's structure and the global grid's best structures
+            per_structure = sse_g.min(axis=0)
+            top = [int(p) for p in np.argsort(per_structure)[:dense_structures]]
+            extra = [best.cfg] + [gcfg.take(p) for _, _, p, _, _ in starts] + [gcfg.take(p) for p in top]
             for c in extra:
                 key = (c.kind[0], float(c.tau[0]), float(c.tau2[0]), int(c.d[0]))
                 if key not in [k for k, _ in cfgs]:
@@ -1028,7 +1033,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                  hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
                                  tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
                                  surface=False, gain_fixed=gain_fixed, J_ratios=J_ratios,
-                                 dense_S=dense_S, dense_ratios=dense_ratios)
+                                 dense_S=dense_S, dense_ratios=dense_ratios,
+                                 dense_structures=dense_structures)
         best = refine_from(coarse)
     else:
         best = search()

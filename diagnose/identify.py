@@ -308,26 +308,17 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         rmse, r2 = fit.rmse, fit.r2
     else:
         if valve_fit is not None:
-            det = _detect(op, record.mv, ts, fit_valve, n_blocks)
             S, J = valve_fit.S_pct, valve_fit.J_pct
             S_int, J_int = valve_fit.S_interval_pct, valve_fit.J_interval_pct
             rmse, r2 = valve_fit.rmse, valve_fit.r2
+            ins = 0.0           # the direct OP/MV fit is judged by the held-out test alone
         else:
-            det = _detect(op, pv, ts, fit_hammerstein, n_blocks, **fit_opts)
             S, J = fit.S_pct, fit.J_pct
             S_int, J_int = fit.S_interval_pct, fit.J_interval_pct
             rmse, r2 = fit.rmse, fit.r2
-        det["threshold"] = threshold
-        det["S_min_pct"] = S_MIN_PCT
-        imp = det["improvement"]
-        det["t_crit"] = T_CRIT
-        det["insample_threshold"] = INSAMPLE_THRESHOLD
-        if valve_fit is None:
             ins = (1.0 - fit.cost / linear.cost) if linear.cost > 0 else 0.0
-        else:
-            ins = 0.0           # the direct OP/MV fit is judged by the held-out test alone
-        det["insample_improvement"] = ins
-        heldout_ok = imp > threshold and det["t_stat"] > T_CRIT
+        det = {"threshold": threshold, "S_min_pct": S_MIN_PCT, "t_crit": T_CRIT,
+               "insample_threshold": INSAMPLE_THRESHOLD, "insample_improvement": ins}
         # The held-out test is positive evidence only: a valve fitted on half the record and
         # simulated with a slightly wrong S can stay out of step with the plant for long stretches
         # of the other half, so a bad held-out score does not veto clear in-sample evidence.
@@ -336,6 +327,16 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         det["S_rel_width"] = rel_width
         sharp_ok = (valve_fit is None and rel_width <= SHARP_REL_WIDTH and ins > SHARP_MIN_INSAMPLE
                     and S >= SHARP_MIN_S_PCT)
+        # The held-out test is run only where it can change the verdict.
+        if S >= S_MIN_PCT and not (insample_ok or sharp_ok):
+            if valve_fit is not None:
+                det.update(_detect(op, record.mv, ts, fit_valve, n_blocks))
+            else:
+                det.update(_detect(op, pv, ts, fit_hammerstein, n_blocks, **fit_opts))
+        else:
+            det.update({"improvement": None, "t_stat": None})
+        imp = det["improvement"]
+        heldout_ok = imp is not None and imp > threshold and det["t_stat"] > T_CRIT
         det["rule"] = ("heldout" if heldout_ok else "insample" if insample_ok else "sharp" if sharp_ok
                        else "none")
         stiction = bool((heldout_ok or insample_ok or sharp_ok) and S >= S_MIN_PCT)
@@ -343,14 +344,17 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         if stiction and cls == "none":
             stiction = False
         # confidence: how far the evidence is from the decision boundary
-        t_margin = abs(det["t_stat"] - T_CRIT) / T_CRIT if math.isfinite(det["t_stat"]) else 3.0
+        t = det["t_stat"]
+        t_margin = (abs(t - T_CRIT) / T_CRIT if math.isfinite(t) else 3.0) if t is not None else 3.0
         if stiction and det["rule"] == "heldout":
             margin = min(t_margin, abs(imp - threshold) / 0.05)
         elif stiction:
             margin = ins / 0.1             # in-sample / sharp evidence: the size of the improvement
+        elif S < S_MIN_PCT:
+            margin = 3.0 * (S_MIN_PCT - S) / S_MIN_PCT      # no valve band worth reporting
         else:
             # no stiction: distance below the held-out and in-sample thresholds
-            margin = max(0.0, min(t_margin if det["t_stat"] < T_CRIT else 0.0,
+            margin = max(0.0, min(t_margin if (t is not None and t < T_CRIT) else 0.0,
                                   (INSAMPLE_THRESHOLD - ins) / INSAMPLE_THRESHOLD * 3.0, 3.0))
         confidence = 0.5 + 0.5 * math.tanh(margin)
         if r2 < 0.2 and method == "op_pv":

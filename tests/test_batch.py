@@ -183,3 +183,23 @@ def test_process_pool_and_dask_localcluster_agree(plant, tmp_path):
         assert got[k][:2] == pytest.approx(want[k][:2], abs=1e-9)
     for res in (pool, dask):
         assert res.n_failed == 1 and (res.out_dir / "loops" / "FIC1" / "FIC1.md").exists()
+
+
+def test_tag_map_names_the_loop_and_is_part_of_the_input_hash(plant, tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    text = (plant / "logs" / "FIC3.csv").read_text().splitlines()
+    text[0] = "time,FV_7,FT_7,FC_7_SETP"
+    (logs / "unit7.csv").write_text("\n".join(text) + "\n")
+    kw = dict(workers=1, explain=False, narx=False, pdf=False, history=False, progress=False)
+    plain = B.run_batch([logs], tmp_path / "o1", **kw)
+    assert plain.n_failed == 1 and "OP" in plain.rows[0]["error"]
+    tags = tmp_path / "tags.toml"
+    tags.write_text('[loops.FIC7]\nop = "FV_7"\npv = "FT_7"\nsp = "FC_7_SETP"\n')
+    mapped = B.run_batch([logs], tmp_path / "o2", tags=str(tags), **kw)
+    assert mapped.n_failed == 0 and mapped.rows[0]["loop"] == "FIC7"
+    again = B.run_batch([logs], tmp_path / "o2", tags=str(tags), **kw)
+    assert again.n_skipped == 1
+    tags.write_text('[loops.FIC7]\nop = "FV_7"\npv = "FT_7"\n')  # another map: diagnosed again
+    changed = B.run_batch([logs], tmp_path / "o2", tags=str(tags), **kw)
+    assert changed.n_skipped == 0 and changed.n_failed == 0

@@ -49,8 +49,8 @@ def test_monitor_diagnoses_windows_survives_a_device_restart_and_serves_metrics(
         sims.append(_start_sim(port))
         state["up_at"] = time.time()
 
-    def scrape():  # until the first diagnosed windows show up (the monitor runs 17 s)
-        t_end = time.monotonic() + 16
+    def scrape():  # until the first diagnosed windows show up (the monitor runs 19 s)
+        t_end = time.monotonic() + 18
         while time.monotonic() < t_end:
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{mport}/metrics", timeout=5) as r:
@@ -65,7 +65,7 @@ def test_monitor_diagnoses_windows_survives_a_device_restart_and_serves_metrics(
     for t in timers:
         t.start()
     try:
-        rc = main(["monitor", str(cfg), "--duration", "17", "--out", str(tmp_path / "out"),
+        rc = main(["monitor", str(cfg), "--duration", "19", "--out", str(tmp_path / "out"),
                    "--db", str(tmp_path / "h.sqlite"), "--metrics-port", str(mport)])
     finally:
         for t in timers:

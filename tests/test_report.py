@@ -96,7 +96,9 @@ def test_error_surface_needs_a_fit(sticky_diag):
     assert figures.surface(bare) is None
     blocks = report.loop_blocks(sticky_diag.result, figures=["trends"])
     md = report.to_markdown(blocks)
-    assert "No error surface" in md and "](surface.png)" not in md
+    assert "No error surface" in md and "](surface.png)" not in md and "## Spectrum" not in md
+    bare_md = report.to_markdown(report.loop_blocks(sticky_diag.result))  # a monitor window: no figures
+    assert "## Trends" not in bare_md and "## Verdict" in bare_md and "## NARX-SP free run" in bare_md
 
 
 def test_envelope_keeps_extremes_of_a_long_series():

@@ -135,7 +135,9 @@ class ActuatorLag(PhysicsHypothesis):
                 return s
             return s.replace(process=dataclasses.replace(s.process, delay_s=d * ts))
 
-        pairs = sj_local(S, J, s_span=0.1, n_s=7, j_span=0.3, n_j=3)
+        # J relative to S over its whole range: a lag changes the plain fit's J the most
+        pairs = [(S * m, S * m * r) for m in (0.85, 0.93, 1.0, 1.07, 1.15)
+                 for r in (0.0, 0.25, 0.5, 0.75, 1.0, 1.25)] + [(S, J)]
         combos = [(float(t), d) for t in taus for d in delays]
         cands = [with_delay(_with_sj(reference, s, j, f), d).replace(tau_lag_s=t)
                  for t, d in combos for s, j in pairs for f in (1, -1)]
@@ -178,11 +180,9 @@ class AsymmetricStiction(PhysicsHypothesis):
         # wide fine one-direction scans (coordinate descent) find both.
         S = max(reference.S_up_pct, 0.2)
         wide = np.exp(np.arange(math.log(0.3), math.log(1.9), math.log1p(0.02)))
-        starts = [reference]
-        if not stage.fixed_dynamics:
-            # From OP/PV alone a plain valve with other process dynamics can mimic asymmetry: a
-            # coarse asymmetric-valve x dynamics grid gives more starting points.
-            starts += _coarse_asym_starts(stage, reference)
+        # A plain valve (and, from OP/PV alone, other process dynamics) can mimic asymmetry: a
+        # coarse asymmetric-valve (x dynamics) grid gives more starting points.
+        starts = [reference] + _coarse_asym_starts(stage, reference)
         results = []
         for st in starts:
             b = self._scan(stage, st, S, wide)
@@ -226,6 +226,8 @@ def _coarse_asym_starts(stage: Stage, reference: Structure, k: int = 3) -> list[
     d0 = int(round(p0.delay_s / stage.ts_s))
     dyn = [ProcessModel("foptd", 1.0, float(t), d * stage.ts_s, 0.0)
            for t in taus for d in sorted({0, 2, 4, 7, d0})]
+    if stage.fixed_dynamics:
+        dyn = [reference.process]
     valves = [(su, su * r, jr) for su in S_grid for r in (0.35, 0.55, 0.8, 1.25, 1.8, 2.8) for jr in (0.3, 0.75)]
     cands = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * jr, J_dn_pct=sd * jr, f0=f, process=p)
              for p in dyn for su, sd, jr in valves for f in (1, -1)]

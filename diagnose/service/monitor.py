@@ -80,6 +80,17 @@ def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figu
     return res
 
 
+def _monitor_worker_init() -> None:
+    """Diagnosis workers yield the CPU to the polling process (which must never miss a tick)."""
+    from .batch import _worker_setup
+
+    _worker_setup()
+    try:
+        os.nice(10)
+    except OSError:  # pragma: no cover - not permitted
+        pass
+
+
 def _warm_up() -> bool:
     """Import the diagnosis stack in a fresh worker before the first window arrives."""
     from .batch import _worker_setup
@@ -160,10 +171,8 @@ class Monitor:
                 import multiprocessing as mp
                 from concurrent.futures import ProcessPoolExecutor
 
-                from .batch import _worker_setup
-
                 self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("forkserver"),
-                                                 initializer=_worker_setup)
+                                                 initializer=_monitor_worker_init)
                 for _ in range(self.workers):
                     self._pool.submit(_warm_up)
             else:

@@ -84,8 +84,12 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
         elif kind == "table":
             header, rows = b[1], b[2]
             pdf.set_font("Helvetica", "", 8 if len(header) > 4 else 9)
-            with pdf.table(headings_style=head, line_height=4.4, text_align="LEFT",
-                           padding=0.8) as table:
+            # column widths by content (long text columns wrap, short numeric ones stay narrow)
+            lens = [max([len(latin1(str(h)))] + [len(latin1(str(r[j]))) for r in rows if j < len(r)])
+                    for j, h in enumerate(header)]
+            widths = [min(max(n, 4), 60) + 2 for n in lens]
+            with pdf.table(headings_style=head, line_height=4.4, text_align="LEFT", padding=0.8,
+                           col_widths=tuple(widths)) as table:
                 r = table.row()
                 for h in header:
                     r.cell(latin1(h))

@@ -244,7 +244,7 @@ def recommended_action(result: Mapping[str, Any]) -> str:
                      "set-point steps help) and run the diagnosis again.")
     elif sticky and (conf is None or conf >= 0.5) and S >= S_MINOR_PCT:
         parts.append(f"Have the valve inspected at the next opportunity: it sticks by about {S:.1f} % of "
-                     f"its span{' and jumps by ' + format(J, '.1f') + ' %' if J > 0 else ''}. Check the "
+                     f"its span{' and jumps by ' + format(J, '.1f') + ' %' if J >= 0.05 else ''}. Check the "
                      "packing (over-tightened or worn), the actuator and the positioner.")
         if osc["present"]:
             parts.append(f"Until then the stick-slip cycle{period} can be eased by reducing the "

@@ -101,6 +101,15 @@ def _scalar_items(d: Mapping[str, Any], skip: Iterable[str] = ()) -> list[list[s
     return rows
 
 
+def _duration(seconds: Any) -> str:
+    s = float(seconds or 0.0)
+    if s >= 7200:
+        return f"{s / 3600:.1f} h"
+    if s >= 120:
+        return f"{s / 60:.0f} min"
+    return f"{s:.0f} s"
+
+
 def _process_text(proc: Any) -> str:
     if not isinstance(proc, Mapping):
         return fmt(proc)
@@ -144,8 +153,7 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     if rec.get("source"):
         src.append(f"source {rec['source']}")
     if rec.get("n"):
-        src.append(f"{rec['n']} samples at {fmt(rec.get('ts_s'), 'g')} s "
-                   f"({fmt((rec.get('duration_s') or 0) / 3600, '.1f')} h)")
+        src.append(f"{rec['n']} samples at {fmt(rec.get('ts_s'), 'g')} s ({_duration(rec.get('duration_s'))})")
     if rec.get("start"):
         src.append(f"from {rec['start']}")
     if rec.get("roles"):
@@ -183,17 +191,14 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     else:
         blocks.append(("p", "None: the data passed every quality check and the model is within its "
                             "robustness margin."))
-    blocks.append(("h2", "Trends"))
-    if "trends" in figs:
-        blocks.append(("figure", "trends", FIGURE_CAPTIONS["trends"]))
-    blocks.append(("h2", "Phase plots"))
-    if "phase" in figs:
-        blocks.append(("figure", "phase", FIGURE_CAPTIONS["phase"]))
-    blocks.append(("h2", "Error surface"))
+    drawn = bool(figs)  # a report without any figure (e.g. a monitor window) leaves their sections out
+    for name, title in (("trends", "Trends"), ("phase", "Phase plots")):
+        if name in figs:
+            blocks += [("h2", title), ("figure", name, FIGURE_CAPTIONS[name])]
     if "surface" in figs:
-        blocks.append(("figure", "surface", FIGURE_CAPTIONS["surface"]))
-    else:
-        blocks.append(("p", "No error surface (no Hammerstein fit for this loop)."))
+        blocks += [("h2", "Error surface"), ("figure", "surface", FIGURE_CAPTIONS["surface"])]
+    elif drawn:
+        blocks += [("h2", "Error surface"), ("p", "No error surface (no Hammerstein fit for this loop).")]
     blocks.append(("h2", "NARX-SP free run"))
     narx = result.get("narx")
     if isinstance(narx, Mapping) and narx:
@@ -202,17 +207,19 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
             blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
     else:
         blocks.append(("p", "No NARX-SP model was selected for this loop (see warnings)."))
-    blocks.append(("h2", "Spectrum"))
     if "spectrum" in figs:
-        blocks.append(("figure", "spectrum", FIGURE_CAPTIONS["spectrum"]))
+        blocks += [("h2", "Spectrum"), ("figure", "spectrum", FIGURE_CAPTIONS["spectrum"])]
     expl = result.get("explanation")
     if isinstance(expl, Mapping) and expl:
         blocks.append(("h2", "Missing physics"))
-        for key in ("summary", "verdict", "message", "conclusion"):
+        text_keys = ("summary", "explanation", "verdict", "message", "conclusion")
+        for key in text_keys:
             if isinstance(expl.get(key), str):
                 blocks.append(("p", expl[key]))
                 break
-        items = _scalar_items(expl, skip=("summary", "verdict", "message", "conclusion"))
+        if "missing_physics" in expl:
+            blocks.append(("strong", f"Missing physics named: {expl.get('missing_physics') or 'none'}."))
+        items = _scalar_items(expl, skip=text_keys + ("missing_physics", "loop"))
         if items:
             blocks.append(("table", ["Explanation", "Value"], items))
         hyps = expl.get("hypotheses") or expl.get("ranking")
