@@ -8,11 +8,16 @@ explain PV through the controller. For fixed valve parameters, lags and dead tim
 and the load coefficients are linear and solved by least squares inside one compiled pass
 (separable least squares); the valve and the lags are searched:
 
-1. linear-only fit (S = J = 0) over the whole grid of lags and dead times;
-2. global grid over (S, J, f0) with a few process structures around the linear one;
-3. alternating refinement: process structure for the best valve, then a zooming local (S, J) grid
-   for the best process, twice;
-4. the error surface on the global grid at the final process, and intervals from it.
+1. noise model and linear-only fit (S = J = 0) over the grid of lags, dead times and kinds;
+2. global grid over (S, J/S) x a coarse set of lags and dead times;
+3. the best structure for each of the best few valves, then a dense (S, J, f0) grid at those
+   structures (the valley of the cost in S and J is narrow);
+4. Nelder-Mead on (S, J, lags) from the best few, alternating with a local structure polish; an
+   exact local (S, J, f0) zoom and a final Nelder-Mead;
+5. the error surface on the global grid at the final structure, and intervals from it.
+
+Records longer than ``max_samples`` are searched on block means first and refined at full rate.
+PV is prefiltered with an integrated-noise model (see ``hp_tau_s``). Details: docs/fitting.md.
 
 The linear block is kept low order and strictly causal with positive lags on purpose: in closed
 loop an unconstrained linear model can reproduce PV from OP through the inverse of the controller
@@ -778,8 +783,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     n_starts: int = 3, tau_range_s: tuple[float, float] | None = None,
                     min_delay_s: float | None = None, max_samples: int | None = 4000,
                     surface: bool = True, gain_fixed: float | None = None,
-                    J_ratios=None, dense_S: int = 30, dense_ratios: int = 15,
-                    dense_structures: int = 6) -> HammersteinFit:
+                    J_ratios=None, dense_S: int = 36, dense_ratios: int = 17,
+                    dense_structures: int = 0, n_refine: int = 3) -> HammersteinFit:
     """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
 
     Parameters
@@ -832,6 +837,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         picked.
     dense_structures : int
         How many of the global grid's best structures (by their best valve) join the dense grid.
+    n_refine : int
+        How many of the best candidates are refined by Nelder-Mead.
     gain_fixed : float, optional
         Fix the process gain (PV units per %) instead of fitting it (the direct valve fit uses 1).
     surface : bool
@@ -971,7 +978,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             # 5. refine the best few: structure polish and Nelder-Mead on (S, J, lags)
             results.sort(key=lambda r: r.sse)
             refined = []
-            for cur in results[: max(2, n_starts)]:
+            for cur in results[: max(2, n_refine)]:
                 for rnd in range(refine_rounds):
                     if structure is None and rnd > 0:
                         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
@@ -1034,7 +1041,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                  tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
                                  surface=False, gain_fixed=gain_fixed, J_ratios=J_ratios,
                                  dense_S=dense_S, dense_ratios=dense_ratios,
-                                 dense_structures=dense_structures)
+                                 dense_structures=dense_structures, n_refine=n_refine)
         best = refine_from(coarse)
     else:
         best = search()

@@ -3,10 +3,9 @@
 `identify(record)` runs, in order:
 
 1. data checks (too short, constant OP or PV: `DataError`) and data quality (`diagnose.quality`);
-2. the stiction verdict from **held-out output error**: the record is cut into ``n_blocks``
-   interleaved blocks; the valve + process model and the linear-only model (S = J = 0) are fitted
-   on the even blocks and scored on the odd ones. Stiction is reported when the valve model's
-   held-out error is lower by more than ``threshold`` (relative) *and* S is clearly above zero;
+2. S, J and the verdict: the valve + process model against the linear-only model (S = J = 0),
+   with three kinds of evidence: a held-out test (even/odd interleaved blocks), the in-sample
+   reduction of the prediction-error cost, and a sharply determined S; always S >= 0.5 %;
 3. S, J and the process from the fit on the whole record (`diagnose.fit.fit_hammerstein`); when the
    stem position MV is recorded, S, J and the class come from the direct OP -> MV fit
    (`diagnose.fit.fit_valve`) and ``method`` says so;
