@@ -270,31 +270,38 @@ def _identify(record: LoopRecord, **opts: Any) -> Any:
     return identify(record, **opts)
 
 
-def _narx_stage(record: LoopRecord, ident: Any, result: dict, warns: list) -> tuple[Any, Any, Any]:
+def select_narx(result: Mapping[str, Any]) -> tuple[Any, dict[str, Any] | None]:
+    """The NARX-SP bank model for an identification result, and its ``robustness...`` warning.
+
+    Returns ``(None, None)`` when the loop has no stiction (no bank model describes a healthy
+    valve). Raises when the bank cannot be loaded; callers decide how to degrade.
+    """
     S, J = _num(result.get("S")), _num(result.get("J"))
-    if S is None or J is None:
-        return None, None, None
-    try:
-        bank = _bank()
-    except Exception as exc:  # a broken bank must not sink the diagnosis
-        warns.append(_warning("service.narx_unavailable", f"the NARX-SP bank could not be loaded: {exc}"))
-        return None, None, None
+    if S is None or J is None or not result.get("stiction"):
+        return None, None
+    bank = _bank()
     if bank is None:
-        warns.append(_warning("service.narx_unavailable",
-                              "the NARX-SP bank is not installed; no NARX-SP free run in this report"))
-        return None, None, None
+        raise ModuleNotFoundError("the NARX-SP bank (diagnose.narx) is not installed")
+    sel = bank.select(S, J)
+    return sel, sel.warning()
+
+
+def _narx_stage(record: LoopRecord, ident: Any, result: dict, warns: list) -> tuple[Any, Any, Any]:
     try:
-        sel = bank.select(S, J)
-        result["narx"] = _jsonable(sel.to_dict())
-        mv_hat = np.asarray(bank.free_run(sel, record.op), dtype=float)
-    except Exception as exc:
-        warns.append(_warning("service.narx_failed", f"NARX-SP selection/free run failed: {exc}"))
+        sel, warning = select_narx(result)
+    except Exception as exc:  # a broken or missing bank must not sink the diagnosis
+        warns.append(_warning("service.narx_unavailable", f"the NARX-SP bank could not be used: {exc}"))
         return None, None, None
-    if not getattr(sel, "robust", True):
-        w = sel.warning() if hasattr(sel, "warning") else None
-        warns.append(dict(w) if w else _warning(
-            "narx.not_robust", f"the NARX-SP model nearest to S = {S:.2f} %, J = {J:.2f} % is outside its "
-                               "robustness margin: treat its free run with caution"))
+    if sel is None:
+        return None, None, None
+    result["narx"] = _jsonable(sel.to_dict())
+    if warning:
+        warns.append(dict(warning))
+    try:
+        mv_hat = np.asarray(_bank().free_run(sel, record.op), dtype=float)
+    except Exception as exc:
+        warns.append(_warning("service.narx_failed", f"NARX-SP free run failed: {exc}"))
+        return sel, None, None
     pv_hat = None
     fit = getattr(ident, "fit", None)
     if fit is not None and getattr(fit, "process", None) is not None:

@@ -119,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
     import connectors
 
     from ...identify import identify
+    from ..pipeline import select_narx
 
     opts = _read_options(args)
     records = connectors.read_records(args.file, **opts)
@@ -126,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
     result = identify(rec)
     d = result.to_dict()
     d["warnings"] = notes + d["warnings"]
+    sel, warning = select_narx(d)
+    d["narx"] = None if sel is None else sel.to_dict()
+    if warning:
+        d["warnings"].append(warning)
     if rec.source is None:
         d["source"] = str(args.file)
     d = _clean(d)
