@@ -28,6 +28,9 @@ class _Sel:
         return {"model": self.model, "S": 3.0, "J": 1.0, "distance": 0.1, "robust": self.robust,
                 "free_run_rmse": 0.2}
 
+    def warning(self):
+        return None if self.robust else {"code": "robustness.outside_region", "message": "outside"}
+
 
 class _Bank:
     def __init__(self, robust=True):
@@ -50,7 +53,7 @@ def test_narx_stage_uses_the_identified_s_and_j(rec, monkeypatch):
     assert d.result["narx"]["model"] == "narx_S3_J1"
     want = float(np.sqrt(np.mean((d.narx_mv_hat_pct - rec.mv) ** 2)))
     assert d.result["narx"]["free_run_rmse_record"] == pytest.approx(want)
-    assert "narx.not_robust" in [w["code"] for w in d.result["warnings"]]
+    assert "robustness.outside_region" in [w["code"] for w in d.result["warnings"]]
     assert d.result["severity"]["robustness"] == 10.0
     assert figures.narx(d) is not None
 
