@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import njit
 
 from .errors import DataError, NotFittedError
+from .native import njit  # numba.njit, deferred; runs the C twin when there is one (diagnose/native)
 from .process_model import ProcessModel, lag_coefficient
 from .stiction_model import _batch_kernel, stiction_batch
 

@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from .errors import DataError
-from .fit import MIN_SAMPLES, HammersteinFit, ValveFit, fit_hammerstein, fit_valve
+from .fit import (MIN_SAMPLES, HammersteinFit, ValveFit, _burn_in, _make_configs, _Problem,
+                  _score_weights, fit_hammerstein, fit_valve)
 from .oscillation import Oscillation, oscillation_context
 from .record import Finding, LoopRecord
 from .stiction_model import stiction_class
@@ -54,6 +55,14 @@ SHARP_MIN_INSAMPLE = 0.01
 SHARP_MIN_S_PCT = 1.0
 #: One-sided critical value of the paired t statistic (about 1 % for 20+ batches).
 T_CRIT = 2.0
+#: The class test: 95 % quantile of chi-square with one degree of freedom (one restriction, J = 0
+#: or J = S, tested against the free (S, J) fit; docs/fitting.md).
+CLASS_TEST_CHI2 = 3.841
+#: Local grid of the class test: S relative to the fit's S, J/S ratios, and the valve's initial
+#: stuck point relative to OP's first sample, in units of max(S, J).
+CLASS_TEST_S_REL = 1.0 + np.array([-0.2, -0.1, -0.05, -0.02, -0.01, 0.0, 0.01, 0.02, 0.05, 0.1, 0.2])
+CLASS_TEST_J_RATIOS = np.linspace(0.0, 2.0, 17)
+CLASS_TEST_DELTAS = np.linspace(-1.0, 1.0, 9)
 
 
 def _finite(v: float | None) -> float | None:
@@ -239,8 +248,73 @@ def _detect(op: np.ndarray, y: np.ndarray, ts_s: float, fitter, n_blocks: int, *
             "train_S_pct": f_v.S_pct, "train_J_pct": f_v.J_pct}
 
 
+def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit,
+                burn_frac: float = 0.05) -> dict[str, Any]:
+    """Re-examine J with the valve's initial stuck point free, and test the special shapes.
+
+    The search starts the valve model at rest at the first OP sample. A real valve at the start of
+    a record is stuck wherever its history left it, and a sticky valve keeps that memory until OP
+    makes an excursion larger than S (in noisy closed loops this can take thousands of samples):
+    with the wrong starting point even the true (S, J) scores badly. Here the starting stuck point
+    is a nuisance parameter, ``x_ss = OP[0] + delta``, ``delta/max(S, J)`` in -1..1 (9 values),
+    both starting directions, at the fitted process structure, over a local grid of S (+-20 %)
+    and J/S in 0..2 (17 values).
+
+    ``deadband`` (J = 0) and ``no_offset`` (J = S) are single values of J (`undershoot` and
+    `overshoot` are ranges): each restriction is accepted when its best cost is within the F-test
+    bound of the best unrestricted cost, ``c_restricted <= c_free (1 + CLASS_TEST_CHI2 / nu)``,
+    ``nu = n_eff - 2``; when both are accepted the cheaper one wins. Otherwise the unrestricted
+    grid point replaces the fit's (S, J) when it is cheaper than the fit.
+
+    Returns
+    -------
+    dict
+        ``cost_fit`` (the fit as it was), ``cost_free``, ``cost_deadband``, ``cost_no_offset``
+        (PV units squared per scored sample), ``bound``, and the chosen ``cls`` (a restriction, or
+        None), ``S_pct``, ``J_pct``, ``f0``, ``delta_pct``.
+    """
+    x = np.asarray(op, dtype=float) + fit.op_offset_pct
+    y = np.asarray(pv, dtype=float)
+    n = x.shape[0]
+    w = _score_weights(n, None, _burn_in(x, burn_frac))
+    prob = _Problem(x, y, ts_s, w, fit.load_order, fit.hp_tau_s, None)
+    p = fit.process
+    cfg = _make_configs([(p.kind, p.tau_s, p.tau2_s, int(round(p.delay_s / ts_s)))], ts_s)
+    scale = prob.y_std ** 2 / max(1, prob.n_scored)
+    c_fit = float(prob.sse([fit.S_pct], [fit.J_pct], [float(fit.f0)], cfg)[0][0, 0]) * scale
+    S0 = fit.S_pct
+    Sg, Rg, Fg = np.meshgrid(S0 * CLASS_TEST_S_REL, CLASS_TEST_J_RATIOS, [1.0, -1.0], indexing="ij")
+    Sg, Rg, Fg = Sg.ravel(), Rg.ravel(), Fg.ravel()
+    Jg = Sg * Rg
+    x0 = float(x[0])
+    best = {"free": (c_fit, S0, fit.J_pct, fit.f0, 0.0), "deadband": (np.inf,), "no_offset": (np.inf,)}
+    for dl in CLASS_TEST_DELTAS:
+        for F in (1.0, -1.0):
+            m = Fg == F
+            prob.x = np.ascontiguousarray(x.copy())
+            prob.x[0] = min(max(x0 + F * dl * max(S0, fit.J_pct), 0.0), 100.0)
+            c = prob.sse(Sg[m], Jg[m], Fg[m], cfg)[0][:, 0] * scale
+            for key, sel in (("free", np.ones(c.shape[0], bool)), ("deadband", Rg[m] == 0.0),
+                             ("no_offset", Rg[m] == 1.0)):
+                i = int(np.argmin(np.where(sel, c, np.inf)))
+                if c[i] < best[key][0]:
+                    best[key] = (float(c[i]), float(Sg[m][i]), float(Jg[m][i]), int(F),
+                                 float(prob.x[0] - x0))
+    nu = max((fit.n_eff if math.isfinite(fit.n_eff) else n) - 2.0, 1.0)
+    c_free = best["free"][0]
+    bound = c_free * (1.0 + CLASS_TEST_CHI2 / nu)
+    out: dict[str, Any] = {"cost_fit": c_fit, "cost_free": c_free, "bound": bound,
+                           "cost_deadband": best["deadband"][0], "cost_no_offset": best["no_offset"][0]}
+    ok = [k for k in ("deadband", "no_offset") if best[k][0] <= bound]
+    pick = min(ok, key=lambda k: best[k][0]) if ok else "free"
+    c, S, J, F, dl = best[pick]
+    out.update({"cls": None if pick == "free" else pick, "S_pct": S, "J_pct": J, "f0": F,
+                "delta_pct": dl, "cost": c})
+    return out
+
+
 def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_blocks: int = N_BLOCKS,
-             use_mv: bool = True, **fit_opts) -> Identification:
+             use_mv: bool = True, class_test: bool = True, **fit_opts) -> Identification:
     """Identify stiction (verdict, S, J, class) in one loop.
 
     Parameters
@@ -252,6 +326,9 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         Interleaved blocks of the held-out test (even blocks train, odd blocks test).
     use_mv : bool
         Fit the valve directly on OP -> MV when the record has a stem position.
+    class_test : bool
+        Test the special shapes J = 0 (deadband) and J = S (no offset) against the free (S, J)
+        fit and report the restricted fit when the data do not reject it (`_class_test`).
     **fit_opts
         Passed to `diagnose.fit.fit_hammerstein` (e.g. ``n_S``, ``load_order``, ``hp_tau_s``).
 
@@ -316,6 +393,14 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
             S_int, J_int = fit.S_interval_pct, fit.J_interval_pct
             rmse, r2 = fit.rmse, fit.r2
             ins = (1.0 - fit.cost / linear.cost) if linear.cost > 0 else 0.0
+        ctest = None
+        if class_test and valve_fit is None and S >= S_MIN_PCT:
+            ctest = _class_test(op, pv, ts, fit, float(fit_opts.get("burn_frac", 0.05)))
+            if ctest["cls"] is not None or ctest["cost"] < ctest["cost_fit"]:
+                # the verdict's evidence stays that of the fit (no credit for the extra freedom)
+                S, J = ctest["S_pct"], ctest["J_pct"]
+                S_int = (min(S_int[0], S), max(S_int[1], S))
+                J_int = (min(J_int[0], J), max(J_int[1], J))
         det = {"threshold": threshold, "S_min_pct": S_MIN_PCT, "t_crit": T_CRIT,
                "insample_threshold": INSAMPLE_THRESHOLD, "insample_improvement": ins}
         # The held-out test is positive evidence only: a valve fitted on half the record and
@@ -338,6 +423,8 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         heldout_ok = imp is not None and imp > threshold and det["t_stat"] > T_CRIT
         det["rule"] = ("heldout" if heldout_ok else "insample" if insample_ok else "sharp" if sharp_ok
                        else "none")
+        if ctest is not None:
+            det["class_test"] = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in ctest.items()}
         stiction = bool((heldout_ok or insample_ok or sharp_ok) and S >= S_MIN_PCT)
         cls = stiction_class(S, J) if stiction else "none"
         if stiction and cls == "none":

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import njit
 
 from .errors import DataError
+from .native import njit  # numba.njit, deferred; runs the C twin when there is one (diagnose/native)
 
 KINDS = ("foptd", "soptd", "integrating")
 

@@ -18,9 +18,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from .errors import DataError
+from .native import njit  # numba.njit, deferred; runs the C twin when there is one (diagnose/native)
 
 SPAN_LO = 0.0
 SPAN_HI = 100.0

@@ -1,0 +1,326 @@
+/*
+ * Native twins of the numba kernels on the identification path (see diagnose/native/__init__.py).
+ *
+ * Each function is a line-by-line port of the numba kernel named in its comment and performs the
+ * same floating-point operations in the same order, so that, compiled without -ffast-math and with
+ * -ffp-contract=off (no fused multiply-add), it returns the same numbers bit for bit:
+ *
+ *   stiction_batch  <- diagnose.stiction_model._batch_kernel
+ *   valve_smooth    <- diagnose.fit._valve_smooth
+ *   lag_filter      <- diagnose.process_model._lag_filter
+ *   hp_filter_2d    <- diagnose.fit._hp_filter_2d
+ *   ham_sse         <- diagnose.fit._ham_sse (each job as diagnose.fit._one_structure)
+ *
+ * min/max follow numba's (and Python's) builtins: max(a, b) = b > a ? b : a,
+ * min(a, b) = b < a ? b : a.
+ *
+ * Arrays are C-contiguous float64 (int64 for delays, one byte per bool); 2-D arrays are passed with
+ * their leading dimension (elements per row). The Python side checks shapes before calling.
+ */
+#include <stdint.h>
+#include <stdlib.h>
+
+#define NATIVE_ABI_VERSION 1
+
+int stiction_native_abi(void) { return NATIVE_ABI_VERSION; }
+
+/* Four doubles operated on element by element (GCC/clang vector extension; plain IEEE operations,
+ * lowered to whatever vector width the target has). */
+typedef double v4d __attribute__((vector_size(32)));
+
+static inline double nmax(double a, double b) { return b > a ? b : a; }
+static inline double nmin(double a, double b) { return b < a ? b : a; }
+static inline double clip100(double v) { return nmin(nmax(v, 0.0), 100.0); }
+
+/* One candidate valve of the two-parameter stiction model over x[0..n); output to out[0..n). */
+static void stiction_one(const double *x, int64_t n, double s, double j, double f, double *out)
+{
+    /* f is +-1, so f * half equals f * (s - j) / 2 exactly, as in the reference. */
+    double half = (s - j) / 2.0;
+    double xp = clip100(x[0]);
+    int up = 0;
+    double yp = xp;
+    double xss = xp;
+    int stuck = 1;
+    out[0] = yp;
+    for (int64_t k = 1; k < n; k++) {
+        double xk = clip100(x[k]);
+        double v = xk - xp;
+        int up_k = v > 0.0;
+        if (!stuck && (v == 0.0 || up_k != up)) {
+            stuck = 1;
+            xss = xp;
+        }
+        if (stuck) {
+            double d = xk - xss;
+            if (-f * d > s) {
+                f = -f;
+                stuck = 0;
+                yp = clip100(xk - f * half);
+            } else if (f * d > j) {
+                stuck = 0;
+                yp = clip100(xk - f * half);
+            }
+        } else {
+            yp = clip100(xk - f * half);
+        }
+        out[k] = yp;
+        xp = xk;
+        up = up_k;
+    }
+}
+
+/* diagnose.stiction_model._batch_kernel: m candidates (S, J, f0) -> out (m rows, leading dim ld). */
+void stiction_batch(const double *x, int64_t n, const double *S, const double *J, const double *f0,
+                    int64_t m, double *out, int64_t ld)
+{
+    if (n <= 0)
+        return;
+    for (int64_t i = 0; i < m; i++)
+        stiction_one(x, n, S[i], J[i], f0[i], out + i * ld);
+}
+
+/* diagnose.fit._valve_smooth: the valve with the slip instant interpolated inside the sample. */
+void valve_smooth(const double *x, int64_t n, double s, double j, double f0, double *out)
+{
+    if (n <= 0)
+        return;
+    double half = (s - j) / 2.0;
+    double f = f0;
+    double xp = clip100(x[0]);
+    int up = 0;
+    double yp = xp;
+    double xss = xp;
+    int stuck = 1;
+    out[0] = yp;
+    for (int64_t k = 1; k < n; k++) {
+        double xk = clip100(x[k]);
+        double v = xk - xp;
+        int up_k = v > 0.0;
+        if (!stuck && (v == 0.0 || up_k != up)) {
+            stuck = 1;
+            xss = xp;
+        }
+        if (stuck) {
+            double d = xk - xss;
+            double thr = 0.0;
+            int moved = 0;
+            if (-f * d > s) {
+                f = -f;
+                stuck = 0;
+                thr = xss + f * s;
+                moved = 1;
+            } else if (f * d > j) {
+                stuck = 0;
+                thr = xss + f * j;
+                moved = 1;
+            }
+            if (moved) {
+                double ynew = clip100(xk - f * half);
+                double frac = v != 0.0 ? (xk - thr) / v : 1.0;
+                frac = nmin(nmax(frac, 0.0), 1.0);
+                out[k] = yp + frac * (ynew - yp);
+                yp = ynew;
+            } else {
+                out[k] = yp;
+            }
+        } else {
+            yp = clip100(xk - f * half);
+            out[k] = yp;
+        }
+        xp = xk;
+        up = up_k;
+    }
+}
+
+/* diagnose.process_model._lag_filter: unit-gain lags (+ integrator) of u -> z; a2 < 0: first order. */
+void lag_filter(const double *u, int64_t n, double a1, double a2, int64_t d, int integ, double ts_s,
+                double *z)
+{
+    if (n <= 0)
+        return;
+    double u0 = u[0];
+    double z1 = u0;
+    double z2 = u0;
+    double acc = 0.0;
+    for (int64_t k = 0; k < n; k++) {
+        int64_t kd = k - d;
+        double ud = kd >= 0 ? u[kd] : u0;
+        z1 = a1 * z1 + (1.0 - a1) * ud;
+        if (a2 >= 0.0)
+            z2 = a2 * z2 + (1.0 - a2) * z1;
+        else
+            z2 = z1;
+        if (integ) {
+            acc += ts_s * z2;
+            z[k] = acc;
+        } else {
+            z[k] = z2;
+        }
+    }
+}
+
+/* diagnose.fit._hp_filter_2d: (1 - q^-1) / (1 - a q^-1) down each column of v (n x m). */
+void hp_filter_2d(const double *v, int64_t n, int64_t m, int64_t ldv, double a, double *out)
+{
+    if (n <= 0)
+        return;
+    for (int64_t j = 0; j < m; j++) {
+        double acc = 0.0;
+        double prev = v[j];
+        for (int64_t k = 0; k < n; k++) {
+            double vk = v[k * ldv + j];
+            acc = a * acc + vk - prev;
+            prev = vk;
+            out[k * m + j] = acc;
+        }
+    }
+}
+
+/* Closed-form SSE and gain of one (candidate, structure) from its normal-equation sums. */
+static inline void finish_one(double szz, double szy, const double *szq, const double *Qty, int64_t K,
+                              double yyp, double gfix, double *sse, double *gain)
+{
+    double zzp = szz;
+    double zyp = szy;
+    for (int64_t j = 0; j < K; j++) {
+        zzp -= szq[j] * szq[j];
+        zyp -= szq[j] * Qty[j];
+    }
+    if (gfix == gfix) {
+        *sse = yyp - 2.0 * gfix * zyp + gfix * gfix * nmax(zzp, 0.0);
+        *gain = gfix;
+    } else if (zzp > 1e-10 * (szz + 1e-300) && zzp > 1e-300) {
+        *sse = yyp - zyp * zyp / zzp;
+        *gain = zyp / zzp;
+    } else {
+        *sse = yyp;
+        *gain = 0.0;
+    }
+}
+
+/*
+ * diagnose.fit._ham_sse: output-error SSE (and gain) of every (valve candidate i, structure p).
+ * sse and gain are m x P (row-major). Returns 0, or -1 when memory runs out.
+ *
+ * The numba kernel runs four structures of one candidate at a time and the leftover structures one
+ * by one. Here the m * P (candidate, structure) jobs are taken four at a time in the order (i, p),
+ * whatever candidates they belong to, so that a search over one structure (P = 1, the simplex
+ * refinement) also keeps four recursions in flight. Each job performs exactly the operations of
+ * `_one_structure` (which are those of one lane of numba's four-structure loop), so every entry
+ * equals numba's bit for bit. The valve outputs of the (at most four) candidates of a group are
+ * kept in four buffers and computed once per candidate.
+ */
+int ham_sse(const double *x, int64_t n, const double *S, const double *J, const double *F, int64_t m,
+            const double *a1, const double *a2, const int64_t *d, const uint8_t *integ, int64_t P,
+            double ts, double ahp, const double *w, const double *yw, const double *Qw, int64_t K,
+            const double *Qty, double yyp, double *sse, double *gain, int smooth, double gfix)
+{
+    if (m <= 0 || P <= 0)
+        return 0;
+    int64_t nb = n > 0 ? n : 1;
+    double *ubuf = (double *)malloc(sizeof(double) * (size_t)(4 * nb));
+    double *szq = (double *)malloc(sizeof(double) * (size_t)(K > 0 ? K : 1));
+    v4d sq[K > 0 ? K : 1];       /* Q'z sums of the four jobs (on the stack: aligned) */
+    if (ubuf == NULL || szq == NULL) {
+        free(ubuf);
+        free(szq);
+        return -1;
+    }
+    int64_t owner[4] = {-1, -1, -1, -1};       /* candidate whose valve output buffer b holds */
+    for (int b = 0; b < 4; b++)
+        ubuf[b * nb] = 0.0;
+    int hp = ahp >= 0.0;
+    int64_t njobs = m * P;
+    for (int64_t t0 = 0; t0 < njobs; t0 += 4) {
+        int64_t ci[4], pi[4];
+        const double *ug_ptr[4];
+        double u0[4];
+        for (int g = 0; g < 4; g++) {
+            int64_t t = t0 + g < njobs ? t0 + g : njobs - 1;     /* pad the last group */
+            ci[g] = t / P;
+            pi[g] = t % P;
+        }
+        /* valve outputs: keep buffers of candidates still needed, fill the others */
+        int used[4] = {0, 0, 0, 0};
+        int buf_of[4];
+        for (int g = 0; g < 4; g++) {
+            buf_of[g] = -1;
+            for (int b = 0; b < 4; b++)
+                if (owner[b] == ci[g]) {
+                    buf_of[g] = b;
+                    used[b] = 1;
+                }
+        }
+        for (int g = 0; g < 4; g++) {
+            if (buf_of[g] >= 0)
+                continue;
+            int b = 0;
+            while (used[b])
+                b++;
+            int64_t i = ci[g];
+            double *u = ubuf + b * nb;
+            if (smooth)
+                valve_smooth(x, n, S[i], J[i], F[i], u);
+            else
+                stiction_batch(x, n, S + i, J + i, F + i, 1, u, n);
+            owner[b] = i;
+            used[b] = 1;
+            for (int h = g; h < 4; h++)
+                if (ci[h] == i)
+                    buf_of[h] = b;
+        }
+        v4d A1, B1, A2, B2, I, N;
+        int64_t D[4];
+        for (int g = 0; g < 4; g++) {
+            int64_t p = pi[g];
+            ug_ptr[g] = ubuf + buf_of[g] * nb;
+            u0[g] = ug_ptr[g][0];
+            A1[g] = a1[p];
+            B1[g] = 1.0 - A1[g];
+            A2[g] = nmax(a2[p], 0.0);
+            B2[g] = 1.0 - A2[g];
+            I[g] = integ[p] ? ts : 0.0;
+            N[g] = integ[p] ? 0.0 : 1.0;
+            D[g] = d[p];
+        }
+        v4d z1 = {0.0, 0.0, 0.0, 0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
+        v4d ahp4 = {ahp, ahp, ahp, ahp};
+        for (int64_t j = 0; j < K; j++)
+            sq[j] = z1;
+        for (int64_t k = 0; k < n; k++) {
+            v4d ug;
+            for (int g = 0; g < 4; g++) {
+                int64_t kk = k - D[g];
+                ug[g] = kk >= 0 ? (ug_ptr[g][kk] - u0[g]) : 0.0;
+            }
+            z1 = A1 * z1 + B1 * ug;
+            z2 = A2 * z2 + B2 * z1;
+            ac += I * z2;
+            v4d v = N * z2 + ac;
+            if (hp) {
+                fh = ahp4 * fh + v - pr;
+                pr = v;
+                v = fh;
+            }
+            double wk = w[k];
+            if (wk != 0.0) {
+                double yk = yw[k];
+                sz += wk * v * v;
+                sy += yk * v;
+                const double *qrow = Qw + k * K;
+                for (int64_t j = 0; j < K; j++)
+                    sq[j] += qrow[j] * v;
+            }
+        }
+        for (int g = 0; g < 4 && t0 + g < njobs; g++) {
+            for (int64_t j = 0; j < K; j++)
+                szq[j] = sq[j][g];
+            int64_t at = ci[g] * P + pi[g];
+            finish_one(sz[g], sy[g], szq, Qty, K, yyp, gfix, &sse[at], &gain[at]);
+        }
+    }
+    free(ubuf);
+    free(szq);
+    return 0;
+}
