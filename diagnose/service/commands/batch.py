@@ -18,9 +18,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
                                               "or ~/.local/share/stiction/history.sqlite)")
     p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
-    p.add_argument("--explain", choices=["auto", "on", "off"], default="auto",
-                   help="run the missing-physics stage: auto (default) only where the fitted model "
-                        "leaves a mismatch (free-run r2 on PV < 0.5), on for every loop, off")
+    p.add_argument("--explain", choices=["auto", "on", "off"], default="off",
+                   help="run the missing-physics stage: off (default; it costs several times the "
+                        "identification), auto only where the fitted model leaves a mismatch "
+                        "(free-run r2 on PV < 0.5), on for every loop")
     p.add_argument("--no-explain", dest="explain", action="store_const", const="off",
                    help="same as --explain off")
     p.add_argument("--narx", action=argparse.BooleanOptionalAction, default=True,
