@@ -64,7 +64,7 @@ class BatchConfig:
     out_dir: str
     read_options: Mapping[str, Any] = field(default_factory=dict)
     tags: str | None = None
-    explain: bool | str = "auto"
+    explain: bool | str = False
     narx: bool = True
     pdf: bool = True
     db: str | None = None
@@ -567,7 +567,7 @@ def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool
 
 def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *,
               workers: int | None = None, scheduler: str | None = None, tags: str | None = None,
-              read_options: Mapping[str, Any] | None = None, explain: bool | str = "auto", narx: bool = True,
+              read_options: Mapping[str, Any] | None = None, explain: bool | str = False, narx: bool = True,
               pdf: bool = True, db: str | os.PathLike | None = None, history: bool = True,
               progress: bool = True, stream: Any = None) -> BatchResult:
     """Diagnose every loop found in ``inputs``; write per-loop reports and the plant summary.
