@@ -100,10 +100,10 @@ def main(argv=None) -> int:
     md = "\n".join(table)
     print(md)
     if args.out:
-        from connectors.historian import atomic_write_text
+        from connectors.historian import atomic_write
 
         cpu = os.cpu_count()
-        atomic_write_text(args.out, f"<!-- bench_modbus_load.py {' '.join(argv or sys.argv[1:])}; "
+        atomic_write(args.out, f"<!-- bench_modbus_load.py {' '.join(argv or sys.argv[1:])}; "
                                     f"{cpu} CPUs -->\n{md}\n")
     return 0
 

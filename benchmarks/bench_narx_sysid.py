@@ -84,8 +84,8 @@ def main(argv=None):
     text = "\n".join(lines)
     print(text)
     if a.md:
-        from connectors.historian import atomic_write_text
-        atomic_write_text(a.md, text + "\n")
+        from connectors.historian import atomic_write
+        atomic_write(a.md, text + "\n")
     return 0
 
 

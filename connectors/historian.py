@@ -2,7 +2,7 @@
 
 `read_wide` reads the common *wide* layout (through `connectors.read_records`, which handles every
 layout); `format_wide`/`write_wide` write a record as ``time,<loop>.OP,<loop>.PV[,<loop>.SP][,<loop>.POS]``
-with ISO 8601 UTC times, and `atomic_write_text` is the atomic-write helper every output uses.
+with ISO 8601 UTC times, and `atomic_write` is the atomic-write helper every output uses.
 """
 
 from __future__ import annotations
@@ -48,14 +48,28 @@ def read_wide(source: str | os.PathLike | IO[str], *, op: str | None = None, pv:
     return max((r for r in recs if r.name == first), key=lambda r: r.n)
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write a text file so that a reader sees the old or the new content, never half of it."""
+def _current_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
+
+
+def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
+    """Write a file so that a reader (or a killed job) sees the old or the new content, never half.
+
+    Text is written as UTF-8. The file gets the permissions the umask allows (as ``open`` would),
+    not the 0600 of the temporary file it is renamed from.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
-            fh.write(text)
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data.encode("utf-8") if isinstance(data, str) else data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -84,7 +98,7 @@ def format_wide(record: LoopRecord, *, start: datetime = EPOCH) -> str:
 
 def write_wide(record: LoopRecord, path: str | os.PathLike) -> None:
     """Write a record as a wide CSV file (atomically)."""
-    atomic_write_text(path, format_wide(record))
+    atomic_write(path, format_wide(record))
 
 
 def read_many(paths: Iterable[str | os.PathLike], **kwargs) -> list[LoopRecord]:

@@ -73,7 +73,19 @@ class Structure:
                    process=process)
 
     def replace(self, **kw) -> "Structure":
-        return dataclasses.replace(self, **kw)
+        # hot path of the searches (hundreds of thousands of candidates): a plain copy of the
+        # fields instead of dataclasses.replace (no __post_init__ to run)
+        bad = set(kw) - _STRUCT_FIELDS
+        if bad:
+            raise TypeError(f"Structure has no field(s) {sorted(bad)}")
+        new = object.__new__(Structure)
+        d = new.__dict__
+        d.update(self.__dict__)
+        d.update(kw)
+        return new
+
+
+_STRUCT_FIELDS = frozenset(f.name for f in dataclasses.fields(Structure))
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,34 +253,166 @@ def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.nd
     return np.column_stack(cols) if cols else np.zeros((n, 0))
 
 
+@njit(cache=True, nogil=True, boundscheck=False)
+def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, integ, ts_s, E, y, w,
+                  out):  # pragma: no cover - compiled
+    """Training SSE of many candidate augmented models in one pass per candidate: the augmented
+    valve (`valve._aug_kernel`, step for step), the installed characteristic, the lags, dead time
+    and optional integrator, and the weighted least squares of [z, 1, E...] -- without holding
+    any (candidates x samples) matrix."""
+    m = S_up.shape[0]
+    n = x.shape[0]
+    q = E.shape[1]
+    p = 2 + q
+    A = np.zeros((p, p))
+    b = np.zeros(p)
+    col = np.empty(p)
+    maxd = 0
+    for i in range(m):
+        if d[i] > maxd:
+            maxd = d[i]
+    ring = np.empty(maxd + 1)
+    for i in range(m):
+        for r in range(p):
+            b[r] = 0.0
+            for c in range(p):
+                A[r, c] = 0.0
+        yy = 0.0
+        f = f0[i]
+        a = a_lag[i]
+        c_i = cc[i]
+        lin = abs(c_i) < 1e-9
+        den = math.expm1(c_i) if not lin else 1.0
+        di = d[i]
+        L = di + 1
+        xp = min(max(x[0], 0.0), 100.0)
+        up = False
+        yp = xp
+        xss = xp
+        stuck = True
+        zv = yp
+        u0 = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
+        for j in range(L):
+            ring[j] = u0
+        z1 = u0
+        z2 = u0
+        acc = 0.0
+        for k in range(n):
+            if k > 0:
+                t = k * ts_s
+                su = max(S_up[i] + dS[i] * t, 0.0)
+                sd = max(S_dn[i] + dS[i] * t, 0.0)
+                ju = max(J_up[i] + dJ[i] * t, 0.0)
+                jd = max(J_dn[i] + dJ[i] * t, 0.0)
+                xk = min(max(x[k], 0.0), 100.0)
+                v = xk - xp
+                up_k = v > 0.0
+                if not stuck and (v == 0.0 or up_k != up):
+                    stuck = True
+                    xss = xp
+                if stuck:
+                    dd = xk - xss
+                    s_new = sd if f > 0 else su
+                    j_same = ju if f > 0 else jd
+                    if -f * dd > s_new:
+                        f = -f
+                        stuck = False
+                    elif f * dd > j_same:
+                        stuck = False
+                    if not stuck:
+                        half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+                        yp = min(max(xk - f * half, 0.0), 100.0)
+                else:
+                    half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+                    yp = min(max(xk - f * half, 0.0), 100.0)
+                zv = a * zv + (1.0 - a) * yp
+                xp = xk
+                up = up_k
+                uk = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
+            else:
+                uk = u0
+            # dead time: ring buffer of the last d + 1 inputs
+            ring[k % L] = uk
+            ud = ring[(k - di) % L] if k >= di else u0
+            z1 = a1[i] * z1 + (1.0 - a1[i]) * ud
+            if a2[i] >= 0.0:
+                z2 = a2[i] * z2 + (1.0 - a2[i]) * z1
+            else:
+                z2 = z1
+            if integ[i]:
+                acc += ts_s * z2
+                zk = acc
+            else:
+                zk = z2
+            wk = w[k]
+            if wk == 0.0:
+                continue
+            yk = y[k]
+            if q == 0:
+                A[0, 0] += wk * zk * zk
+                A[0, 1] += wk * zk
+                A[1, 1] += wk
+                b[0] += wk * zk * yk
+                b[1] += wk * yk
+                yy += wk * yk * yk
+                continue
+            col[0] = zk
+            col[1] = 1.0
+            for j in range(q):
+                col[2 + j] = E[k, j]
+            for r in range(p):
+                b[r] += wk * col[r] * yk
+                for c in range(p):
+                    A[r, c] += wk * col[r] * col[c]
+            yy += wk * yk * yk
+        if q == 0:
+            A[1, 0] = A[0, 1]
+        for r in range(p):
+            A[r, r] += 1e-9 * (A[r, r] + 1e-12)
+        coef = np.linalg.solve(A, b)
+        sse = yy - 2.0 * (coef @ b) + coef @ (A @ coef)
+        out[i] = max(sse, 0.0)
+    return out
+
+
 def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
-    """Training sum of squared errors of each structure (simulated through the training part)."""
+    """Training sum of squared errors of each structure (simulated through the training part).
+
+    One fused compiled pass per candidate (valve, characteristic, lags, least squares): memory does
+    not grow with the number of candidates times the record length.
+    """
     n = stage.n_fit
-    Y = stems(stage, structs, n)
-    tr = stage.train[:n].astype(np.float64)
+    structs = list(structs)
+    x = np.ascontiguousarray(stage.x[:n], dtype=np.float64)
+    tr = np.ascontiguousarray(stage.train[:n], dtype=np.float64)
     yv = np.ascontiguousarray(stage.y[:n], dtype=np.float64)
+    ts = float(stage.ts_s)
     out = np.empty(len(structs))
     groups: dict = {}
     for i, s in enumerate(structs):
-        proc = s.process
-        groups.setdefault((s.period_s, proc.kind == "integrating"), []).append(i)
+        groups.setdefault((s.period_s, s.process.kind == "integrating"), []).append(i)
     for (period, integ), idx in groups.items():
-        m = len(idx)
-        U = np.empty((m, n))
-        a1 = np.empty(m)
-        a2 = np.empty(m)
-        d = np.empty(m, np.int64)
-        ig = np.full(m, integ, np.bool_)
-        for j, i in enumerate(idx):
-            s = structs[i]
-            U[j] = characteristic(Y[i], s.char_c) if s.char_c else Y[i]
-            proc = s.process
-            a1[j] = lag_coefficient(proc.tau_s, stage.ts_s)
-            a2[j] = lag_coefficient(proc.tau2_s, stage.ts_s) if proc.kind == "soptd" else -1.0
-            d[j] = int(round(proc.delay_s / stage.ts_s))
-        E = np.ascontiguousarray(_extra_columns(structs[idx[0]], stage.ts_s, n, integ))
+        sub = [structs[i] for i in idx]
+        m = len(sub)
+        P = np.array([(s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, s.dS_pct_per_s, s.dJ_pct_per_s,
+                       s.f0, s.tau_lag_s, s.char_c, s.process.tau_s,
+                       s.process.tau2_s if s.process.kind == "soptd" else -1.0, s.process.delay_s)
+                      for s in sub], dtype=np.float64).reshape(m, 12)
+        if np.any(P[:, :4] < 0) or not np.all(np.isfinite(P[:, :4])):
+            raise DataError("S and J must be finite and >= 0 % of span")
+        tl = P[:, 7]
+        a_lag = np.where(tl > 0, np.exp(-ts / np.where(tl > 0, tl, 1.0)), 0.0)
+        t1 = P[:, 9]
+        a1 = np.where(t1 > 0, np.exp(-ts / np.where(t1 > 0, t1, 1.0)), 0.0)
+        t2 = P[:, 10]
+        a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
+        d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
+        E = np.ascontiguousarray(_extra_columns(sub[0], ts, n, integ))
         res = np.empty(m)
-        _sse_kernel(U, a1, a2, d, ig, float(stage.ts_s), E, yv, tr, res)
+        c = lambda j: np.ascontiguousarray(P[:, j])  # noqa: E731
+        _fused_kernel(x, c(0), c(1), c(2), c(3), c(4), c(5), c(6), np.ascontiguousarray(a_lag), c(8),
+                      np.ascontiguousarray(a1), np.ascontiguousarray(a2), d, np.full(m, integ, np.bool_),
+                      ts, E, yv, tr, res)
         out[idx] = res
     return out
 

@@ -28,12 +28,14 @@ import sys
 import time
 import traceback
 from concurrent.futures import Future
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
+from connectors.historian import atomic_write
+
 from ..errors import DataError, StictionError
-from .report import SUMMARY_COLUMNS, write_atomic
+from .report import SUMMARY_COLUMNS
 
 INPUT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
 STATE_DIR = ".stiction"
@@ -237,16 +239,16 @@ def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
                                            "J_pct": diag.result.get("J")}] if history_rows else [])
     pngs = figs.loop_figures(diag, hist_for_fig)
     for name, png in pngs.items():
-        write_atomic(d / f"{name}.png", png)
+        atomic_write(d / f"{name}.png", png)
     blocks = loop_blocks(diag.result, list(pngs), history_rows=list(history_rows), degradation=degradation)
-    write_atomic(d / f"{loop_id}.md", to_markdown(blocks))
+    atomic_write(d / f"{loop_id}.md", to_markdown(blocks))
     if cfg.pdf:
         from .pdf import to_pdf
 
-        write_atomic(d / f"{loop_id}.pdf", to_pdf(blocks, pngs, title=f"Stiction report {loop_id}"))
+        atomic_write(d / f"{loop_id}.pdf", to_pdf(blocks, pngs, title=f"Stiction report {loop_id}"))
     timings = diag.result.setdefault("timings_s", {})
     timings["report"] = round(time.perf_counter() - t0, 4)  # figures, Markdown, PDF
-    write_atomic(d / f"{loop_id}.json", json.dumps(diag.result, indent=1, allow_nan=False))
+    atomic_write(d / f"{loop_id}.json", json.dumps(diag.result, indent=1, allow_nan=False))
     return f"loops/{loop_id}/{loop_id}.md"
 
 
@@ -368,7 +370,7 @@ def _save_state(cfg: BatchConfig, outcome: Mapping[str, Any]) -> None:
         return  # failures are retried next time
     st = {"path": outcome["path"], "digest": outcome["digest"], "options": cfg.options_key(),
           "loops": [r["loop"] for r in rows]}
-    write_atomic(_state_path(cfg, outcome["path"]), json.dumps(st))
+    atomic_write(_state_path(cfg, outcome["path"]), json.dumps(st))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -551,17 +553,17 @@ def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool
     w.writeheader()
     for r in rows:
         w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in SUMMARY_COLUMNS})
-    write_atomic(out_dir / "summary.csv", buf.getvalue())
+    atomic_write(out_dir / "summary.csv", buf.getvalue())
     clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     doc = {**meta, "n_loops": len(rows), "n_failed": sum(1 for r in rows if r["status"] != "ok"),
            "loops": clean}
-    write_atomic(out_dir / "summary.json", json.dumps(doc, indent=1, default=str))
+    atomic_write(out_dir / "summary.json", json.dumps(doc, indent=1, default=str))
     kw = {"generated_at": meta.get("generated_at"), "tool_version": meta.get("tool_version")}
-    write_atomic(out_dir / "summary.md", to_markdown(summary_blocks(rows, **kw)))
+    atomic_write(out_dir / "summary.md", to_markdown(summary_blocks(rows, **kw)))
     if pdf:
         from .pdf import to_pdf
 
-        write_atomic(out_dir / "summary.pdf", to_pdf(summary_blocks(rows, links=False, **kw),
+        atomic_write(out_dir / "summary.pdf", to_pdf(summary_blocks(rows, links=False, **kw),
                                                      title="Plant stiction summary"))
 
 

@@ -52,7 +52,9 @@ def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figu
     """Diagnose one window and write its JSON and Markdown (runs in a worker process)."""
     from .batch import _worker_setup, safe_name
     from .pipeline import diagnose
-    from .report import loop_blocks, to_markdown, write_atomic
+    from connectors.historian import atomic_write
+
+    from .report import loop_blocks, to_markdown
 
     _worker_setup()
     diag = diagnose(record, explain=explain)
@@ -69,14 +71,14 @@ def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figu
 
         pngs = figs.loop_figures(diag)
         for name, png in pngs.items():
-            write_atomic(d / f"{wid}_{name}.png", png)
+            atomic_write(d / f"{wid}_{name}.png", png)
         names = list(pngs)
     md = to_markdown(loop_blocks(res, names), figure_path=f"{wid}_{{name}}.png")
     text = json.dumps(res, indent=1, allow_nan=False)
-    write_atomic(d / f"{wid}.md", md)
-    write_atomic(d / f"{wid}.json", text)
-    write_atomic(d / "latest.md", md)
-    write_atomic(d / "latest.json", text)
+    atomic_write(d / f"{wid}.md", md)
+    atomic_write(d / f"{wid}.json", text)
+    atomic_write(d / "latest.md", md)
+    atomic_write(d / "latest.json", text)
     return res
 
 

@@ -58,7 +58,7 @@ def _atomic_torch_save(obj, path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from connectors.historian import atomic_write_text
+    from connectors.historian import atomic_write
 
     from ...narx.bank import bank_grid, load_bank, train_bank
 
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         manifest, states = train_bank(cases, seed=args.seed, progress=progress)
         for name, state in states.items():
             _atomic_torch_save(state, out / f"{name}.pt")
-        atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
+        atomic_write(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
         print(f"wrote {len(states)} models and manifest.json to {out} "
               f"({manifest['train_total_s']:.0f} s)", file=sys.stderr)
         return 0
