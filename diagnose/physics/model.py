@@ -285,6 +285,21 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
         den = math.expm1(c_i) if not lin else 1.0
         di = d[i]
         L = di + 1
+        sup0 = S_up[i]
+        sdn0 = S_dn[i]
+        jup0 = J_up[i]
+        jdn0 = J_dn[i]
+        dsi = dS[i]
+        dji = dJ[i]
+        drift = dsi != 0.0 or dji != 0.0
+        su = max(sup0, 0.0)
+        sd = max(sdn0, 0.0)
+        ju = max(jup0, 0.0)
+        jd = max(jdn0, 0.0)
+        a1i = a1[i]
+        a2i = a2[i]
+        second = a2i >= 0.0
+        ig = integ[i]
         xp = min(max(x[0], 0.0), 100.0)
         up = False
         yp = xp
@@ -297,13 +312,15 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
         z1 = u0
         z2 = u0
         acc = 0.0
+        wpos = 0           # ring slot of sample k
         for k in range(n):
             if k > 0:
-                t = k * ts_s
-                su = max(S_up[i] + dS[i] * t, 0.0)
-                sd = max(S_dn[i] + dS[i] * t, 0.0)
-                ju = max(J_up[i] + dJ[i] * t, 0.0)
-                jd = max(J_dn[i] + dJ[i] * t, 0.0)
+                if drift:
+                    t = k * ts_s
+                    su = max(sup0 + dsi * t, 0.0)
+                    sd = max(sdn0 + dsi * t, 0.0)
+                    ju = max(jup0 + dji * t, 0.0)
+                    jd = max(jdn0 + dji * t, 0.0)
                 xk = min(max(x[k], 0.0), 100.0)
                 v = xk - xp
                 up_k = v > 0.0
@@ -331,15 +348,22 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
                 uk = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
             else:
                 uk = u0
-            # dead time: ring buffer of the last d + 1 inputs
-            ring[k % L] = uk
-            ud = ring[(k - di) % L] if k >= di else u0
-            z1 = a1[i] * z1 + (1.0 - a1[i]) * ud
-            if a2[i] >= 0.0:
-                z2 = a2[i] * z2 + (1.0 - a2[i]) * z1
+            # dead time: ring buffer of the last d + 1 inputs (slot wpos holds sample k, the next
+            # slot sample k - d)
+            if di == 0:
+                ud = uk
+            else:
+                ring[wpos] = uk
+                wpos += 1
+                if wpos == L:
+                    wpos = 0
+                ud = ring[wpos] if k >= di else u0
+            z1 = a1i * z1 + (1.0 - a1i) * ud
+            if second:
+                z2 = a2i * z2 + (1.0 - a2i) * z1
             else:
                 z2 = z1
-            if integ[i]:
+            if ig:
                 acc += ts_s * z2
                 zk = acc
             else:
