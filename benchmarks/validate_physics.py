@@ -46,11 +46,19 @@ def run_one(effect: str, seed: int, with_mv: bool, n: int) -> dict:
     dt = time.perf_counter() - t0
     named = ex.missing_physics or "none"
     acc = {h.name: h.accepted for h in ex.hypotheses}
+    # how much the hidden effect changes what is recorded: RMS difference from the record's
+    # effect-free twin (same plant, controller, setpoints, loads and noise), in units of the noise
+    exposure = 0.0
+    if effect != "none":
+        twin, _ = concealed_loop(effect, seed, n=n, with_mv=with_mv, apply_effect=False)
+        exposure = float(np.sqrt(np.mean((rec.pv - twin.pv) ** 2)) / truth["noise_std"])
+        if with_mv:
+            exposure = max(exposure, float(np.sqrt(np.mean((rec.mv - twin.mv) ** 2)) / 0.1))
     return {"effect": effect, "seed": seed, "with_mv": with_mv, "named": named, "target": ex.target,
             "baseline_rmse": ex.baseline_rmse, "improved_rmse": ex.improved_rmse,
             "reference_rmse": ex.mismatch.get("reference_rmse"),
             "reduction": 1.0 - ex.improved_rmse / ex.baseline_rmse if ex.baseline_rmse > 0 else 0.0,
-            "accepted": acc, "warnings": [w["code"] for w in ex.warnings], "seconds": dt,
+            "accepted": acc, "exposure": exposure, "warnings": [w["code"] for w in ex.warnings], "seconds": dt,
             "truth": {k: (float(v) if isinstance(v, (int, float, np.floating)) else v) for k, v in truth.items()}}
 
 
@@ -58,15 +66,20 @@ def table(rows: list[dict], sets: list[str], title: str) -> tuple[str, dict]:
     by = defaultdict(Counter)
     for r in rows:
         by[r["effect"]][r["named"]] += 1
-    lines = [f"**{title}** (rows: hidden effect, columns: named)", "",
-             "| hidden \\ named | " + " | ".join(NAMES) + " | right |", "|---" * (len(NAMES) + 2) + "|"]
+    lines = [f"**{title}** (rows: hidden effect, columns: named; last column: records where the effect "
+             "is exercised, i.e. changes the recording by more than the noise RMS)", "",
+             "| hidden \\ named | " + " | ".join(NAMES) + " | right | right where exercised |",
+             "|---" * (len(NAMES) + 3) + "|"]
     stats = {}
     for e in sets:
         c = by[e]
         tot = sum(c.values())
         right = c[e] / tot if tot else float("nan")
         stats[e] = (c[e], tot)
-        lines.append(f"| {e} | " + " | ".join(str(c[nm]) for nm in NAMES) + f" | {c[e]}/{tot} ({100 * right:.0f} %) |")
+        ex = [r for r in rows if r["effect"] == e and (e == "none" or r.get("exposure", 1e9) >= 1.0)]
+        n_ex = sum(r["named"] == e for r in ex)
+        lines.append(f"| {e} | " + " | ".join(str(c[nm]) for nm in NAMES) + f" | {c[e]}/{tot} ({100 * right:.0f} %) "
+                     f"| {n_ex}/{len(ex)} |")
     return "\n".join(lines), stats
 
 
@@ -168,6 +181,12 @@ def render(rows: list[dict], args, wall: float) -> str:
         n_none = sum(r["named"] == "none" for r in lag_pv)
         parts.append(f"| actuator_lag from OP/PV alone (not scored: indistinguishable from process lag) | "
                      f"named {n_lag}/{len(lag_pv)}, none {n_none}/{len(lag_pv)} | - |")
+    exercised = [r for r in scored if r.get("exposure", 1e9) >= 1.0]
+    if len(exercised) < len(scored):
+        n_ex = sum(r["named"] == r["effect"] for r in exercised)
+        parts.append(f"| right effect named where the hidden effect is exercised (changes the recording by "
+                     f"more than the noise RMS; {len(scored) - len(exercised)} record(s) where it does not) | "
+                     f"{n_ex}/{len(exercised)} ({100 * n_ex / max(len(exercised), 1):.0f} %) | - |")
     secs = [r["seconds"] for r in rows]
     parts += ["", f"Time per record: median {np.median(secs):.1f} s, max {np.max(secs):.1f} s "
               f"(2 shared CPU cores under load from other jobs; whole run {wall / 60:.1f} min).", ""]

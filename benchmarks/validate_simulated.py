@@ -7,7 +7,7 @@ unknown starting valve direction. Each loop goes through `identify` exactly as a
 (OP and PV only; the true MV is kept for scoring).
 
 Run:  python benchmarks/validate_simulated.py [--loops 120] [--seed 2026] [--json out.json]
-          [--redraw-stuck] [--no-class-test]
+          [--definition original|identifiable] [--no-class-test]
 
 Prints class accuracy, the stiction verdict's confusion, median relative errors of S and J, the
 rate at which healthy valves are reported ``none``, and timings.
@@ -46,8 +46,13 @@ class Case:
     info: dict
 
 
-def make_case(i: int, rng: np.random.Generator, *, n: int = 3000) -> Case:
-    """Loop number ``i``: the class cycles so every class is equally represented."""
+def make_case(i: int, rng: np.random.Generator, *, n: int = 3000, min_delay_s: int = 0) -> Case:
+    """Loop number ``i``: the class cycles so every class is equally represented.
+
+    ``min_delay_s`` is the smallest dead time drawn (0 in the original definition; 1 in the
+    "identifiable" one: the simulator's PV at a sample already responds to the OP of that sample
+    when the dead time is 0, which logged plant data cannot show and the fit excludes).
+    """
     cls = CLASS_ORDER[i % len(CLASS_ORDER)]
     S = float(rng.uniform(1.0, 8.0))
     J = {"none": 0.0, "deadband": 0.0, "undershoot": S * rng.uniform(0.2, 0.6),
@@ -57,7 +62,7 @@ def make_case(i: int, rng: np.random.Generator, *, n: int = 3000) -> Case:
     kind = rng.choice(["foptd", "foptd", "soptd", "integrating"])
     ts_s = 1.0
     tau = float(rng.uniform(5.0, 60.0))
-    delay = float(rng.integers(0, 11))
+    delay = float(rng.integers(min_delay_s, 11))
     sign = 1.0 if rng.random() < 0.8 else -1.0
     if kind == "integrating":
         gain = sign * float(rng.uniform(0.005, 0.05))
@@ -136,25 +141,29 @@ def evaluate(rows: list[dict]) -> dict:
     return out
 
 
-def run(n_loops: int, seed: int, n: int, verbose: bool = True, redraw_stuck: bool = False,
+def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str = "original",
         **identify_opts) -> tuple[list[dict], dict]:
     """Generate and identify ``n_loops`` loops.
 
-    ``redraw_stuck`` (the "moving" definition, docs/validation.md): a sticky loop whose valve moved
-    fewer than `MIN_MOVES` times in the record is drawn again (same class, next random numbers)
-    until it moves, so every sticky loop in the set has data that can show its stiction. The
-    default keeps the original definition (such loops stay in the set).
+    ``definition="identifiable"`` (docs/validation.md): a sticky loop whose valve moved fewer than
+    `MIN_MOVES` times in the record is drawn again (same class, next random numbers) until it
+    moves, so every sticky loop in the set has data that can show its stiction, and every dead time
+    is at least one sample. ``"original"`` keeps such loops and draws dead times from 0.
     """
+    if definition not in ("original", "identifiable"):
+        raise ValueError(f"definition must be 'original' or 'identifiable', got {definition!r}")
+    redraw_stuck = definition == "identifiable"
+    min_delay = 1 if redraw_stuck else 0
     from diagnose.identify import identify
 
     rng = np.random.default_rng(seed)
     rows = []
     n_redrawn = 0
     for i in range(n_loops):
-        case = make_case(i, rng, n=n)
+        case = make_case(i, rng, n=n, min_delay_s=min_delay)
         while redraw_stuck and case.cls != "none" and case.info["mv_moves"] < MIN_MOVES:
             n_redrawn += 1
-            case = make_case(i, rng, n=n)
+            case = make_case(i, rng, n=n, min_delay_s=min_delay)
         t0 = time.perf_counter()
         res = identify(case.record, **identify_opts)
         dt = time.perf_counter() - t0
@@ -164,6 +173,7 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, redraw_stuck: boo
                "improvement": res.detection.get("improvement"), "t_stat": res.detection.get("t_stat"),
                "insample": res.detection.get("insample_improvement"), "rule": res.detection.get("rule"),
                "confidence": res.confidence,
+               "class_test": res.detection.get("class_test"),
                "time_s": dt, **case.info}
         if res.process is not None:
             row.update({"fit_kind": res.process.kind, "fit_gain": res.process.gain,
@@ -174,7 +184,7 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, redraw_stuck: boo
                   f"{res.cls:10s} S={row['S_fit']:5.2f} J={row['J_fit']:5.2f} rule={row['rule']} "
                   f"moves={row['mv_moves']} {dt:.2f}s", flush=True)
     summary = evaluate(rows)
-    summary["definition"] = "moving (stuck sticky loops redrawn)" if redraw_stuck else "original"
+    summary["definition"] = definition
     summary["redrawn"] = n_redrawn
     return rows, summary
 
@@ -186,14 +196,15 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=3000, help="samples per loop")
     ap.add_argument("--json", help="write rows and summary to this JSON file")
     ap.add_argument("--quiet", action="store_true")
-    ap.add_argument("--redraw-stuck", action="store_true",
-                    help=f"redraw sticky loops whose valve moved fewer than {MIN_MOVES} times")
+    ap.add_argument("--definition", choices=["original", "identifiable"], default="original",
+                    help=f"identifiable: redraw sticky loops whose valve moved fewer than {MIN_MOVES} "
+                         "times and draw dead times from 1 s (see docs/validation.md)")
     ap.add_argument("--no-class-test", action="store_true",
                     help="identify without the class test (the previous method, for comparison)")
     args = ap.parse_args(argv)
     opts = {"class_test": False} if args.no_class_test else {}
     rows, summary = run(args.loops, args.seed, args.n, verbose=not args.quiet,
-                        redraw_stuck=args.redraw_stuck, **opts)
+                        definition=args.definition, **opts)
     print(json.dumps(summary, indent=2))
     if args.json:
         Path(args.json).write_text(json.dumps({"summary": summary, "rows": rows}, indent=1, default=float))

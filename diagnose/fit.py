@@ -51,6 +51,8 @@ COARSE_SAMPLES = 2000
 DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
 AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
+#: Dead times (samples) of the global (S, J) grid's structures, besides the linear model's.
+GLOBAL_DELAYS = (0, 2, 4, 7, 10, 15)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -925,7 +927,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                 t_lo, t_hi = tau_range_s if tau_range_s is not None else (ts_s, max(span_s / 8.0, 2 * ts_s))
                 taus = np.geomspace(t_lo, max(t_hi, 1.01 * t_lo), 6)
                 d_lin = int(best.cfg.d[0])
-                dset = sorted({max(dmin, dd) for dd in (0, 2, 5, 12, d_lin) if dd <= dmax})
+                dset = sorted({max(dmin, dd) for dd in GLOBAL_DELAYS + (d_lin,) if dd <= dmax})
                 entries = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
                 if "integrating" in kinds:
                     entries += [("integrating", float(ts_s), 0.0, dd) for dd in dset]

@@ -57,12 +57,15 @@ SHARP_MIN_S_PCT = 1.0
 T_CRIT = 2.0
 #: The class test: 95 % quantile of chi-square with one degree of freedom (one restriction, J = 0
 #: or J = S, tested against the free (S, J) fit; docs/fitting.md).
-CLASS_TEST_CHI2 = 3.841
+CLASS_TEST_CHI2 = 5.991
 #: Local grid of the class test: S relative to the fit's S, J/S ratios, and the valve's initial
 #: stuck point relative to OP's first sample, in units of max(S, J).
 CLASS_TEST_S_REL = 1.0 + np.array([-0.1, -0.05, -0.02, 0.0, 0.02, 0.05, 0.1])
 CLASS_TEST_J_RATIOS = np.linspace(0.0, 2.0, 17)
 CLASS_TEST_DELTAS = np.linspace(-1.0, 1.0, 5)
+#: Second stage of the class test: nearby process structures (dead time +-1 sample, lags x0.8 and
+#: x1.25).
+CLASS_TEST_STRUCTURES = True
 
 
 def _finite(v: float | None) -> float | None:
@@ -288,18 +291,47 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
     Jg = Sg * Rg
     x0 = float(x[0])
     best = {"free": (c_fit, S0, fit.J_pct, fit.f0, 0.0), "deadband": (np.inf,), "no_offset": (np.inf,)}
+    ratios = CLASS_TEST_J_RATIOS
+    per_ratio = [(np.inf, 1.0, x0)] * ratios.shape[0]      # best (cost, f0, first OP) per J/S
+
+    def keep(c, Sv, Jv, Rv, F, xs0):
+        nonlocal per_ratio
+        for key, sel in (("free", np.ones(c.shape[0], bool)), ("deadband", Rv == 0.0),
+                         ("no_offset", Rv == 1.0)):
+            cm = np.where(sel, c, np.inf)
+            i = int(np.argmin(cm))
+            if cm[i] < best[key][0]:
+                best[key] = (float(c[i]), float(Sv[i]), float(Jv[i]), int(F), float(xs0 - x0))
+        for k, r in enumerate(ratios):
+            sel = Rv == r
+            if sel.any():
+                ck = float(c[sel].min())
+                if ck < per_ratio[k][0]:
+                    per_ratio[k] = (ck, F, xs0)
+
+    # stage 1: the fit's structure, every starting point
     for dl in CLASS_TEST_DELTAS:
         for F in (1.0, -1.0):
             m = Fg == F
             prob.x = np.ascontiguousarray(x.copy())
             prob.x[0] = min(max(x0 + F * dl * max(S0, fit.J_pct), 0.0), 100.0)
             c = prob.sse(Sg[m], Jg[m], Fg[m], cfg)[0][:, 0] * scale
-            for key, sel in (("free", np.ones(c.shape[0], bool)), ("deadband", Rg[m] == 0.0),
-                             ("no_offset", Rg[m] == 1.0)):
-                i = int(np.argmin(np.where(sel, c, np.inf)))
-                if c[i] < best[key][0]:
-                    best[key] = (float(c[i]), float(Sg[m][i]), float(Jg[m][i]), int(F),
-                                 float(prob.x[0] - x0))
+            keep(c, Sg[m], Jg[m], Rg[m], F, float(prob.x[0]))
+    # stage 2: per J/S ratio, its best start, with nearby structures (the lags and the dead time
+    # trade off against J, so a shape is not rejected for want of its own structure: dead time
+    # +-1 sample, lags x0.8 and x1.25)
+    if CLASS_TEST_STRUCTURES:
+        d = int(round(p.delay_s / ts_s))
+        ent = [(p.kind, p.tau_s, p.tau2_s, dd) for dd in sorted({max(1, d - 1), d, d + 1})]
+        ent += [(p.kind, p.tau_s * f, p.tau2_s * f, d) for f in (0.8, 1.25)]
+        scfg = _make_configs(ent, ts_s)
+        Ss = S0 * CLASS_TEST_S_REL
+        for k, r in enumerate(ratios):
+            _, F, xs0 = per_ratio[k]
+            prob.x = np.ascontiguousarray(x.copy())
+            prob.x[0] = xs0
+            c = prob.sse(Ss, Ss * r, np.full(Ss.shape[0], F), scfg)[0].min(axis=1) * scale
+            keep(c, Ss, Ss * r, np.full(Ss.shape[0], r), F, xs0)
     nu = max((fit.n_eff if math.isfinite(fit.n_eff) else n) - 2.0, 1.0)
     c_free = best["free"][0]
     bound = c_free * (1.0 + CLASS_TEST_CHI2 / nu)

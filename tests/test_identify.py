@@ -109,3 +109,25 @@ def test_oscillation_context_finds_the_period_of_a_noisy_sine():
     assert not calm.oscillating
     r = acf(np.sin(t / 5))
     assert r[0] == pytest.approx(1.0)
+
+
+def test_class_test_keeps_the_special_shape_that_the_data_allow():
+    # J = S: the restricted fit (no offset) must be accepted and reported as such
+    rec = sticky_loop(3.0, 3.0, n=2000, gain=1.2, tau_s=15.0, delay_s=4.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=5, f0=-1)
+    res = identify(_no_mv(rec))
+    ct = res.detection["class_test"]
+    assert res.stiction and res.cls == "no_offset"
+    assert res.J_pct == pytest.approx(res.S_pct) and res.S_pct == pytest.approx(3.0, rel=0.1)
+    assert ct["cost_no_offset"] <= ct["bound"] and ct["cost_free"] <= ct["cost_fit"] * (1 + 1e-12)
+    # ... and without the test the free J is reported (the contract of class_test=False)
+    res0 = identify(_no_mv(rec), class_test=False)
+    assert "class_test" not in res0.detection
+    assert res0.fitted_J_pct == pytest.approx(res0.fit.J_pct)
+
+
+def test_class_test_does_not_force_a_shape_the_data_reject(sticky_result):
+    # J = 0.375 S (undershoot): both restrictions are rejected by the F-test bound
+    ct = sticky_result.detection["class_test"]
+    assert ct["cls"] is None
+    assert ct["cost_deadband"] > ct["bound"] and ct["cost_no_offset"] > ct["bound"]

@@ -292,3 +292,14 @@ def test_stale_twin_is_not_used(cache, monkeypatch):
     assert "numba" in type(pm._lag_filter._impl).__module__
     monkeypatch.undo()
     nv.reset()
+
+
+def test_required_native_reuses_the_cached_library(cache, monkeypatch):
+    def boom():
+        raise AssertionError("the library is cached: the compiler must not run")
+    monkeypatch.setattr(nv, "_compiler", boom)
+    monkeypatch.setenv("STICTION_NATIVE", "1")
+    nv.reset()
+    assert nv.library() is not None and nv.status()["native"]
+    monkeypatch.undo()
+    nv.reset()

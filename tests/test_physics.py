@@ -54,6 +54,40 @@ def test_kernel_equals_the_step_by_step_plant_valve(seed):
     assert np.array_equal(np.array(y), augmented_valve(x, **kw))
 
 
+def test_fused_training_sse_equals_simulate_then_least_squares():
+    # train_sse runs valve, characteristic, lags and least squares in one pass per candidate; it must
+    # equal the plain route: simulate the stem, filter it, solve the least squares, sum the errors
+    rng = np.random.default_rng(7)
+    x = _walk(1200, 7)
+    y = 0.8 * x + rng.normal(0, 0.5, x.size)
+    train = np.zeros(x.size, bool)
+    train[100:800] = True
+    stage = Stage("loop", x, y, 1.0, train)
+    structs = []
+    for i, kind in enumerate(["foptd", "soptd", "integrating", "foptd", "soptd", "foptd"]):
+        proc = ProcessModel(kind, 1.0, float(rng.uniform(1, 20)), float(i % 4), 0.0,
+                            **({"tau2_s": 3.0} if kind == "soptd" else {}))
+        S = float(rng.uniform(0.5, 4))
+        structs.append(Structure(S_up_pct=S, J_up_pct=0.5 * S, S_dn_pct=0.7 * S, J_dn_pct=0.2 * S,
+                                 dS_pct_per_s=1e-4 * (i - 2), f0=1 if i % 2 else -1,
+                                 tau_lag_s=[0.0, 3.0][i % 2], char_c=[0.0, 1.5, -1.0][i % 3], process=proc,
+                                 period_s=[None, 60.0][i // 3]))
+    got = train_sse(stage, structs)
+    for s, g in zip(structs, got):
+        y_hat, _, _ = predict(stage, s)
+        e = (y - y_hat)[: stage.n_fit][train[: stage.n_fit]]
+        assert g == pytest.approx(float(e @ e), rel=1e-6)
+
+
+def test_concealed_twin_differs_only_by_the_effect():
+    rec, _ = concealed_loop("asymmetric_stiction", 7, n=800, with_mv=True)
+    twin, _ = concealed_loop("asymmetric_stiction", 7, n=800, with_mv=True, apply_effect=False)
+    clean_like, _ = concealed_loop("actuator_lag", 7, n=800, with_mv=True, apply_effect=False)
+    assert not np.array_equal(rec.pv, twin.pv)
+    # same plant, controller, loads and noise: the two effect-free twins are the same record
+    assert np.array_equal(twin.pv, clean_like.pv) and np.array_equal(twin.mv, clean_like.mv)
+
+
 def test_plant_parts_hide_their_effect():
     x = _walk(3000, 4)
     plain = stiction_batch(x, [3.0], [1.0], [1])[0]

@@ -138,11 +138,12 @@ def _compiler() -> list[str] | None:
 # build and load
 # --------------------------------------------------------------------------------------------------
 
-def build(directory: Path | None = None, *, force: bool = False) -> Path:
+def build(directory: Path | None = None, *, force: bool = False, retry_failed: bool = False) -> Path:
     """Compile ``kernels.c`` into the cache (atomically) unless it is there; returns the library path.
 
-    Raises `NativeBuildError` when no compiler is found or the compiler fails (and then leaves a
-    ``.failed`` note next to where the library would be, unless ``force``).
+    ``force`` rebuilds even when the library exists; ``retry_failed`` tries again after an earlier
+    failed build. Raises `NativeBuildError` when no compiler is found or the compiler fails (and
+    then leaves a ``.failed`` note next to where the library would be).
     """
     import subprocess
     import tempfile
@@ -151,7 +152,7 @@ def build(directory: Path | None = None, *, force: bool = False) -> Path:
     if target.exists() and not force:
         return target
     failed = target.with_suffix(".failed")
-    if failed.exists() and not force:
+    if failed.exists() and not (force or retry_failed):
         raise NativeBuildError(f"an earlier build failed (see {failed}); delete it to retry")
     cc = _compiler()
     if cc is None:
@@ -233,7 +234,7 @@ def library() -> ctypes.CDLL | None:
             _state["reason"] = "disabled by STICTION_NATIVE=0"
         else:
             try:
-                path = build(force=md == "require")
+                path = build(retry_failed=md == "require")
                 lib = _open(path)
                 _state["path"] = str(path)
                 _state["reason"] = "native"

@@ -26,7 +26,10 @@ int stiction_native_abi(void) { return NATIVE_ABI_VERSION; }
 
 /* Four doubles operated on element by element (GCC/clang vector extension; plain IEEE operations,
  * lowered to whatever vector width the target has). */
-typedef double v4d __attribute__((vector_size(32)));
+#ifndef LANES
+#define LANES 4
+#endif
+typedef double v4d __attribute__((vector_size(8 * LANES)));
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -78,6 +81,66 @@ void stiction_batch(const double *x, int64_t n, const double *S, const double *J
         return;
     for (int64_t i = 0; i < m; i++)
         stiction_one(x, n, S[i], J[i], f0[i], out + i * ld);
+}
+
+typedef long long v4di __attribute__((vector_size(8 * LANES)));
+
+/* Lane-wise select: m ? a : b (m is all ones or all zeros per lane, from a comparison). */
+static inline v4d vsel(v4di m, v4d a, v4d b) { return (v4d)(((v4di)a & m) | ((v4di)b & ~m)); }
+
+/* clip100 lane by lane, with the same comparisons as nmax/nmin. */
+static inline v4d vclip100(v4d v)
+{
+    const v4d lo = (v4d){0.0} + 0.0, hi = (v4d){0.0} + 100.0;
+    v4d t = vsel(lo > v, lo, v);
+    return vsel(hi < t, hi, t);
+}
+
+/*
+ * Four candidate valves over the same input at once, without branches per lane: exactly the
+ * operations of stiction_one in each lane (the input, its increment and direction are shared;
+ * the state and the thresholds are per lane). Lane g writes out[g][0..n).
+ */
+static void stiction_four(const double *x, int64_t n, const double s_[LANES], const double j_[LANES],
+                          const double f_[LANES], double *out[LANES])
+{
+    v4d s, j, f;
+    for (int g = 0; g < LANES; g++) {
+        s[g] = s_[g];
+        j[g] = j_[g];
+        f[g] = f_[g];
+    }
+    v4d half = (s - j) / 2.0;
+    double xp = clip100(x[0]);
+    int up = 0;
+    v4d yp = (v4d){0.0} + xp;
+    v4d xss = yp;
+    v4di stuck = (v4di){0} - 1;
+    for (int g = 0; g < LANES; g++)
+        out[g][0] = xp;
+    for (int64_t k = 1; k < n; k++) {
+        double xk = clip100(x[k]);
+        double v = xk - xp;
+        int up_k = v > 0.0;
+        if (v == 0.0 || up_k != up) {
+            /* every moving lane stops at the previous input */
+            v4d xp4 = (v4d){0.0} + xp;
+            xss = vsel(stuck, xss, xp4);
+            stuck = (v4di){0} - 1;
+        }
+        v4d xk4 = (v4d){0.0} + xk;
+        v4d d = xk4 - xss;
+        v4di rev = stuck & ((-f) * d > s);
+        v4di fwd = stuck & ~rev & (f * d > j);
+        f = vsel(rev, -f, f);
+        v4di move = ~stuck | rev | fwd;
+        stuck = stuck & ~(rev | fwd);
+        yp = vsel(move, vclip100(xk4 - f * half), yp);
+        for (int g = 0; g < LANES; g++)
+            out[g][k] = yp[g];
+        xp = xk;
+        up = up_k;
+    }
 }
 
 /* diagnose.fit._valve_smooth: the valve with the slip instant interpolated inside the sample. */
@@ -219,7 +282,7 @@ int ham_sse(const double *x, int64_t n, const double *S, const double *J, const 
     if (m <= 0 || P <= 0)
         return 0;
     int64_t nb = n > 0 ? n : 1;
-    double *ubuf = (double *)malloc(sizeof(double) * (size_t)(4 * nb));
+    double *ubuf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
     double *szq = (double *)malloc(sizeof(double) * (size_t)(K > 0 ? K : 1));
     v4d sq[K > 0 ? K : 1];       /* Q'z sums of the four jobs (on the stack: aligned) */
     if (ubuf == NULL || szq == NULL) {
@@ -227,52 +290,76 @@ int ham_sse(const double *x, int64_t n, const double *S, const double *J, const 
         free(szq);
         return -1;
     }
-    int64_t owner[4] = {-1, -1, -1, -1};       /* candidate whose valve output buffer b holds */
-    for (int b = 0; b < 4; b++)
+    int64_t owner[LANES];       /* candidate whose valve output buffer b holds */
+    for (int b = 0; b < LANES; b++) {
+        owner[b] = -1;
         ubuf[b * nb] = 0.0;
+    }
     int hp = ahp >= 0.0;
     int64_t njobs = m * P;
-    for (int64_t t0 = 0; t0 < njobs; t0 += 4) {
-        int64_t ci[4], pi[4];
-        const double *ug_ptr[4];
-        double u0[4];
-        for (int g = 0; g < 4; g++) {
+    for (int64_t t0 = 0; t0 < njobs; t0 += LANES) {
+        int64_t ci[LANES], pi[LANES];
+        const double *ug_ptr[LANES];
+        double u0[LANES];
+        for (int g = 0; g < LANES; g++) {
             int64_t t = t0 + g < njobs ? t0 + g : njobs - 1;     /* pad the last group */
             ci[g] = t / P;
             pi[g] = t % P;
         }
         /* valve outputs: keep buffers of candidates still needed, fill the others */
-        int used[4] = {0, 0, 0, 0};
-        int buf_of[4];
-        for (int g = 0; g < 4; g++) {
+        int used[LANES] = {0};
+        int buf_of[LANES];
+        for (int g = 0; g < LANES; g++) {
             buf_of[g] = -1;
-            for (int b = 0; b < 4; b++)
+            for (int b = 0; b < LANES; b++)
                 if (owner[b] == ci[g]) {
                     buf_of[g] = b;
                     used[b] = 1;
                 }
         }
-        for (int g = 0; g < 4; g++) {
+        int nneed = 0;
+        int64_t need_i[LANES];
+        double *need_u[LANES];
+        for (int g = 0; g < LANES; g++) {
             if (buf_of[g] >= 0)
                 continue;
             int b = 0;
             while (used[b])
                 b++;
             int64_t i = ci[g];
-            double *u = ubuf + b * nb;
-            if (smooth)
-                valve_smooth(x, n, S[i], J[i], F[i], u);
-            else
-                stiction_batch(x, n, S + i, J + i, F + i, 1, u, n);
             owner[b] = i;
             used[b] = 1;
-            for (int h = g; h < 4; h++)
+            need_i[nneed] = i;
+            need_u[nneed] = ubuf + b * nb;
+            nneed++;
+            for (int h = g; h < LANES; h++)
                 if (ci[h] == i)
                     buf_of[h] = b;
         }
+        if (nneed >= 2 && !smooth && n > 0) {
+            /* several new candidates: one four-lane pass (spare lanes repeat the first) */
+            double s4[LANES], j4[LANES], f4[LANES];
+            double *o4[LANES];
+            for (int g = 0; g < LANES; g++) {
+                int h = g < nneed ? g : 0;
+                s4[g] = S[need_i[h]];
+                j4[g] = J[need_i[h]];
+                f4[g] = F[need_i[h]];
+                o4[g] = need_u[h];
+            }
+            stiction_four(x, n, s4, j4, f4, o4);
+        } else {
+            for (int h = 0; h < nneed; h++) {
+                int64_t i = need_i[h];
+                if (smooth)
+                    valve_smooth(x, n, S[i], J[i], F[i], need_u[h]);
+                else
+                    stiction_batch(x, n, S + i, J + i, F + i, 1, need_u[h], n);
+            }
+        }
         v4d A1, B1, A2, B2, I, N;
-        int64_t D[4];
-        for (int g = 0; g < 4; g++) {
+        int64_t D[LANES];
+        for (int g = 0; g < LANES; g++) {
             int64_t p = pi[g];
             ug_ptr[g] = ubuf + buf_of[g] * nb;
             u0[g] = ug_ptr[g][0];
@@ -284,13 +371,13 @@ int ham_sse(const double *x, int64_t n, const double *S, const double *J, const 
             N[g] = integ[p] ? 0.0 : 1.0;
             D[g] = d[p];
         }
-        v4d z1 = {0.0, 0.0, 0.0, 0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
-        v4d ahp4 = {ahp, ahp, ahp, ahp};
+        v4d z1 = {0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
+        v4d ahp4 = z1 + ahp;
         for (int64_t j = 0; j < K; j++)
             sq[j] = z1;
         for (int64_t k = 0; k < n; k++) {
             v4d ug;
-            for (int g = 0; g < 4; g++) {
+            for (int g = 0; g < LANES; g++) {
                 int64_t kk = k - D[g];
                 ug[g] = kk >= 0 ? (ug_ptr[g][kk] - u0[g]) : 0.0;
             }
@@ -313,7 +400,7 @@ int ham_sse(const double *x, int64_t n, const double *S, const double *J, const 
                     sq[j] += qrow[j] * v;
             }
         }
-        for (int g = 0; g < 4 && t0 + g < njobs; g++) {
+        for (int g = 0; g < LANES && t0 + g < njobs; g++) {
             for (int64_t j = 0; j < K; j++)
                 szq[j] = sq[j][g];
             int64_t at = ci[g] * P + pi[g];

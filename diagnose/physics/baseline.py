@@ -44,9 +44,11 @@ def _global_sj(stage: Stage, struct: Structure, span: float, step: float = 0.025
     return global_sj(stage, struct, span, step)
 
 
-def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3) -> Structure:
+def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
+                   template: Structure | None = None) -> Structure:
     """Global search of the plain model: coarse (S, J, f0) x FOPTD dynamics grid, then a fine global
-    (S, J, f0) grid and the dynamics in turn."""
+    (S, J, f0) grid and the dynamics in turn. ``template`` carries extra physics held fixed during
+    the search (e.g. a load period)."""
     x = stage.x
     span = float(np.ptp(x[: stage.n_fit]))
     if stage.fixed_dynamics:
@@ -60,6 +62,9 @@ def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int =
            for d in (0, 2, 4, 7, 12)]
     valves = [Structure.plain(s, s * r, f, IDENTITY) for s in S_grid for r in ratios for f in (1, -1)
               if not (s == 0 and (r > 0 or f < 0))]
+    if template is not None:
+        valves = [template.replace(S_up_pct=v.S_up_pct, S_dn_pct=v.S_dn_pct, J_up_pct=v.J_up_pct,
+                                   J_dn_pct=v.J_dn_pct, f0=v.f0) for v in valves]
     cands = [v.replace(process=p) for p in dyn for v in valves]
     sse = train_sse(stage, cands).reshape(len(dyn), len(valves))
     best_per_dyn = sse.min(axis=1)

@@ -38,7 +38,7 @@ def _sp_steps(n: int, rng: np.random.Generator, gain: float, levels_pct: tuple[f
 
 
 def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, with_mv: bool = False,
-                   name: str | None = None) -> tuple[LoopRecord, dict[str, Any]]:
+                   name: str | None = None, apply_effect: bool = True) -> tuple[LoopRecord, dict[str, Any]]:
     """One closed-loop record with ``effect`` hidden in the plant.
 
     Parameters
@@ -53,6 +53,10 @@ def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, 
         Sample period, seconds.
     with_mv : bool
         Keep the (noisy) measured stem position in the record.
+    apply_effect : bool
+        False: draw everything as for ``effect`` (same plant, controller, noise, setpoints) but
+        leave the effect out of the plant -- the record's effect-free twin, to measure how much the
+        effect changes what is recorded.
 
     Returns
     -------
@@ -119,6 +123,14 @@ def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, 
         load = load + np.concatenate([sinusoid(n + warmup, ts_s, period, amp,
                                                float(rng.uniform(0, 2 * np.pi)))[warmup:]])
         truth.update(period_s=period, amplitude=amp, limit_cycle_period_s=plc)
+    if not apply_effect:
+        valve_kw = {}
+        S, J = truth["S_pct"], truth["J_pct"]
+        if effect == "valve_characteristic":
+            process = FOPTD(gain=gain, tau_s=tau, delay_s=delay, bias=0.0)
+            sp = gain * u_lv
+        if effect == "external_disturbance":
+            load = random_walk(n, gain * 0.004, np.random.default_rng(seed + 1), leak=0.005)
     valve = AugmentedValve(S, J, ts_s=ts_s, f0=f0, **valve_kw)
     ctrl = simc_pi(gain, tau, delay, ts_s)
     rec = simulate_loop(n=n, ts_s=ts_s, process=process, controller=ctrl, valve=valve,

@@ -335,19 +335,25 @@ class ExternalDisturbance(PhysicsHypothesis):
             return reference
         T = stage.train.sum() * stage.ts_s
         results = []
-        for p in periods:
+        for i, p in enumerate(periods):
             f0 = 1.0 / p
             cands = [reference.replace(period_s=float(1.0 / f)) for f in f0 + np.linspace(-1.0, 1.0, 21) / T
                      if f > 0]
             st, _ = best_of(stage, cands)
-            # the plain fit bent its valve and process to follow the load through OP: search again
-            st, _ = refit_dynamics(stage, st, rounds=1)
-            st = global_sj(stage, st)
-            st, _ = refit_dynamics(stage, st, rounds=1)
-            f1 = 1.0 / st.period_s
-            st, c = best_of(stage, [st.replace(period_s=float(1.0 / f))
-                                    for f in f1 + np.linspace(-0.15, 0.15, 13) / T])
-            results.append((c, st))
+            starts = [st]
+            if i < 2 and not stage.fixed_dynamics:
+                # the plain fit bent its valve and process to follow the load through OP (its S and
+                # dynamics can be far off): search the valve and the dynamics globally with the load
+                from .baseline import _grid_baseline
+                starts.append(_grid_baseline(stage, start=st, n_starts=2, template=st))
+            for st in starts:
+                st, _ = refit_dynamics(stage, st, rounds=1)
+                st = global_sj(stage, st)
+                st, _ = refit_dynamics(stage, st, rounds=1)
+                f1 = 1.0 / st.period_s
+                st, c = best_of(stage, [st.replace(period_s=float(1.0 / f))
+                                        for f in f1 + np.linspace(-0.15, 0.15, 13) / T])
+                results.append((c, st))
         best = min(results, key=lambda t: t[0])[1]
         best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
         return best
