@@ -46,6 +46,8 @@ def run_one(effect: str, seed: int, with_mv: bool, n: int) -> dict:
     dt = time.perf_counter() - t0
     named = ex.missing_physics or "none"
     acc = {h.name: h.accepted for h in ex.hypotheses}
+    dbic = {h.name: [round(float(h.delta_bic), 2), round(float(h.train_delta_bic), 2),
+                     round(float(h.reduction), 3)] for h in ex.hypotheses}
     # how much the hidden effect changes what is recorded: RMS difference from the record's
     # effect-free twin (same plant, controller, setpoints, loads and noise), in units of the noise
     exposure = 0.0
@@ -58,7 +60,7 @@ def run_one(effect: str, seed: int, with_mv: bool, n: int) -> dict:
             "baseline_rmse": ex.baseline_rmse, "improved_rmse": ex.improved_rmse,
             "reference_rmse": ex.mismatch.get("reference_rmse"),
             "reduction": 1.0 - ex.improved_rmse / ex.baseline_rmse if ex.baseline_rmse > 0 else 0.0,
-            "accepted": acc, "exposure": exposure, "warnings": [w["code"] for w in ex.warnings], "seconds": dt,
+            "accepted": acc, "delta_bic_heldout_train_reduction": dbic, "exposure": exposure, "warnings": [w["code"] for w in ex.warnings], "seconds": dt,
             "truth": {k: (float(v) if isinstance(v, (int, float, np.floating)) else v) for k, v in truth.items()}}
 
 

@@ -154,7 +154,9 @@ def tennessee(data: Path, verbose: bool) -> dict:
         d, dt = _run(rec)
         row = {"file": name, "from_sample": onset, "n": int(op.shape[0]), "stiction": d.get("stiction"),
                "class": d.get("class"), "S": d.get("S"), "J": d.get("J"), "S_interval": d.get("S_interval"),
-               "J_interval": d.get("J_interval"), "fitted_S_J": None, "confidence": d.get("confidence"),
+               "J_interval": d.get("J_interval"), "fitted_S_J": [(d.get("detection") or {}).get("fitted_S_pct"),
+                                                           (d.get("detection") or {}).get("fitted_J_pct")],
+               "confidence": d.get("confidence"),
                "improvement": (d.get("detection") or {}).get("improvement"), "error": d.get("error"),
                "time_s": dt}
         rows.append(row)

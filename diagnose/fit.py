@@ -52,7 +52,7 @@ DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
 AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
 #: Dead times (samples) of the global (S, J) grid's structures, besides the linear model's.
-GLOBAL_DELAYS = (0, 2, 4, 7, 10, 15)
+GLOBAL_DELAYS = (0, 2, 5, 12)
 
 
 # --------------------------------------------------------------------------------------------------

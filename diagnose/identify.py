@@ -9,7 +9,10 @@
 3. S, J and the process from the fit on the whole record (`diagnose.fit.fit_hammerstein`); when the
    stem position MV is recorded, S, J and the class come from the direct OP -> MV fit
    (`diagnose.fit.fit_valve`) and ``method`` says so;
-4. the class from `diagnose.stiction_model.stiction_class` (tolerance max(0.1 %, 15 % of S));
+4. the class test (`_class_test`): the valve's starting stuck point as a nuisance parameter, and
+   the special shapes J = 0 (deadband) and J = S (no offset) accepted when the data do not reject
+   them against the free fit; then the class from `diagnose.stiction_model.stiction_class`
+   (tolerance max(0.1 %, 15 % of S));
 5. the oscillation context (`diagnose.oscillation`) and a confidence in [0, 1].
 
 The threshold and its justification are in docs/fitting.md.

@@ -13,6 +13,7 @@ import diagnose.fit as fit
 import diagnose.native as nv
 import diagnose.process_model as pm
 import diagnose.stiction_model as sm
+from diagnose.errors import StictionWarning
 from diagnose.stiction_model import stiction_reference
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -284,7 +285,9 @@ def test_stale_twin_is_not_used(cache, monkeypatch):
     maker, deps = nv._TWINS["diagnose.process_model._lag_filter"]
     monkeypatch.setitem(nv._TWINS, "diagnose.process_model._lag_filter",
                         (maker, {k: "000000000000" for k in deps}))
-    assert pm._lag_filter.native is None
+    nv._WARNED.discard("diagnose.process_model._lag_filter")
+    with pytest.warns(StictionWarning, match="out of date"):
+        assert pm._lag_filter.native is None
     nv.reset()
     u = np.linspace(0.0, 10.0, 50)
     np.testing.assert_array_equal(pm._lag_filter(u, 0.5, -1.0, 1, False, 1.0),
@@ -301,5 +304,24 @@ def test_required_native_reuses_the_cached_library(cache, monkeypatch):
     monkeypatch.setenv("STICTION_NATIVE", "1")
     nv.reset()
     assert nv.library() is not None and nv.status()["native"]
+    monkeypatch.undo()
+    nv.reset()
+
+
+def test_kernels_pickle_by_reference():
+    import pickle
+    assert pickle.loads(pickle.dumps(sm._batch_kernel)) is sm._batch_kernel
+    assert pickle.loads(pickle.dumps(fit._ham_sse)) is fit._ham_sse
+
+
+def test_a_damaged_library_is_rebuilt(tmp_path, monkeypatch):
+    monkeypatch.setenv("STICTION_CACHE", str(tmp_path))
+    monkeypatch.delenv("STICTION_NATIVE", raising=False)
+    target = nv.library_path()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_bytes(b"not a shared library")
+    nv.reset()
+    assert nv.library() is not None, nv.status()["reason"]
+    assert target.read_bytes() != b"not a shared library"
     monkeypatch.undo()
     nv.reset()

@@ -13,10 +13,10 @@ module instead of numba's. That decorator is lazy:
   disk as before) and runs that.
 
 The C source is compiled once per user and machine on first use by the system compiler (``$CC``, or
-``cc``/``gcc``/``clang`` on the path) with ``-O2 -shared -fPIC -ffp-contract=off`` (no fused
-multiply-add, no fast-math) into ``$STICTION_CACHE`` (default ``$XDG_CACHE_HOME/stiction`` or
-``~/.cache/stiction``) as ``native-<hash>.so``; the hash covers the source, the flags and the
-machine, so an edited source builds a new library. The library is written to a temporary file in the
+``cc``/``gcc``/``clang`` on the path) with ``-O3 -march=native -ffp-contract=off`` (no fused
+multiply-add, no fast-math; see `CFLAGS`) into ``$STICTION_CACHE`` (default
+``$XDG_CACHE_HOME/stiction`` or ``~/.cache/stiction``) as ``native-<hash>.so``; the hash covers the source, the flags and the
+CPU, so an edited source builds a new library. The library is written to a temporary file in the
 same directory and renamed into place, so processes that build at the same time never see a partial
 file. A failed build leaves a ``native-<hash>.failed`` note (with the compiler's message) so later
 runs go straight to numba instead of retrying.
@@ -45,13 +45,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import StictionError
+from ..errors import StictionError, StictionWarning
 
 SOURCE = Path(__file__).with_name("kernels.c")
 #: Compiler flags. -ffp-contract=off: no fused multiply-add (numba does not contract either), so
 #: results equal numba's bit for bit; no -ffast-math for the same reason. -O3 with the host's vector
-#: width (-march=native: 4-wide AVX on x86-64) runs the four-structure loop of `ham_sse` about twice
-#: as fast as numba; -O2 or SSE2 only is slower than numba. -march=native is dropped if the compiler
+#: width (-march=native: AVX on x86-64) runs the vector loops of `ham_sse` about twice as fast as
+#: numba; -O2 or SSE2 only is slower than numba (still exact). -march=native is dropped if the compiler
 #: refuses it; the library name includes the CPU, so a cache shared between machines stays valid.
 CFLAGS = ("-O3", "-shared", "-fPIC", "-std=c99", "-ffp-contract=off", "-fno-fast-math")
 CFLAGS_TUNED = ("-march=native",)
@@ -59,6 +59,7 @@ ABI_VERSION = 1
 
 _LOCK = threading.RLock()
 _KERNELS: dict[str, "Kernel"] = {}
+_WARNED: set[str] = set()
 _state: dict[str, Any] = {"lib": None, "tried": False, "reason": "not loaded yet", "path": None}
 
 
@@ -81,7 +82,10 @@ def mode() -> str:
 
 
 def cache_dir() -> Path:
-    """Directory of the compiled library: $STICTION_CACHE, else $XDG_CACHE_HOME/stiction or ~/.cache/stiction."""
+    """Directory of the compiled library.
+
+    $STICTION_CACHE, else $XDG_CACHE_HOME/stiction, else ~/.cache/stiction.
+    """
     env = os.environ.get("STICTION_CACHE")
     if env:
         return Path(env).expanduser()
@@ -145,12 +149,12 @@ def build(directory: Path | None = None, *, force: bool = False, retry_failed: b
     failed build. Raises `NativeBuildError` when no compiler is found or the compiler fails (and
     then leaves a ``.failed`` note next to where the library would be).
     """
-    import subprocess
-    import tempfile
-
     target = library_path(directory)
     if target.exists() and not force:
         return target
+    import subprocess
+    import tempfile
+
     failed = target.with_suffix(".failed")
     if failed.exists() and not (force or retry_failed):
         raise NativeBuildError(f"an earlier build failed (see {failed}); delete it to retry")
@@ -235,7 +239,12 @@ def library() -> ctypes.CDLL | None:
         else:
             try:
                 path = build(retry_failed=md == "require")
-                lib = _open(path)
+                try:
+                    lib = _open(path)
+                except (OSError, AttributeError, NativeBuildError):
+                    # a damaged or foreign file under our name: build it again, once
+                    path = build(force=True)
+                    lib = _open(path)
                 _state["path"] = str(path)
                 _state["reason"] = "native"
             except (NativeBuildError, OSError, AttributeError) as exc:
@@ -257,7 +266,8 @@ def status() -> dict[str, Any]:
         pass
     return {"mode": mode(), "native": _state["lib"] is not None, "reason": _state["reason"],
             "path": _state["path"],
-            "kernels": {k: ("native" if v.native is not None else "numba") for k, v in _KERNELS.items()}}
+            "kernels": {k: ("native" if v.native is not None else "numba") for k, v in _KERNELS.items()
+                        if k in _TWINS}}
 
 
 def reset() -> None:
@@ -294,7 +304,9 @@ class Kernel:
         self._impl = None
         _KERNELS[self.key] = self
 
-    def __call__(self, *args):
+    def __call__(self, *args, **kwargs):
+        if kwargs:                      # the twins take positional arguments only
+            return self.numba(*args, **kwargs)
         impl = self._impl
         if impl is None:
             impl = self._resolve()
@@ -302,6 +314,10 @@ class Kernel:
 
     def __repr__(self) -> str:
         return f"<Kernel {self.key}>"
+
+    def __reduce__(self):
+        # pickled by reference, like the module-level function it replaces
+        return (_kernel_by_name, (self.py_func.__module__, self.py_func.__qualname__))
 
     def _resolve(self) -> Callable:
         with _LOCK:
@@ -317,7 +333,15 @@ class Kernel:
         if twin is None:
             return None
         maker, deps = twin
-        if any(fingerprint(d) not in (fp, "*") for d, fp in deps.items()):
+        stale = [d for d, fp in deps.items() if fingerprint(d) not in (fp, "*")]
+        if stale:
+            if self.key not in _WARNED:
+                _WARNED.add(self.key)
+                import warnings
+                warnings.warn(f"the native twin of {self.key} is out of date ({', '.join(stale)} changed "
+                              "since its C port): running numba instead, which is slower; port the "
+                              "change to diagnose/native/kernels.c (tests/test_native.py names the "
+                              "fingerprints to update)", StictionWarning, stacklevel=3)
             return None
         lib = library()
         return None if lib is None else maker(lib)
@@ -343,6 +367,14 @@ class Kernel:
                     fn.__doc__ = f.__doc__
                     self._dispatcher = numba.njit(**self.options)(fn)
         return self._dispatcher
+
+
+def _kernel_by_name(module: str, qualname: str) -> "Kernel":
+    import importlib
+    obj: Any = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    return obj
 
 
 def _global_names(code: types.CodeType) -> set[str]:
@@ -417,6 +449,18 @@ def fingerprint(key: str) -> str | None:
 # native twins (thin wrappers: check shapes, pass pointers)
 # --------------------------------------------------------------------------------------------------
 
+_from_buffer = ctypes.c_char.from_buffer
+_addressof = ctypes.addressof
+
+
+def _addr(a: np.ndarray) -> int:
+    """Address of an array's data (about 3x faster than ``a.ctypes.data`` for writable arrays)."""
+    try:
+        return _addressof(_from_buffer(a))
+    except (TypeError, ValueError, BufferError):     # read-only or empty
+        return a.ctypes.data
+
+
 def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64)
 
@@ -440,7 +484,7 @@ def _make_batch_kernel(lib):
         rows_ok = (out.dtype == np.float64 and out.strides[1] == 8 and out.strides[0] > 0
                    and out.strides[0] % 8 == 0 and out.flags.writeable)
         buf = out if rows_ok else np.empty((m, n))
-        fn(x.ctypes.data, n, S.ctypes.data, J.ctypes.data, f0.ctypes.data, m, buf.ctypes.data,
+        fn(_addr(x), n, _addr(S), _addr(J), _addr(f0), m, _addr(buf),
            buf.strides[0] // 8)
         if buf is not out:
             out[:m, :n] = buf
@@ -459,7 +503,7 @@ def _make_valve_smooth(lib):
         if n == 0:
             return out
         buf = out if _out_ok(out, 1) else np.empty(n)
-        fn(x.ctypes.data, n, float(s), float(j), float(f0), buf.ctypes.data)
+        fn(_addr(x), n, float(s), float(j), float(f0), _addr(buf))
         if buf is not out:
             out[:n] = buf
         return out
@@ -476,7 +520,7 @@ def _make_lag_filter(lib):
             raise ValueError("lag_filter: the dead time must be >= 0 samples")
         z = np.empty(n)
         if n:
-            fn(u.ctypes.data, n, float(a1), float(a2), int(d), 1 if integ else 0, float(ts_s), z.ctypes.data)
+            fn(_addr(u), n, float(a1), float(a2), int(d), 1 if integ else 0, float(ts_s), _addr(z))
         return z
     return lag_filter
 
@@ -491,7 +535,7 @@ def _make_hp_filter_2d(lib):
         n, m = v.shape
         out = np.empty((n, m))
         if n and m:
-            fn(v.ctypes.data, n, m, m, float(a), out.ctypes.data)
+            fn(_addr(v), n, m, m, float(a), _addr(out))
         return out
     return hp_filter_2d
 
@@ -517,10 +561,10 @@ def _make_ham_sse(lib):
             return sse
         so = sse if (_out_ok(sse, 2) and sse.shape[1] == P) else np.empty((m, P))
         go = gain if (_out_ok(gain, 2) and gain.shape[1] == P) else np.empty((m, P))
-        rc = fn(x.ctypes.data, n, S.ctypes.data, J.ctypes.data, F.ctypes.data, m, a1.ctypes.data,
-                a2.ctypes.data, d.ctypes.data, ib.ctypes.data, P, float(ts), float(ahp), w.ctypes.data,
-                yw.ctypes.data, Qw.ctypes.data, K, Qty.ctypes.data, float(yyp), so.ctypes.data,
-                go.ctypes.data, 1 if smooth else 0, float(gfix))
+        rc = fn(_addr(x), n, _addr(S), _addr(J), _addr(F), m, _addr(a1),
+                _addr(a2), _addr(d), _addr(ib), P, float(ts), float(ahp), _addr(w),
+                _addr(yw), _addr(Qw), K, _addr(Qty), float(yyp), _addr(so),
+                _addr(go), 1 if smooth else 0, float(gfix))
         if rc != 0:
             raise MemoryError("ham_sse: out of memory")
         if so is not sse:

@@ -14,7 +14,7 @@ position):
 5. a hypothesis is *accepted* when, on the held-out part, (a) its RMSE is at least
    ``min_reduction`` below the reference's, (b) also below the baseline's by half that, and (c) its
    held-out BIC, ``n_eff ln(SSE_h / SSE_ref) + k ln(n_eff)`` with ``n_eff`` the effective number of
-   independent held-out residuals and ``k`` the added parameters, is negative. The accepted one
+   independent held-out residuals and ``k`` the added parameters, is below ``STRONG_BIC`` (-6). The accepted one
    with the lowest held-out BIC is named; none accepted -> ``missing_physics = None``.
 """
 
@@ -36,6 +36,10 @@ from .locate import Mismatch, locate, slips_and_reversals
 from .model import Stage, Structure, effective_n, predict, refine_plain, rmse
 
 MIN_SAMPLES = 300
+#: held-out BIC difference an augmented model must reach: "strong" evidence on the usual BIC scale
+#: (Kass and Raftery 1995: 6-10 strong, > 10 very strong); a difference of a few units is what a
+#: better plain fit that the reference search missed can give on a clean record
+STRONG_BIC = -6.0
 
 
 @dataclass(frozen=True)
@@ -310,7 +314,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         # trains no better but happens to extrapolate better is search luck, not physics)
         dbic_tr = (n_eff_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
                    + fitted.n_extra * math.log(n_eff_tr))
-        ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic < 0
+        ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic <= STRONG_BIC
                   and dbic_tr < 0
                   and all(math.isfinite(v) for v in fitted.params.values()))
         tr = stage.train
