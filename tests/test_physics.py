@@ -217,20 +217,20 @@ def _check_json(ex):
 
 
 def test_explain_leaves_a_clean_loop_alone():
-    rec, _ = concealed_loop("none", 3, n=2000)
+    rec, _ = concealed_loop("none", 3, n=1500)
     ex = explain(rec, target="pv")
     d = _check_json(ex)
     assert d["missing_physics"] is None
     assert not any(h["accepted"] for h in d["hypotheses"])
 
 
-@pytest.mark.parametrize("effect,seed,with_mv", [
-    ("asymmetric_stiction", 100, True),
-    ("time_varying_friction", 101, False),
-    ("valve_characteristic", 100, False),
+@pytest.mark.parametrize("effect,seed,with_mv,n", [
+    ("asymmetric_stiction", 100, True, 3000),
+    ("time_varying_friction", 101, False, 3000),
+    ("valve_characteristic", 100, False, 2000),
 ])
-def test_explain_names_a_concealed_effect_and_the_error_falls(effect, seed, with_mv):
-    rec, truth = concealed_loop(effect, seed, n=3000, with_mv=with_mv)
+def test_explain_names_a_concealed_effect_and_the_error_falls(effect, seed, with_mv, n):
+    rec, truth = concealed_loop(effect, seed, n=n, with_mv=with_mv)
     ex = explain(rec, target="auto" if with_mv else "pv")
     d = _check_json(ex)
     assert d["missing_physics"] == effect
