@@ -9,7 +9,7 @@ from connectors.historian import write_wide
 from diagnose.errors import DataError
 from diagnose.record import LoopRecord
 from diagnose.service.cli import main
-from diagnose.service.commands.identify import select_record
+from diagnose.service.commands._loopfile import select_record
 from diagnose.simulate import sticky_loop
 
 KEYS = {"loop", "stiction", "class", "S", "J", "S_interval", "J_interval", "process", "fit",

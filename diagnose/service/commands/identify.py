@@ -8,68 +8,13 @@ import math
 import sys
 from typing import Any
 
-from ...errors import DataError
+from ._loopfile import add_file_arguments, read_options, select_record
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", metavar="FILE", help="historian export (CSV or another supported layout)")
-    p.add_argument("--op", metavar="COL", help="controller output column (OP, %% of span)")
-    p.add_argument("--pv", metavar="COL", help="process variable column")
-    p.add_argument("--sp", metavar="COL", help="setpoint column")
-    p.add_argument("--mv", metavar="COL", help="valve stem position column (%% of span), if recorded")
-    p.add_argument("--ts", metavar="SECONDS|COL",
-                   help="sample period in seconds (a number), or the name of the timestamp column")
-    p.add_argument("--format", dest="fmt", metavar="LAYOUT", help="file layout override")
-    p.add_argument("--tags", metavar="TOML", help="tag map (TOML) naming each loop's columns")
-    p.add_argument("--loop", metavar="NAME", help="loop to identify when the file holds several")
+    add_file_arguments(p, "identify")
     p.add_argument("--json", action="store_true",
                    help="print exactly one JSON object on stdout (messages go to stderr)")
-
-
-def _read_options(args: argparse.Namespace) -> dict[str, Any]:
-    opts: dict[str, Any] = {}
-    for role in ("op", "pv", "sp", "mv"):
-        v = getattr(args, role)
-        if v is not None:
-            opts[role] = v
-    if args.ts is not None:
-        try:
-            ts_s = float(args.ts)
-        except ValueError:
-            opts["ts"] = args.ts
-        else:
-            if not (math.isfinite(ts_s) and ts_s > 0):
-                raise DataError(f"--ts {args.ts}: the sample period must be a positive number of seconds")
-            opts["ts_s"] = ts_s
-    if args.fmt is not None:
-        opts["fmt"] = args.fmt
-    if args.tags is not None:
-        opts["tags"] = args.tags
-    if args.loop is not None:
-        opts["loop"] = args.loop
-    return opts
-
-
-def select_record(records: list, loop: str | None, source: str):
-    """The record to identify: the named loop (its longest segment), with messages to report."""
-    notes: list[dict[str, str]] = []
-    if not records:
-        raise DataError(f"{source}: no loop found in the file")
-    names = list(dict.fromkeys(r.name for r in records))
-    if loop is not None:
-        chosen = [r for r in records if r.name == loop]
-        if not chosen:
-            raise DataError(f"{source}: no loop named {loop!r} (loops: {', '.join(names)})")
-    elif len(names) > 1:
-        raise DataError(f"{source} holds {len(names)} loops ({', '.join(names)}); choose one with --loop NAME")
-    else:
-        chosen = records
-    rec = max(chosen, key=lambda r: r.n)
-    if len(chosen) > 1:
-        notes.append({"code": "segments",
-                      "message": f"the record is split into {len(chosen)} segments (gaps or mode changes); "
-                                 f"identified the longest ({rec.n} samples)"})
-    return rec, notes
 
 
 def _clean(obj: Any) -> Any:
@@ -121,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from ...identify import identify
     from ..pipeline import select_narx
 
-    opts = _read_options(args)
+    opts = read_options(args)
     records = connectors.read_records(args.file, **opts)
     rec, notes = select_record(records, args.loop, str(args.file))
     result = identify(rec)
