@@ -473,7 +473,10 @@ def train_sse(stage: Stage, structs: Sequence[Structure], *, prune: bool = False
 
 def best_of(stage: Stage, structs: Sequence[Structure]) -> tuple[Structure, float]:
     structs = list(structs)
-    sse = train_sse(stage, structs, prune=True)
+    # the searches append the incumbent last: score it first, so that it bounds (prunes) the rest
+    order = [len(structs) - 1] + list(range(len(structs) - 1))
+    sse = np.empty(len(structs))
+    sse[order] = train_sse(stage, [structs[j] for j in order], prune=True)
     sse = np.where(np.isfinite(sse), sse, np.inf)
     i = int(np.argmin(sse))
     return structs[i], float(sse[i])
