@@ -3,7 +3,7 @@
 Simulates ``--loops`` closed loops of ``--samples`` samples (seeded mix of classes, S 0..6 %, J
 0..6 %, FOPTD/SOPTD/integrating), writes them as wide CSV (not timed), then runs
 ``stiction batch`` on them with full reports (figures, Markdown, PDF, JSON, summary; the
-missing-physics stage as ``--explain``, default auto) once with 1 worker and once with 2, each in a fresh
+missing-physics stage as ``--explain``, default off like the batch) once with 1 worker and once with 2, each in a fresh
 subprocess (so imports and pool start-up are counted and the peak RSS of every process is
 measured). Prints a Markdown fragment for docs/_bench_service.md; the 1000-loop time is measured
 when ``--loops 1000`` is given, else extrapolated from the 2-worker throughput (and says so).
@@ -82,8 +82,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--loops", type=int, default=16)
     ap.add_argument("--samples", type=int, default=10_000)
-    ap.add_argument("--explain", choices=["auto", "on", "off"], default="auto",
-                    help="missing-physics stage, as `stiction batch --explain` (default auto)")
+    ap.add_argument("--explain", choices=["auto", "on", "off"], default="off",
+                    help="missing-physics stage, as `stiction batch --explain` (default off)")
     ap.add_argument("--workers", default="1,2", help="worker counts to compare (default 1,2)")
     ap.add_argument("--keep", default=None, help="keep the data and outputs in this folder")
     args = ap.parse_args()
