@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from ..errors import DataError
-from ..process_model import ProcessModel, lag_coefficient
+from ..process_model import ProcessModel
 from .valve import augmented_valve, characteristic
 
 IDENTITY = ProcessModel(kind="foptd", gain=1.0, tau_s=0.0, delay_s=0.0, bias=0.0)
@@ -183,65 +183,6 @@ def predict(stage: Stage, struct: Structure, stem: np.ndarray | None = None):
     return y_hat, stem, coef
 
 
-@njit(cache=True, nogil=True)
-def _sse_kernel(U, a1, a2, d, integ, ts_s, E, y, w, out):  # pragma: no cover - compiled
-    """Training SSE of rows of U through lags (a1, a2 < 0: first order), dead time d and an
-    optional integrator, with columns [z, 1, E...] solved by weighted least squares per row."""
-    m, n = U.shape
-    q = E.shape[1]
-    p = 2 + q
-    for i in range(m):
-        u0 = U[i, 0]
-        z1 = u0
-        z2 = u0
-        acc = 0.0
-        A = np.zeros((p, p))
-        b = np.zeros(p)
-        yy = 0.0
-        col = np.empty(p)
-        for k in range(n):
-            kd = k - d[i]
-            ud = U[i, kd] if kd >= 0 else u0
-            z1 = a1[i] * z1 + (1.0 - a1[i]) * ud
-            if a2[i] >= 0.0:
-                z2 = a2[i] * z2 + (1.0 - a2[i]) * z1
-            else:
-                z2 = z1
-            if integ[i]:
-                acc += ts_s * z2
-                zk = acc
-            else:
-                zk = z2
-            wk = w[k]
-            if wk == 0.0:
-                continue
-            if q == 0:
-                A[0, 0] += wk * zk * zk
-                A[0, 1] += wk * zk
-                A[1, 1] += wk
-                b[0] += wk * zk * y[k]
-                b[1] += wk * y[k]
-                yy += wk * y[k] * y[k]
-                continue
-            col[0] = zk
-            col[1] = 1.0
-            for j in range(q):
-                col[2 + j] = E[k, j]
-            for r in range(p):
-                b[r] += wk * col[r] * y[k]
-                for c in range(p):
-                    A[r, c] += wk * col[r] * col[c]
-            yy += wk * y[k] * y[k]
-        if q == 0:
-            A[1, 0] = A[0, 1]
-        for r in range(p):
-            A[r, r] += 1e-9 * (A[r, r] + 1e-12)
-        coef = np.linalg.solve(A, b)
-        sse = yy - 2.0 * (coef @ b) + coef @ (A @ coef)
-        out[i] = max(sse, 0.0)
-    return out
-
-
 def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.ndarray:
     t = np.arange(n) * ts_s
     cols = []
@@ -255,16 +196,11 @@ def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.nd
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, integ, ts_s, E, y, w,
-                  out, prune):  # pragma: no cover - compiled
+                  out):  # pragma: no cover - compiled
     """Training SSE of many candidate augmented models in one pass per candidate: the augmented
     valve (`valve._aug_kernel`, step for step), the installed characteristic, the lags, dead time
     and optional integrator, and the weighted least squares of [z, 1, E...] -- without holding
-    any (candidates x samples) matrix.
-
-    ``prune``: only the smallest SSE is wanted. The least-squares SSE over the first k samples is a
-    lower bound of the SSE over all of them (the final coefficients are feasible for the partial
-    problem and later samples add non-negative terms), so a candidate whose partial SSE already
-    exceeds the best complete one is abandoned (its ``out`` is +inf)."""
+    any (candidates x samples) matrix."""
     m = S_up.shape[0]
     n = x.shape[0]
     q = E.shape[1]
@@ -277,10 +213,7 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
         if d[i] > maxd:
             maxd = d[i]
     ring = np.empty(maxd + 1)
-    best = np.inf
-    Ac = np.empty((p, p))
     for i in range(m):
-        pruned = False
         for r in range(p):
             b[r] = 0.0
             for c in range(p):
@@ -376,20 +309,6 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
                 zk = acc
             else:
                 zk = z2
-            if prune and (k & 255) == 255 and best < np.inf:
-                for r in range(p):
-                    for c in range(p):
-                        Ac[r, c] = A[r, c]
-                if q == 0:
-                    Ac[1, 0] = Ac[0, 1]
-                for r in range(p):
-                    Ac[r, r] += 1e-9 * (Ac[r, r] + 1e-12)
-                if Ac[1, 1] >= 50.0:
-                    cp = np.linalg.solve(Ac, b)
-                    part = yy - 2.0 * (cp @ b) + cp @ (Ac @ cp)
-                    if part > best * 1.02 + 1e-12:
-                        pruned = True
-                        break
             wk = w[k]
             if wk == 0.0:
                 continue
@@ -415,22 +334,14 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
             A[1, 0] = A[0, 1]
         for r in range(p):
             A[r, r] += 1e-9 * (A[r, r] + 1e-12)
-        if pruned:
-            out[i] = np.inf
-            continue
         coef = np.linalg.solve(A, b)
         sse = yy - 2.0 * (coef @ b) + coef @ (A @ coef)
         out[i] = max(sse, 0.0)
-        if out[i] < best:
-            best = out[i]
     return out
 
 
-def train_sse(stage: Stage, structs: Sequence[Structure], *, prune: bool = False) -> np.ndarray:
+def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     """Training sum of squared errors of each structure (simulated through the training part).
-
-    ``prune=True``: only the minimum is exact; candidates that cannot beat the best one seen so far
-    (within their group) may come back as +inf.
 
     One fused compiled pass per candidate (valve, characteristic, lags, least squares): memory does
     not grow with the number of candidates times the record length.
@@ -466,17 +377,14 @@ def train_sse(stage: Stage, structs: Sequence[Structure], *, prune: bool = False
         c = lambda j: np.ascontiguousarray(P[:, j])  # noqa: E731
         _fused_kernel(x, c(0), c(1), c(2), c(3), c(4), c(5), c(6), np.ascontiguousarray(a_lag), c(8),
                       np.ascontiguousarray(a1), np.ascontiguousarray(a2), d, np.full(m, integ, np.bool_),
-                      ts, E, yv, tr, res, prune)
+                      ts, E, yv, tr, res)
         out[idx] = res
     return out
 
 
 def best_of(stage: Stage, structs: Sequence[Structure]) -> tuple[Structure, float]:
     structs = list(structs)
-    # the searches append the incumbent last: score it first, so that it bounds (prunes) the rest
-    order = [len(structs) - 1] + list(range(len(structs) - 1))
-    sse = np.empty(len(structs))
-    sse[order] = train_sse(stage, [structs[j] for j in order], prune=True)
+    sse = train_sse(stage, structs)
     sse = np.where(np.isfinite(sse), sse, np.inf)
     i = int(np.argmin(sse))
     return structs[i], float(sse[i])
