@@ -5,24 +5,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from typing import Any
 
 from ...errors import DataError
+from ._loopfile import add_file_arguments, read_options, select_record
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", metavar="FILE", help="historian export (CSV or another supported layout)")
-    p.add_argument("--op", metavar="COL", help="controller output column (OP, %% of span)")
-    p.add_argument("--pv", metavar="COL", help="process variable column")
-    p.add_argument("--sp", metavar="COL", help="setpoint column")
-    p.add_argument("--mv", metavar="COL", help="valve stem position column (%% of span), if recorded")
-    p.add_argument("--ts", metavar="SECONDS|COL",
-                   help="sample period in seconds (a number), or the name of the timestamp column")
-    p.add_argument("--format", dest="fmt", metavar="LAYOUT", help="file layout override")
-    p.add_argument("--tags", metavar="TOML", help="tag map (TOML) naming each loop's columns")
-    p.add_argument("--loop", metavar="NAME", help="loop to explain when the file holds several")
+    add_file_arguments(p, "explain")
     p.add_argument("--target", choices=["auto", "pv", "mv"], default="auto",
                    help="auto: OP->PV, plus OP->MV for valve-side effects when MV is recorded; "
                         "pv: OP/PV only; mv: the valve alone (needs MV)")
@@ -35,49 +26,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--figure", metavar="PNG", help="also draw the residual, conditioned residuals and fits")
     p.add_argument("--json", action="store_true",
                    help="print exactly one JSON object on stdout (messages go to stderr)")
-
-
-def _read_options(args: argparse.Namespace) -> dict[str, Any]:
-    opts: dict[str, Any] = {}
-    for role in ("op", "pv", "sp", "mv"):
-        v = getattr(args, role)
-        if v is not None:
-            opts[role] = v
-    if args.ts is not None:
-        try:
-            ts_s = float(args.ts)
-        except ValueError:
-            opts["ts"] = args.ts
-        else:
-            if not (math.isfinite(ts_s) and ts_s > 0):
-                raise DataError(f"--ts {args.ts}: the sample period must be a positive number of seconds")
-            opts["ts_s"] = ts_s
-    for key in ("fmt", "tags", "loop"):
-        v = getattr(args, key)
-        if v is not None:
-            opts[key] = v
-    return opts
-
-
-def _select(records: list, loop: str | None, source: str):
-    notes: list[dict[str, str]] = []
-    if not records:
-        raise DataError(f"{source}: no loop found in the file")
-    names = list(dict.fromkeys(r.name for r in records))
-    if loop is not None:
-        chosen = [r for r in records if r.name == loop]
-        if not chosen:
-            raise DataError(f"{source}: no loop named {loop!r} (loops: {', '.join(names)})")
-    elif len(names) > 1:
-        raise DataError(f"{source} holds {len(names)} loops ({', '.join(names)}); choose one with --loop NAME")
-    else:
-        chosen = records
-    rec = max(chosen, key=lambda r: r.n)
-    if len(chosen) > 1:
-        notes.append({"code": "segments",
-                      "message": f"the record is split into {len(chosen)} segments (gaps or mode changes); "
-                                 f"explained the longest ({rec.n} samples)"})
-    return rec, notes
 
 
 def summary(d: dict[str, Any]) -> str:
@@ -116,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
     hyps = None
     if args.hypotheses:
         hyps = [h.strip() for h in args.hypotheses.split(",") if h.strip()]
-    records = connectors.read_records(args.file, **_read_options(args))
-    rec, notes = _select(records, args.loop, str(args.file))
+    records = connectors.read_records(args.file, **read_options(args))
+    rec, notes = select_record(records, args.loop, str(args.file), "explained")
     result = explain(rec, target=args.target, train_fraction=args.train_fraction, hypotheses=hyps,
                      min_reduction=args.min_reduction)
     d = result.to_dict()
