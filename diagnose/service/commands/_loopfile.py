@@ -4,8 +4,10 @@ turning them into `connectors.read_records` options, and choosing the loop (and 
 from __future__ import annotations
 
 import argparse
+import json
 import math
-from typing import Any
+import sys
+from typing import Any, Callable
 
 from ...errors import DataError
 
@@ -67,3 +69,13 @@ def select_record(records: list, loop: str | None, source: str, verb: str = "ide
                       "message": f"the record is split into {len(chosen)} segments (gaps or mode changes); "
                                  f"{verb} the longest ({rec.n} samples)"})
     return rec, notes
+
+
+def emit(d: dict[str, Any], *, as_json: bool, summary: Callable[[dict[str, Any]], str]) -> None:
+    """Print a result: one JSON object on stdout (warnings repeated on stderr), or the summary."""
+    if as_json:
+        sys.stdout.write(json.dumps(d, allow_nan=False) + "\n")
+        for w in d["warnings"]:
+            print(f"warning [{w['code']}]: {w['message']}", file=sys.stderr)
+    else:
+        print(summary(d))

@@ -4,12 +4,11 @@ physics, fit a model that has it, and show the held-out error fall."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
 from ...errors import DataError
-from ._loopfile import add_file_arguments, read_options, select_record
+from ._loopfile import add_file_arguments, emit, read_options, select_record
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -74,10 +73,5 @@ def run(args: argparse.Namespace) -> int:
         from ...physics.figures import plot_explanation
         plot_explanation(result, rec, args.figure)
         print(f"wrote {args.figure}", file=sys.stderr)
-    if args.json:
-        sys.stdout.write(json.dumps(d, allow_nan=False) + "\n")
-        for w in d["warnings"]:
-            print(f"warning [{w['code']}]: {w['message']}", file=sys.stderr)
-    else:
-        print(summary(d))
+    emit(d, as_json=args.json, summary=summary)
     return 0

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import sys
 from typing import Any
 
-from ._loopfile import add_file_arguments, read_options, select_record
+from ._loopfile import add_file_arguments, emit, read_options, select_record
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -79,10 +77,5 @@ def run(args: argparse.Namespace) -> int:
     if rec.source is None:
         d["source"] = str(args.file)
     d = _clean(d)
-    if args.json:
-        sys.stdout.write(json.dumps(d, allow_nan=False) + "\n")
-        for w in d["warnings"]:
-            print(f"warning [{w['code']}]: {w['message']}", file=sys.stderr)
-    else:
-        print(summary(d))
+    emit(d, as_json=args.json, summary=summary)
     return 0
