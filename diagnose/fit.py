@@ -988,6 +988,40 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
                     cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None)
                 refined.append(cur)
+            # 6. J and the dead time trade off (a larger J looks like a longer delay): re-pick the
+            # structure along a J line at the best S and refine the best start with another delay
+            if structure is None and refined:
+                top_r = min(refined, key=lambda r: r.sse)
+                if top_r.S > 0:
+                    Jl = top_r.S * np.asarray(DEFAULT_J_RATIOS, float)
+                    Sm_, Jm_, Fm_ = np.meshgrid([top_r.S], Jl, [1.0, -1.0], indexing="ij")
+                    # the best structure's kind (and FOPTD) near its lag, at every other dead time
+                    k0, t0, d_top = top_r.cfg.kind[0], float(top_r.cfg.tau[0]), int(top_r.cfg.d[0])
+                    r2 = float(top_r.cfg.tau2[0]) / max(t0, 1e-12)
+                    d_set = sorted(({int(v) for v in all_cfg.d} | {max(dmin, d_top - 1), min(dmax, d_top + 1)})
+                                   - {d_top})
+                    ent = [(kd, t0 * f, t0 * f * r2 if kd == "soptd" else 0.0, dd)
+                           for kd in sorted({k0, "foptd"} & set(kinds) | {k0}) for f in (0.5, 1.0, 2.0)
+                           for dd in d_set]
+                    if ent:
+                        lcfg = _make_configs(ent, ts_s)
+                        sse_l, _ = prob.sse(Sm_.ravel(), Jm_.ravel(), Fm_.ravel(), lcfg)
+                        near = np.abs(lcfg.d.astype(int) - d_top) <= 1
+                        # the best start next to the delay and the best far from it
+                        for sel in (near, ~near):
+                            if not sel.any():
+                                continue
+                            sub = np.where(sel[None, :], sse_l, np.inf)
+                            i, p = np.unravel_index(int(np.argmin(sub)), sub.shape)
+                            alt = _Best(float(Sm_.ravel()[i]), float(Jm_.ravel()[i]), float(Fm_.ravel()[i]),
+                                        lcfg.take(int(p)), float(sub[i, p]))
+                            for rnd in range(refine_rounds):
+                                if rnd > 0:
+                                    cq, sq = polish_structure(alt.S, alt.J, alt.F, alt.cfg, 0)
+                                    if sq < alt.sse:
+                                        alt = _Best(alt.S, alt.J, alt.F, cq, sq)
+                                alt = _nelder_mead_refine(prob, alt, ts_s, fixed=False)
+                            refined.append(alt)
             results = refined + results
             best = min(results, key=lambda r: r.sse)
         return best
