@@ -40,7 +40,6 @@ import math
 import os
 import struct
 import time
-import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -48,6 +47,8 @@ import numpy as np
 
 from diagnose.errors import ConnectorError, ModbusReadError
 from diagnose.record import Finding, LoopRecord
+
+from .tagmap import load_toml
 
 ROLES = ("op", "pv", "sp", "mv")
 TYPES = {"float32": 2, "int32": 2, "uint32": 2, "int16": 1, "uint16": 1}
@@ -239,14 +240,7 @@ def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusCon
 def load_modbus_config(path: str | os.PathLike) -> ModbusConfig:
     """Read a Modbus register-map TOML file."""
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise ConnectorError("Modbus config file not found", path=path)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConnectorError(f"not valid TOML: {exc}", path=path) from None
-    return parse_modbus_config(data, path)
+    return parse_modbus_config(load_toml(path, "Modbus config"), path)
 
 
 # ------------------------------------------------------------------------------------------- poller

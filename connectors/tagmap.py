@@ -103,16 +103,22 @@ def parse_tagmap(data: Mapping[str, Any], path: str = "<tag map>") -> TagMap:
     return TagMap(loops, options, path)
 
 
+def load_toml(path: str | os.PathLike, what: str) -> dict[str, Any]:
+    """Read a TOML file; errors name the file, ``what`` it is and, for TOML syntax, the line."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ConnectorError(f"{what} file not found", path=path)
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConnectorError(f"{what} is not valid TOML: {exc}", path=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConnectorError(f"cannot read {what}: {exc}", path=path) from None
+
+
 def load_tagmap(path: str | os.PathLike) -> TagMap:
     """Read a tag map TOML file (errors name the file and, for TOML syntax, the line)."""
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise ConnectorError("tag map file not found", path=path)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConnectorError(f"tag map is not valid TOML: {exc}", path=path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConnectorError(f"cannot read tag map: {exc}", path=path) from None
+    data = load_toml(path, "tag map")
     return parse_tagmap(data, path)
