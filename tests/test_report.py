@@ -163,3 +163,17 @@ def test_pdf_from_blocks_without_figures_and_with_odd_characters(tmp_path):
     data = to_pdf(blocks)
     assert data[:5] == b"%PDF-" and len(data) > 1000
     assert latin1("S \u2265 2 \u00b1 0.1, \u03c4 = 3 s") == "S >= 2 +/- 0.1, tau = 3 s"
+
+
+def test_report_says_where_S_and_J_came_from():
+    from diagnose.service.report import loop_blocks
+
+    def rows_of(result):
+        blocks = loop_blocks(result)
+        table = next(b for b in blocks if b[0] == "table" and b[1] == ["Quantity", "Value"])
+        return dict((r[0], r[1]) for r in table[2])
+
+    base = {"loop": "FIC1", "stiction": True, "class": "deadband", "S": 2.0, "J": 0.0,
+            "S_interval": [1.8, 2.2], "J_interval": [0.0, 0.1], "warnings": []}
+    assert "stem position" in rows_of({**base, "method": "op_mv"})["S and J from"]
+    assert "Hammerstein" in rows_of({**base, "method": "op_pv"})["S and J from"]

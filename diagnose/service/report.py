@@ -100,6 +100,13 @@ def _process_text(proc: Any) -> str:
 # content
 
 
+#: How identify obtained S and J (its ``method`` key), in words for the report.
+_METHOD_TEXT = {
+    "op_mv": "OP and the recorded stem position (valve model fitted directly)",
+    "op_pv": "OP and PV (Hammerstein fit: valve model + linear process, by simulation error)",
+}
+
+
 def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
                 history_rows: Sequence[Mapping[str, Any]] | None = None,
                 degradation: str | None = None) -> list[Block]:
@@ -145,6 +152,7 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
         ["S (deadband + stickband)", f"{fmt(result.get('S'))} % of span, interval {fmt_interval(result.get('S_interval'))}"],
         ["J (slip jump)", f"{fmt(result.get('J'))} % of span, interval {fmt_interval(result.get('J_interval'))}"],
         ["Confidence", fmt(result.get("confidence"), ".0%")],
+        ["S and J from", _METHOD_TEXT.get(result.get("method"), fmt(result.get("method")))],
         ["Process model", _process_text(result.get("process"))],
         ["Fit", f"RMSE {fmt(fitd.get('rmse'), '.3g')}, R2 {fmt(fitd.get('r2'), '.3f')}"],
         ["Oscillation", ("none detected" if osc["present"] is False else
