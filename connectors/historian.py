@@ -13,7 +13,7 @@ import os
 import tempfile
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
-from typing import IO, Iterable
+from typing import IO
 
 from diagnose.record import LoopRecord
 
@@ -99,8 +99,3 @@ def format_wide(record: LoopRecord, *, start: datetime = EPOCH) -> str:
 def write_wide(record: LoopRecord, path: str | os.PathLike) -> None:
     """Write a record as a wide CSV file (atomically)."""
     atomic_write(path, format_wide(record))
-
-
-def read_many(paths: Iterable[str | os.PathLike], **kwargs) -> list[LoopRecord]:
-    """`read_wide` over several files."""
-    return [read_wide(p, **kwargs) for p in paths]
