@@ -53,6 +53,10 @@ DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
 AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
 #: Dead times (samples) of the global (S, J) grid's structures, besides the linear model's.
 GLOBAL_DELAYS = (0, 2, 5, 12)
+#: J/S ratios whose best valve picks its own process structure (one per class shape)
+PROFILE_RATIOS = (0.0, 0.5, 1.0, 1.5, 2.0)
+#: S relative to the best fit's, profiled with J/S and the dead time (step 6 of the search)
+PROFILE_S_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.2)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -476,7 +480,8 @@ class _Problem:
     """Data prepared once: scaled PV, score weights, orthonormal load basis, noise prefilter."""
 
     def __init__(self, x: np.ndarray, y: np.ndarray, ts_s: float, w: np.ndarray, load_order: int,
-                 hp_tau_s: float | None = None, gain_fixed: float | None = None):
+                 hp_tau_s: float | None = None, gain_fixed: float | None = None,
+                 gain_sign: float | None = None):
         self.x = np.ascontiguousarray(x, dtype=np.float64)
         self.ts_s = float(ts_s)
         self.n = x.shape[0]
@@ -511,6 +516,7 @@ class _Problem:
         self.evals = 0
         self.smooth = False     # True scores `_valve_smooth` (slip instant interpolated)
         self.gain_fixed = gain_fixed
+        self.gain_sign = float(np.sign(gain_sign)) if gain_sign else 0.0
 
     def sse(self, S, J, F, cfg: _Configs) -> tuple[np.ndarray, np.ndarray]:
         S = np.ascontiguousarray(S, dtype=np.float64)
@@ -523,6 +529,10 @@ class _Problem:
                  self.Qw, self.Qty, self.yyp, out, gain, self.smooth,
                  self.gain_fixed / self.y_std if self.gain_fixed is not None else np.nan)
         self.evals += m * P * self.n
+        if self.gain_sign:
+            # a process gain against the controller's action is the controller path (PV explained
+            # through OP = f(PV)), not the plant: score it no better than no process at all
+            np.copyto(out, np.maximum(out, self.yyp), where=gain * self.gain_sign < 0)
         return np.maximum(out, 0.0), gain
 
 
@@ -785,8 +795,10 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     n_starts: int = 3, tau_range_s: tuple[float, float] | None = None,
                     min_delay_s: float | None = None, max_samples: int | None = 4000,
                     surface: bool = True, gain_fixed: float | None = None,
+                    gain_sign: float | None = None,
                     J_ratios=None, dense_S: int = 36, dense_ratios: int = 17,
-                    dense_structures: int = 0, n_refine: int = 3) -> HammersteinFit:
+                    dense_structures: int = 0, n_refine: int = 3,
+                    profile_ratios=PROFILE_RATIOS) -> HammersteinFit:
     """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
 
     Parameters
@@ -841,6 +853,14 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         How many of the global grid's best structures (by their best valve) join the dense grid.
     n_refine : int
         How many of the best candidates are refined by Nelder-Mead.
+    profile_ratios : sequence of float
+        J/S ratios (one per class shape) whose best valve of the dense grid picks its own process
+        structure from the full grid (empty: off).
+    gain_sign : {+1, -1}, optional
+        Sign the process gain must have (the controller's action: a reverse-acting controller,
+        OP rising when PV is below SP, closes the loop negatively only on a process whose PV rises
+        with the valve). Candidates with the other sign score as a model without process: in
+        closed loop they are the controller path, ``PV = -OP / Kc``, not the plant.
     gain_fixed : float, optional
         Fix the process gain (PV units per %) instead of fitting it (the direct valve fit uses 1).
     surface : bool
@@ -862,7 +882,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         if hp_tau_s != "auto":
             raise DataError(f"hp_tau_s must be a number of seconds, None or 'auto', got {hp_tau_s!r}")
         hp_tau_s = AUTO_HP_SAMPLES * ts_s
-    prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed)
+    prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed, gain_sign)
     dmax = int(round((max_delay_s if max_delay_s is not None else min(n * ts_s / 10.0, 60 * ts_s)) / ts_s))
     dmax = max(0, min(dmax, n // 5))
     dmin = int(round((min_delay_s if min_delay_s is not None else ts_s) / ts_s))
@@ -897,13 +917,13 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         cfg_l = all_cfg.take(p_lin)
         costs = []
         for hp in AUTO_HP_CANDIDATES:
-            pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed)
+            pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed, gain_sign)
             c, _ = pr.sse([0.0], [0.0], [1.0], cfg_l)
             costs.append(float(c[0, 0]) * pr.y_std ** 2)
         hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
         hp_tau_s = None if hp_best is None else hp_best * ts_s
         if hp_tau_s != prob.hp_tau_s:
-            prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed)
+            prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed, gain_sign)
 
     S_grid = _s_grid(x, n_S, S_max_pct)
     J_grid = np.concatenate([[0.0], 1.5 * S_grid[-1] * (np.arange(1, n_J) / (n_J - 1)) ** 1.4])
@@ -977,6 +997,37 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             for p in range(len(dcfg)):
                 i = int(np.argmin(sse_d[:, p]))
                 results.append(_Best(float(Sd[i]), float(Jd[i]), float(Fd[i]), dcfg.take(p), float(sse_d[i, p])))
+            # 4b. every valve shape gets its own process: the lags and the dead time trade off
+            # against J, so a structure picked for one shape can hide the right one. For each
+            # profiled J/S, the best valve of the dense grid picks its structure from the full
+            # process grid; new structures get the dense grid too.
+            if structure is None and profile_ratios:
+                Rdv = Jd / np.maximum(Sd, 1e-12)
+                new = []
+                keys = [k for k, _ in cfgs]
+                for r in profile_ratios:
+                    sel = np.abs(Rdv - r) < 1e-6
+                    if not sel.any():
+                        continue
+                    sub = np.where(sel[:, None], sse_d, np.inf)
+                    i, _p = np.unravel_index(int(np.argmin(sub)), sub.shape)
+                    q, _sq = best_structure(float(Sd[i]), float(Jd[i]), float(Fd[i]))
+                    cq, _ = polish_structure(float(Sd[i]), float(Jd[i]), float(Fd[i]), all_cfg, q)
+                    key = (cq.kind[0], float(cq.tau[0]), float(cq.tau2[0]), int(cq.d[0]))
+                    if key not in keys:
+                        keys.append(key)
+                        new.append(key)
+                if new:
+                    ncfg = _make_configs(new, ts_s)
+                    sse_n, _ = prob.sse(Sd, Jd, Fd, ncfg)
+                    for p in range(len(ncfg)):
+                        for r in profile_ratios:
+                            sel = np.abs(Rdv - r) < 0.07
+                            col = np.where(sel, sse_n[:, p], np.inf)
+                            i = int(np.argmin(col))
+                            if np.isfinite(col[i]):
+                                results.append(_Best(float(Sd[i]), float(Jd[i]), float(Fd[i]), ncfg.take(p),
+                                                     float(col[i])))
             # 5. refine the best few: structure polish and Nelder-Mead on (S, J, lags)
             results.sort(key=lambda r: r.sse)
             refined = []
@@ -988,40 +1039,44 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
                     cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None)
                 refined.append(cur)
-            # 6. J and the dead time trade off (a larger J looks like a longer delay): re-pick the
-            # structure along a J line at the best S and refine the best start with another delay
+            # 6. J, S and the dead time trade off (a larger J looks like a longer delay, a larger S
+            # like a slower process): profile the cost over J/S, S and every dead time of the grid
+            # near the best lags, and refine the best candidate of each valve shape (deadband,
+            # undershoot, no offset, overshoot) with its own structure, so that no shape loses for
+            # want of the structure that suits it.
             if structure is None and refined:
                 top_r = min(refined, key=lambda r: r.sse)
                 if top_r.S > 0:
-                    Jl = top_r.S * np.asarray(DEFAULT_J_RATIOS, float)
-                    Sm_, Jm_, Fm_ = np.meshgrid([top_r.S], Jl, [1.0, -1.0], indexing="ij")
-                    # the best structure's kind (and FOPTD) near its lag, at every other dead time
+                    Jr = np.asarray(DEFAULT_J_RATIOS, float)
+                    Sm_, Rm_, Fm_ = np.meshgrid(top_r.S * np.asarray(PROFILE_S_FACTORS), Jr, [1.0, -1.0],
+                                                indexing="ij")
+                    Sm_, Rm_, Fm_ = Sm_.ravel(), Rm_.ravel(), Fm_.ravel()
+                    Jm_ = Sm_ * Rm_
                     k0, t0, d_top = top_r.cfg.kind[0], float(top_r.cfg.tau[0]), int(top_r.cfg.d[0])
                     r2 = float(top_r.cfg.tau2[0]) / max(t0, 1e-12)
-                    d_set = sorted(({int(v) for v in all_cfg.d} | {max(dmin, d_top - 1), min(dmax, d_top + 1)})
-                                   - {d_top})
+                    d_set = sorted({int(v) for v in all_cfg.d}
+                                   | {dd for dd in range(d_top - 3, d_top + 4) if dmin <= dd <= dmax})
                     ent = [(kd, t0 * f, t0 * f * r2 if kd == "soptd" else 0.0, dd)
                            for kd in sorted({k0, "foptd"} & set(kinds) | {k0}) for f in (0.5, 1.0, 2.0)
                            for dd in d_set]
-                    if ent:
-                        lcfg = _make_configs(ent, ts_s)
-                        sse_l, _ = prob.sse(Sm_.ravel(), Jm_.ravel(), Fm_.ravel(), lcfg)
-                        near = np.abs(lcfg.d.astype(int) - d_top) <= 1
-                        # the best start next to the delay and the best far from it
-                        for sel in (near, ~near):
-                            if not sel.any():
-                                continue
-                            sub = np.where(sel[None, :], sse_l, np.inf)
-                            i, p = np.unravel_index(int(np.argmin(sub)), sub.shape)
-                            alt = _Best(float(Sm_.ravel()[i]), float(Jm_.ravel()[i]), float(Fm_.ravel()[i]),
-                                        lcfg.take(int(p)), float(sub[i, p]))
-                            for rnd in range(refine_rounds):
-                                if rnd > 0:
-                                    cq, sq = polish_structure(alt.S, alt.J, alt.F, alt.cfg, 0)
-                                    if sq < alt.sse:
-                                        alt = _Best(alt.S, alt.J, alt.F, cq, sq)
-                                alt = _nelder_mead_refine(prob, alt, ts_s, fixed=False)
-                            refined.append(alt)
+                    lcfg = _make_configs(ent, ts_s)
+                    sse_l, _ = prob.sse(Sm_, Jm_, Fm_, lcfg)
+                    bands = [Rm_ == 0.0, (Rm_ > 0.0) & (Rm_ < 0.85), (Rm_ >= 0.85) & (Rm_ <= 1.15),
+                             Rm_ > 1.15]
+                    for sel in bands:
+                        if not sel.any():
+                            continue
+                        sub = np.where(sel[:, None], sse_l, np.inf)
+                        i, p = np.unravel_index(int(np.argmin(sub)), sub.shape)
+                        alt = _Best(float(Sm_[i]), float(Jm_[i]), float(Fm_[i]), lcfg.take(int(p)),
+                                    float(sub[i, p]))
+                        for rnd in range(refine_rounds):
+                            if rnd > 0:
+                                cq, sq = polish_structure(alt.S, alt.J, alt.F, alt.cfg, 0)
+                                if sq < alt.sse:
+                                    alt = _Best(alt.S, alt.J, alt.F, cq, sq)
+                            alt = _nelder_mead_refine(prob, alt, ts_s, fixed=False)
+                        refined.append(alt)
             results = refined + results
             best = min(results, key=lambda r: r.sse)
         return best
@@ -1039,13 +1094,13 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             cfg0 = _make_configs([base], ts_s)
             costs = []
             for hp in AUTO_HP_CANDIDATES:
-                pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed)
+                pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed, gain_sign)
                 c, _ = pr.sse([S0], [J0], [F0], cfg0)
                 costs.append(float(c[0, 0]) * pr.y_std ** 2)
             hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
             hp_new = None if hp_best is None else hp_best * ts_s
             if hp_new != prob.hp_tau_s:
-                prob = _Problem(x, y, ts_s, w, load_order, hp_new, gain_fixed)
+                prob = _Problem(x, y, ts_s, w, load_order, hp_new, gain_fixed, gain_sign)
         dstep = max(1, q // 3)
         dset = sorted({min(dmax, max(dmin, d0 + k * dstep)) for k in range(-3, 4)})
         entries = [(cp.kind, cp.tau_s * f, cp.tau2_s * f, dd) for f in 2.0 ** np.arange(-1.0, 1.01, 0.5)
@@ -1075,9 +1130,11 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                  load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
                                  hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
                                  tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
-                                 surface=False, gain_fixed=gain_fixed, J_ratios=J_ratios,
+                                 surface=False, gain_fixed=gain_fixed, gain_sign=gain_sign,
+                                 J_ratios=J_ratios,
                                  dense_S=dense_S, dense_ratios=dense_ratios,
-                                 dense_structures=dense_structures, n_refine=n_refine)
+                                 dense_structures=dense_structures, n_refine=n_refine,
+                                 profile_ratios=profile_ratios)
         best = refine_from(coarse)
     else:
         best = search()

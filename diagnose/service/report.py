@@ -96,6 +96,19 @@ def _process_text(proc: Any) -> str:
     return ", ".join(bits)
 
 
+def _controller_text(ctl: Any) -> str:
+    if not isinstance(ctl, Mapping) or ctl.get("action") in (None, "unknown"):
+        return "no PI law found in the records (manual, cascade slave or another algorithm)"
+    bits = [f"{ctl['action']} acting"]
+    if isinstance(ctl.get("Kc"), (int, float)):
+        bits.append(f"Kc = {ctl['Kc']:.3g} % per PV unit")
+    if isinstance(ctl.get("Ti_s"), (int, float)):
+        bits.append(f"Ti = {ctl['Ti_s']:.3g} s")
+    if isinstance(ctl.get("r2"), (int, float)):
+        bits.append(f"R2 {ctl['r2']:.2f}")
+    return ", ".join(bits)
+
+
 # ----------------------------------------------------------------------------------------------
 # content
 
@@ -154,6 +167,7 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
         ["Confidence", fmt(result.get("confidence"), ".0%")],
         ["S and J from", _METHOD_TEXT.get(result.get("method"), fmt(result.get("method")))],
         ["Process model", _process_text(result.get("process"))],
+        ["Controller (from OP/PV/SP)", _controller_text(result.get("controller"))],
         ["Fit", f"RMSE {fmt(fitd.get('rmse'), '.3g')}, R2 {fmt(fitd.get('r2'), '.3f')}"],
         ["Oscillation", ("none detected" if osc["present"] is False else
                          f"period {fmt(osc['period_s'], '.0f')} s" +
