@@ -13,7 +13,10 @@ Each record draws its plant, controller and effect parameters from its seed
 Prints the confusion table, the held-out RMSE change and timings, writes one JSON line per record
 to ``--jsonl`` and a markdown fragment to ``--md``.
 
-    python benchmarks/validate_physics.py [--per-effect 12] [--n 3000] [--seed0 1000]
+    python benchmarks/validate_physics.py [--per-effect 12] [--n 3000] [--seed0 1000] [--jobs N]
+
+``--jobs N`` runs N records side by side (one process each; results identical, per-record times
+then measured under that load).
 """
 
 from __future__ import annotations
@@ -64,6 +67,10 @@ def run_one(effect: str, seed: int, with_mv: bool, n: int) -> dict:
             "truth": {k: (float(v) if isinstance(v, (int, float, np.floating)) else v) for k, v in truth.items()}}
 
 
+def _run_packed(job: tuple) -> dict:
+    return run_one(*job)
+
+
 def table(rows: list[dict], sets: list[str], title: str) -> tuple[str, dict]:
     by = defaultdict(Counter)
     for r in rows:
@@ -94,6 +101,9 @@ def main(argv=None) -> int:
     ap.add_argument("--md", default="docs/_bench_physics.md")
     ap.add_argument("--sets", default="pv,mv", help="pv, mv or both")
     ap.add_argument("--resume", action="store_true", help="reuse records already in --jsonl")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="worker processes (records are independent; timings per record are then "
+                         "measured side by side)")
     ap.add_argument("--real", action="store_true",
                     help="run on the real recordings in --data instead (prints a table, draws figures)")
     ap.add_argument("--examples", action="store_true",
@@ -120,18 +130,30 @@ def main(argv=None) -> int:
                 jobs.append((e, args.seed0 + i, mv))
     rows = []
     t_all = time.perf_counter()
+    todo = [(e, seed, mv, args.n) for e, seed, mv in jobs if (e, seed, mv) not in done]
+    if args.jobs > 1:
+        import multiprocessing as mp
+
+        pool = mp.get_context("spawn").Pool(args.jobs)
+        results = pool.imap(_run_packed, todo)
+    else:
+        pool = None
+        results = map(_run_packed, todo)
     with open(args.jsonl, "a" if args.resume else "w") as out:
         for k, (e, seed, mv) in enumerate(jobs):
             if (e, seed, mv) in done:
                 rows.append(done[(e, seed, mv)])
                 continue
-            r = run_one(e, seed, mv, args.n)
+            r = next(results)
             rows.append(r)
             out.write(json.dumps(r) + "\n")
             out.flush()
             print(f"[{k + 1}/{len(jobs)}] {e:22s} seed {seed} mv={mv!s:5s} -> {r['named']:22s} "
                   f"rmse {r['baseline_rmse']:.3g} -> {r['improved_rmse']:.3g} ({r['seconds']:.1f} s)",
                   file=sys.stderr)
+    if pool is not None:
+        pool.close()
+        pool.join()
     wall = time.perf_counter() - t_all
     md = render(rows, args, wall)
     print(md)

@@ -33,7 +33,8 @@ from ..record import LoopRecord
 from .baseline import Baseline, _grid_baseline, make_baseline
 from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, get
 from .locate import Mismatch, locate, slips_and_reversals
-from .model import Stage, Structure, effective_n, predict, refine_plain, rmse
+from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
+                    refine_plain, rmse)
 
 MIN_SAMPLES = 300
 #: held-out BIC difference an augmented model must reach: "strong" evidence on the usual BIC scale
@@ -182,6 +183,16 @@ def _burn_in(base: Baseline, stage: Stage) -> int:
     return int(min(max(first + resp, 0.05 * stage.n), 0.5 * n_tr))
 
 
+def _response_burn(base: Baseline, stage: Stage) -> int:
+    """Samples at the start that depend on the process's unknown initial state (its response time;
+    on the valve stage 1 % of the record)."""
+    if stage.name == "valve":
+        return int(max(0.01 * stage.n, 1))
+    p = base.structure.process
+    resp = int(round((p.delay_s + 2.0 * (p.tau_s + p.tau2_s)) / stage.ts_s))
+    return int(min(max(resp, 0.02 * stage.n), 0.5 * int(stage.train.sum())))
+
+
 def _leading_misfit(stage: Stage, struct: Structure) -> int:
     """End of a leading run of windows the plain model cannot follow (unknown initial valve state).
 
@@ -246,9 +257,27 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         alt_ref, alt_sse = refine_plain(stage, alt, rounds=1)
         if alt_sse < ref_sse:
             ref, ref_sse = alt_ref, alt_sse
+    # the valve's state at the start is unknown (where it is stuck, which way it last moved): fit
+    # it, then score the start again (all but the process's own response time)
+    start = _response_burn(base, stage)
+    if start < int(np.argmax(stage.train)):
+        train = stage.train.copy()
+        train[start:stage.n_fit] = True
+        full = dataclasses.replace(stage, train=train)
+        r0, _ = fit_initial_state(full, ref)
+        r0, c0 = refine_plain(full, r0)
+        if stage.name == "valve":
+            # the target is the stem: start from its first samples and search the valve globally
+            r1 = global_sj(full, ref.replace(y0_pct=float(np.median(full.y[:3]))))
+            r1, _ = fit_initial_state(full, r1)
+            r1, c1 = refine_plain(full, r1)
+            if c1 < c0:
+                r0 = r1
+        stage, ref = full, r0
+        ref, ref_sse = best_of(stage, [ref])
     ref_hat, ref_stem, _ = predict(stage, ref)
-    # the valve's and the process's state at the start are unknown: a leading stretch the plain
-    # model cannot follow at all (far above the rest) is not scored
+    # a leading stretch the plain model still cannot follow at all (far above the rest) is not
+    # scored
     burn2 = _leading_misfit(stage, ref)
     if burn2 > int(np.argmax(stage.train)):
         train = stage.train.copy()
@@ -304,7 +333,10 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         sse = float(e @ e)
         r_h = rmse(e)
         red = 1.0 - r_h / ref_rmse if ref_rmse > 0 else 0.0
-        dbic = n_eff * math.log(max(sse, 1e-300) / max(sse_ref, 1e-300)) + fitted.n_extra * math.log(n_eff)
+        # independent samples: counted on the better model's residual (a missing effect leaves the
+        # reference's residual slow and correlated; the right model's is closer to the noise)
+        n_h = max(n_eff, effective_n(e)) if sse < sse_ref else n_eff
+        dbic = n_h * math.log(max(sse, 1e-300) / max(sse_ref, 1e-300)) + fitted.n_extra * math.log(n_h)
         need = min_reduction
         on_lc = (fitted.name == "external_disturbance" and ExternalDisturbance.at_limit_cycle(
             fitted.params.get("period_s"), mism.limit_cycle_period_s))
@@ -312,11 +344,15 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
             need = 2.0 * min_reduction   # a load on the loop's own period: stricter
         # the added physics must also explain the training data significantly better (a model that
         # trains no better but happens to extrapolate better is search luck, not physics)
-        dbic_tr = (n_eff_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
-                   + fitted.n_extra * math.log(n_eff_tr))
+        n_tr = n_eff_tr
+        if fitted.train_sse < ref_sse:
+            n_tr = max(n_eff_tr, effective_n((stage.y - y_hat)[stage.train]))
+        dbic_tr = (n_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
+                   + fitted.n_extra * math.log(n_tr))
         ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic <= STRONG_BIC
                   and dbic_tr < 0
-                  and all(math.isfinite(v) for v in fitted.params.values()))
+                  and all(math.isfinite(v) for v in fitted.params.values())
+                  and h.material(fitted.params, stage.n * stage.ts_s))
         tr = stage.train
         tr_rmse = rmse((stage.y - y_hat)[tr])
         res = HypothesisResult(name=fitted.name, params=dict(fitted.params), heldout_rmse=r_h,

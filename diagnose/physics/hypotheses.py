@@ -20,8 +20,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import DataError
-from .model import (Stage, Structure, best_of, global_sj, predict, refine_sj, refit_dynamics, sj_local,
-                    train_sse)
+from .model import (Stage, Structure, best_of, fit_initial_state, global_sj, predict, refine_sj,
+                    refit_dynamics, sj_local, train_sse)
+
+#: smallest change a valve-side hypothesis must make to S or J, relative to S, to be named: a few
+#: per cent is within the resolution of the plain model's own S (a slightly wrong plain S drifts
+#: out of step late in the record, and a tiny drift or asymmetry can put it back)
+MIN_RELATIVE_EFFECT = 0.10
 
 VALVE_SIDE = "valve"
 PROCESS_SIDE = "process"
@@ -89,6 +94,9 @@ class PhysicsHypothesis:
             raise DataError(f"hypothesis {self.name!r} needs at least 50 training samples")
         context = context or Context()
         struct = self._search(stage, reference, context)
+        if struct.y0_pct is not None:
+            # the valve's initial state moves a little with the added physics
+            struct, _ = fit_initial_state(stage, struct, local=True)
         # the augmented model nests the plain one: never return a worse fit than the reference
         struct, sse = best_of(stage, [struct, reference])
         _, _, coef = predict(stage, struct)
@@ -102,8 +110,24 @@ class PhysicsHypothesis:
     def _search(self, stage: Stage, reference: Structure, context: Context) -> Structure:
         raise NotImplementedError
 
+    def material(self, params: Mapping[str, float], record_s: float) -> bool:
+        """Whether the fitted effect is large enough to be physics rather than a nudge within the
+        plain model's own resolution (default: always). ``record_s``: record length, seconds."""
+        return True
+
     def _params(self, struct: Structure, reference: Structure, stage: Stage, coef) -> dict:
         raise NotImplementedError
+
+
+def _y0_options(stage: Stage, reference: Structure) -> list:
+    """Starting stem positions worth trying in a global search: the reference's and, on the valve
+    stage, the first measured stem positions."""
+    out = [{"y0_pct": reference.y0_pct, "xs0_pct": reference.xs0_pct}]
+    if stage.name == "valve":
+        y0 = float(np.median(stage.y[:3]))
+        if reference.y0_pct is None or abs(reference.y0_pct - y0) > 0.05:
+            out.append({"y0_pct": y0, "xs0_pct": None})
+    return out
 
 
 def _with_sj(struct: Structure, S: float, J: float, f0: int | None = None) -> Structure:
@@ -143,8 +167,25 @@ class ActuatorLag(PhysicsHypothesis):
                  for t, d in combos for s, j in pairs for f in (1, -1)]
         sse = train_sse(stage, cands).reshape(len(combos), -1)
         results = []
+        if stage.name == "valve":
+            # OP -> MV has no process: the lag x valve grid is cheap enough to search globally
+            # (a lag moves the plain fit's S and J far)
+            span = float(np.ptp(stage.x[: stage.n_fit]))
+            S_grid = np.exp(np.arange(math.log(0.2), math.log(max(0.8 * span, 0.3)) + 1e-9, math.log1p(0.03)))
+            y0s = _y0_options(stage, reference)
+            g = [reference.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f,
+                                   tau_lag_s=float(t), **y0)
+                 for t in taus for s in S_grid for r in (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.2, 1.45)
+                 for f in (1, -1) for y0 in y0s]
+            gs = train_sse(stage, g)
+            for i in np.argsort(gs)[:2]:
+                st = refine_sj(stage, g[int(i)], s_span=0.04, n_s=9, j_span=0.15, n_j=7)[0]
+                st = best_of(stage, [st.replace(tau_lag_s=st.tau_lag_s * m)
+                                     for m in (0.8, 0.9, 1.0, 1.12, 1.25)])[0]
+                st, c = best_of(stage, [with_delay(st, d) for d in delays])
+                results.append((c, st))
         # a lag changes which slips a plain fit had to fake: search the valve again for the best few
-        for i in np.argsort(sse.min(axis=1))[:3]:
+        for i in np.argsort(sse.min(axis=1))[:1 if results else 3]:
             st = cands[int(i) * sse.shape[1] + int(np.argmin(sse[i]))]
             st = global_sj(stage, st)
             st, c = refit_dynamics(stage, st, rounds=1)
@@ -183,6 +224,24 @@ class AsymmetricStiction(PhysicsHypothesis):
         # A plain valve (and, from OP/PV alone, other process dynamics) can mimic asymmetry: a
         # coarse asymmetric-valve (x dynamics) grid gives more starting points.
         starts = [reference] + _coarse_asym_starts(stage, reference)
+        if stage.name == "valve":
+            # OP -> MV: a global (S_open, S_close, J ratios) grid is cheap enough
+            g_s = S * np.exp(np.arange(math.log(0.3), math.log(1.9), math.log1p(0.07)))
+            y0s = _y0_options(stage, reference)
+            g = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * ru, J_dn_pct=sd * rd, f0=f, **y0)
+                 for su in g_s for sd in g_s for ru in (0.1, 0.4, 0.7, 1.0) for rd in (0.1, 0.4, 0.7, 1.0)
+                 for f in (1, -1) for y0 in y0s]
+            gs = train_sse(stage, g)
+            seen = set()
+            for i in np.argsort(gs):
+                c = g[int(i)]
+                key = (round(c.S_up_pct, 6), round(c.S_dn_pct, 6))
+                if key in seen:
+                    continue
+                seen.add(key)
+                starts.append(c)
+                if len(seen) == 2:
+                    break
         results = []
         for st in starts:
             b = self._scan(stage, st, S, wide)
@@ -214,6 +273,13 @@ class AsymmetricStiction(PhysicsHypothesis):
         return {"S_open_pct": struct.S_up_pct, "J_open_pct": struct.J_up_pct,
                 "S_close_pct": struct.S_dn_pct, "J_close_pct": struct.J_dn_pct}
 
+    def material(self, params, record_s):
+        # opening and closing differ by at least MIN_RELATIVE_EFFECT of the larger S
+        big = max(params["S_open_pct"], params["S_close_pct"], 0.2)
+        diff = max(abs(params["S_open_pct"] - params["S_close_pct"]),
+                   abs(params["J_open_pct"] - params["J_close_pct"]))
+        return diff >= MIN_RELATIVE_EFFECT * big
+
 
 def _coarse_asym_starts(stage: Stage, reference: Structure, k: int = 3) -> list[Structure]:
     from ..process_model import ProcessModel
@@ -229,8 +295,10 @@ def _coarse_asym_starts(stage: Stage, reference: Structure, k: int = 3) -> list[
     if stage.fixed_dynamics:
         dyn = [reference.process]
     valves = [(su, su * r, jr) for su in S_grid for r in (0.35, 0.55, 0.8, 1.25, 1.8, 2.8) for jr in (0.3, 0.75)]
-    cands = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * jr, J_dn_pct=sd * jr, f0=f, process=p)
-             for p in dyn for su, sd, jr in valves for f in (1, -1)]
+    y0s = _y0_options(stage, reference)
+    cands = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * jr, J_dn_pct=sd * jr, f0=f, process=p,
+                               **y0)
+             for p in dyn for su, sd, jr in valves for f in (1, -1) for y0 in y0s]
     sse = train_sse(stage, cands).reshape(len(dyn), -1)
     out = []
     for i in np.argsort(sse.min(axis=1))[:k]:
@@ -334,18 +402,22 @@ class ExternalDisturbance(PhysicsHypothesis):
         if not periods:
             return reference
         T = stage.train.sum() * stage.ts_s
-        results = []
-        for i, p in enumerate(periods):
+        first = []
+        for p in periods:
             f0 = 1.0 / p
             cands = [reference.replace(period_s=float(1.0 / f)) for f in f0 + np.linspace(-1.0, 1.0, 21) / T
                      if f > 0]
-            st, _ = best_of(stage, cands)
+            first.append(best_of(stage, cands)[::-1])
+        first.sort(key=lambda t: t[0])
+        results = []
+        for i, (_, st) in enumerate(first):
             starts = [st]
-            if i < 2 and not stage.fixed_dynamics:
+            if i < 1 and not stage.fixed_dynamics:
                 # the plain fit bent its valve and process to follow the load through OP (its S and
                 # dynamics can be far off): search the valve and the dynamics globally with the load
+                # for the period that helps the plain fit most
                 from .baseline import _grid_baseline
-                starts.append(_grid_baseline(stage, start=st, n_starts=2, template=st))
+                starts.append(_grid_baseline(stage, start=st, n_starts=1, template=st))
             for st in starts:
                 st, _ = refit_dynamics(stage, st, rounds=1)
                 st = global_sj(stage, st)
@@ -355,7 +427,48 @@ class ExternalDisturbance(PhysicsHypothesis):
                                         for f in f1 + np.linspace(-0.15, 0.15, 13) / T])
                 results.append((c, st))
         best = min(results, key=lambda t: t[0])[1]
+        if not stage.fixed_dynamics:
+            bf = self._backfit(stage, best)
+            if bf is not None:
+                best = best_of(stage, [best, bf])[0]
         best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        return best
+
+    @staticmethod
+    def _backfit(stage: Stage, start: Structure, rounds: int = 3) -> Structure | None:
+        """Backfitting: take the fitted load out of PV, fit the plain valve and process on what is
+        left with the fitting stage, put the load back; repeat. A strong load bends a joint search
+        of valve, process and load far off; the fitting stage's own global search on the cleaned PV
+        does not see it."""
+        try:
+            from ..fit import fit_hammerstein
+        except ImportError:  # pragma: no cover - the fitting stage is part of the package
+            return None
+        import warnings
+
+        from ..errors import StictionError, StictionWarning
+
+        t = np.arange(stage.n) * stage.ts_s
+        w = 2.0 * np.pi / start.period_s
+        best, best_c = start, best_of(stage, [start])[1]
+        cur = start
+        for _ in range(rounds):
+            _, _, coef = predict(stage, cur)
+            y = stage.y - coef[-2] * np.sin(w * t) - coef[-1] * np.cos(w * t)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", StictionWarning)
+                    res = fit_hammerstein(stage.x, y, stage.ts_s, train=stage.train)
+            except (StictionError, ValueError, np.linalg.LinAlgError):
+                break
+            cur = start.replace(S_up_pct=float(res.S_pct), S_dn_pct=float(res.S_pct), J_up_pct=float(res.J_pct),
+                                J_dn_pct=float(res.J_pct), f0=int(res.f0), process=res.process)
+            cur, _ = refit_dynamics(stage, cur, rounds=1)
+            if cur.y0_pct is not None:
+                cur, _ = fit_initial_state(stage, cur)
+            cur, c = best_of(stage, [cur])
+            if c < best_c:
+                best, best_c = cur, c
         return best
 
     def _params(self, struct, reference, stage, coef):
@@ -383,20 +496,45 @@ class TimeVaryingFriction(PhysicsHypothesis):
 
     def _search(self, stage, reference, context):
         T = max(stage.n_fit * stage.ts_s, stage.ts_s)
-        S = max(reference.S_up_pct, 0.2)
-        J = max(reference.J_up_pct, 0.05)
-        # relative change of S (and J alike) over the fitted span, and S at the start
-        changes = np.concatenate([np.linspace(-0.7, -0.05, 8), np.linspace(0.05, 2.5, 16)])
-        starts = np.exp(np.linspace(math.log(0.35), math.log(1.2), 30))
+        # S at the start and at the end of the fitted span, both on fine geometric grids (an
+        # output-error stiction fit is sharp in S: a few per cent move every slip), around the
+        # plain fits' S (a drifting valve's plain fit sits near its mid-span S); J drifts alike
+        centres = {round(max(reference.S_up_pct, 0.2), 6)}
+        if context.baseline is not None and context.baseline.S_up_pct > 0.2:
+            centres.add(round(context.baseline.S_up_pct, 6))
+        m_start = np.exp(np.arange(math.log(0.55), math.log(1.35), 0.03))
+        q_end = np.exp(np.concatenate([np.arange(-0.6, -0.035, 0.03), np.arange(0.04, 0.61, 0.03)]))
+        r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
+        ratios = sorted({round(r0, 3), 0.3, 0.6, 0.9})
+        cands = [reference]
+        y0s = _y0_options(stage, reference)
+        for Sc in centres:
+            cands += [reference.replace(S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r, f0=f,
+                                        dS_pct_per_s=s0 * (q - 1.0) / T, dJ_pct_per_s=s0 * r * (q - 1.0) / T,
+                                        **y0)
+                      for s0 in Sc * m_start for q in q_end for r in ratios for f in (1, -1)
+                      for y0 in y0s]
+        sse = train_sse(stage, cands)
+        # the cost is rough (the valve's initial state and every slip's timing): the best few
+        # distinct drifts each get their initial state fitted
+        tops, seen = [], set()
+        for i in np.argsort(sse):
+            c = cands[int(i)]
+            key = (round(math.log(max(c.S_up_pct, 1e-3)) / 0.06),
+                   round(c.dS_pct_per_s * T / max(c.S_up_pct, 1e-9) / 0.06))
+            if key in seen:
+                continue
+            seen.add(key)
+            tops.append(c)
+            if len(tops) == 4:
+                break
         cands = []
-        for ms in starts:
-            for ch in changes:
-                for f in (1, -1):
-                    s0, j0 = S * ms, J * ms
-                    cands.append(_with_sj(reference, s0, j0, f).replace(
-                        dS_pct_per_s=s0 * ch / T, dJ_pct_per_s=j0 * ch / T))
-        cands.append(reference)
-        best, _ = best_of(stage, cands)
+        for c in tops:
+            c, _ = fit_initial_state(stage, c)
+            cands += [c.replace(S_up_pct=c.S_up_pct * m, S_dn_pct=c.S_up_pct * m,
+                                dS_pct_per_s=(c.S_up_pct + c.dS_pct_per_s * T) * q / T - c.S_up_pct * m / T)
+                      for m in (0.985, 1.0, 1.015) for q in (0.985, 1.0, 1.015)]
+        best, _ = best_of(stage, cands + tops)
         for rnd in range(2):
             s0, j0 = best.S_up_pct, max(best.J_up_pct, 0.05)
             rs = best.dS_pct_per_s * T / max(s0, 1e-9)
@@ -416,6 +554,12 @@ class TimeVaryingFriction(PhysicsHypothesis):
     def _params(self, struct, reference, stage, coef):
         return {"S_start_pct": struct.S_up_pct, "J_start_pct": struct.J_up_pct,
                 "dS_pct_per_h": struct.dS_pct_per_s * 3600.0, "dJ_pct_per_h": struct.dJ_pct_per_s * 3600.0}
+
+    def material(self, params, record_s):
+        # S or J changes by at least MIN_RELATIVE_EFFECT of the starting S over the record
+        big = max(params["S_start_pct"], 0.2)
+        change = max(abs(params["dS_pct_per_h"]), abs(params["dJ_pct_per_h"])) * record_s / 3600.0
+        return change >= MIN_RELATIVE_EFFECT * big
 
 
 REGISTRY: dict[str, PhysicsHypothesis] = {}

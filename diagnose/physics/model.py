@@ -53,6 +53,12 @@ class Structure:
         Dynamics of the linear part (gain and bias are refit).
     period_s : float or None
         Period of an additive sinusoidal load.
+    y0_pct : float or None
+        Stem position at the first sample (the valve's unknown initial state: stuck there after a
+        motion in direction ``f0``), % of span; None: stuck at the first OP sample.
+    xs0_pct : float or None
+        OP at which it stuck (with ``y0_pct``); None: ``y0 + f0 (S - J) / 2``, where a valve moving
+        in direction ``f0`` stops.
     """
 
     S_up_pct: float = 0.0
@@ -66,6 +72,8 @@ class Structure:
     char_c: float = 0.0
     process: ProcessModel = IDENTITY
     period_s: float | None = None
+    y0_pct: float | None = None
+    xs0_pct: float | None = None
 
     @classmethod
     def plain(cls, S_pct: float, J_pct: float, f0: int, process: ProcessModel) -> "Structure":
@@ -152,6 +160,8 @@ def stems(stage: Stage, structs: Sequence[Structure], n: int | None = None) -> n
                            dS_pct_per_s=arr(lambda s: s.dS_pct_per_s),
                            dJ_pct_per_s=arr(lambda s: s.dJ_pct_per_s),
                            f0=arr(lambda s: s.f0), tau_lag_s=arr(lambda s: s.tau_lag_s),
+                           y0_pct=arr(lambda s: np.nan if s.y0_pct is None else s.y0_pct),
+                           xs0_pct=arr(lambda s: np.nan if s.xs0_pct is None else s.xs0_pct),
                            ts_s=stage.ts_s)
 
 
@@ -195,8 +205,8 @@ def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.nd
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, integ, ts_s, E, y, w,
-                  out):  # pragma: no cover - compiled
+def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ, ts_s, E,
+                  y, w, out):  # pragma: no cover - compiled
     """Training SSE of many candidate augmented models in one pass per candidate: the augmented
     valve (`valve._aug_kernel`, step for step), the installed characteristic, the lags, dead time
     and optional integrator, and the weighted least squares of [z, 1, E...] -- without holding
@@ -245,6 +255,12 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, cc, a1, a2, d, i
         up = False
         yp = xp
         xss = xp
+        if not math.isnan(y0[i]):
+            yp = min(max(y0[i], 0.0), 100.0)
+            h0 = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+            xss = yp + f * h0
+            if not math.isnan(xs0[i]):
+                xss = xs0[i]
         stuck = True
         zv = yp
         u0 = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
@@ -361,8 +377,10 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         m = len(sub)
         P = np.array([(s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, s.dS_pct_per_s, s.dJ_pct_per_s,
                        s.f0, s.tau_lag_s, s.char_c, s.process.tau_s,
-                       s.process.tau2_s if s.process.kind == "soptd" else -1.0, s.process.delay_s)
-                      for s in sub], dtype=np.float64).reshape(m, 12)
+                       s.process.tau2_s if s.process.kind == "soptd" else -1.0, s.process.delay_s,
+                       np.nan if s.y0_pct is None else s.y0_pct,
+                       np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
+                      for s in sub], dtype=np.float64).reshape(m, 14)
         if np.any(P[:, :4] < 0) or not np.all(np.isfinite(P[:, :4])):
             raise DataError("S and J must be finite and >= 0 % of span")
         tl = P[:, 7]
@@ -375,7 +393,7 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         E = np.ascontiguousarray(_extra_columns(sub[0], ts, n, integ))
         res = np.empty(m)
         c = lambda j: np.ascontiguousarray(P[:, j])  # noqa: E731
-        _fused_kernel(x, c(0), c(1), c(2), c(3), c(4), c(5), c(6), np.ascontiguousarray(a_lag), c(8),
+        _fused_kernel(x, c(0), c(1), c(2), c(3), c(4), c(5), c(6), np.ascontiguousarray(a_lag), c(12), c(13), c(8),
                       np.ascontiguousarray(a1), np.ascontiguousarray(a2), d, np.full(m, integ, np.bool_),
                       ts, E, yv, tr, res)
         out[idx] = res
@@ -469,6 +487,8 @@ def refine_plain(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Stru
                                 n_j=9 if r == 0 else 5)
         struct, sse = refit_dynamics(stage, struct, rounds=1)
     struct, sse = refine_sj(stage, struct, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
+    if struct.y0_pct is not None:
+        struct, sse = fit_initial_state(stage, struct, local=True)
     return struct, sse
 
 
@@ -485,6 +505,46 @@ def global_sj(stage: Stage, struct: Structure, span: float | None = None, step: 
     cands += [struct.replace(S_up_pct=0.0, S_dn_pct=0.0, J_up_pct=0.0, J_dn_pct=0.0), struct]
     best = best_of(stage, cands)[0]
     return refine_sj(stage, best, s_span=0.03, n_s=7, j_span=0.15, n_j=7)[0]
+
+
+def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -> tuple[Structure, float]:
+    """Fit the valve's unknown state at the first sample, other parameters fixed: where the stem is
+    stuck (``y0_pct``), the OP at which it stuck (``xs0_pct``) and the direction of its last motion
+    (``f0``).
+
+    A sticky valve remembers where it stuck until it slips again in step with the model; in a slow
+    limit cycle that can take hundreds of samples, which the plain start (stuck at the first OP
+    sample) gets wrong. ``local``: a small grid around the current state only.
+    """
+    x0 = float(np.clip(stage.x[0], 0.0, 100.0))
+    s_max = max(struct.S_up_pct, struct.S_dn_pct, struct.J_up_pct, struct.J_dn_pct, 0.5)
+    valve = stage.name == "valve"
+    if local and struct.y0_pct is not None:
+        c = struct.y0_pct
+        ys = c + (np.arange(-0.1, 0.101, 0.02) if valve else np.linspace(-0.1, 0.1, 9) * s_max)
+        cands = [struct.replace(y0_pct=float(y)) for y in ys]
+        if struct.xs0_pct is not None:
+            b0 = best_of(stage, cands + [struct])[0]
+            cands += [b0.replace(xs0_pct=float(b0.xs0_pct + d)) for d in np.linspace(-0.1, 0.1, 11) * s_max]
+        return best_of(stage, cands + [struct])
+    ys = x0 + np.linspace(-1.2, 1.2, 33) * s_max
+    if valve:
+        # the target is the stem position itself: a fine grid around its first samples (the
+        # first slip's timing is sharp in where the stem stuck)
+        ys = np.append(ys, float(np.median(stage.y[:3])) + np.arange(-0.4, 0.401, 0.02))
+    cands = [struct.replace(y0_pct=float(np.clip(y, 0.0, 100.0)), xs0_pct=None, f0=f) for y in ys for f in (1, -1)]
+    cands += [struct.replace(y0_pct=None, xs0_pct=None, f0=f) for f in (1, -1)] + [struct]
+    best, sse = best_of(stage, cands)
+    if best.y0_pct is None:
+        return best, sse
+    # the OP at which it stuck: where a moving valve stops (tied), or anywhere within reach of a
+    # slip (a valve that has not moved since some other disturbance)
+    y0 = best.y0_pct
+    dy = np.arange(-0.2, 0.201, 0.05) if valve else np.linspace(-0.12, 0.12, 7) * s_max
+    cands = [best.replace(y0_pct=float(y0 + e), xs0_pct=float(y0 + e + d * s_max), f0=f)
+             for e in dy for d in np.linspace(-1.3, 1.3, 53) for f in (1, -1)] + [best]
+    best, sse = best_of(stage, cands)
+    return fit_initial_state(stage, best, local=True)
 
 
 def rmse(e: np.ndarray) -> float:

@@ -27,7 +27,7 @@ from ..errors import DataError
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
-def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, ts_s, out):  # pragma: no cover
+def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s, out):  # pragma: no cover
     m = S_up.shape[0]
     n = x.shape[0]
     for i in range(m):
@@ -37,6 +37,14 @@ def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, ts_s, out):  # pra
         up = False
         yp = xp
         xss = xp
+        if not math.isnan(y0[i]):
+            # stuck at y0 after a motion in direction f: it stuck where the input was y0 + f half
+            yp = min(max(y0[i], 0.0), 100.0)
+            h0 = ((max(S_up[i], 0.0) - max(J_up[i], 0.0)) if f > 0
+                  else (max(S_dn[i], 0.0) - max(J_dn[i], 0.0))) / 2.0
+            xss = yp + f * h0
+            if not math.isnan(xs0[i]):
+                xss = xs0[i]
         stuck = True
         z = yp
         out[i, 0] = z
@@ -81,7 +89,8 @@ def _param(v, m: int) -> np.ndarray:
 
 
 def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0,
-                    dJ_pct_per_s=0.0, f0=1, tau_lag_s=0.0, ts_s: float = 1.0) -> np.ndarray:
+                    dJ_pct_per_s=0.0, f0=1, tau_lag_s=0.0, ts_s: float = 1.0,
+                    y0_pct=np.nan, xs0_pct=np.nan) -> np.ndarray:
     """Stem position of one or many augmented valves driven by one input series.
 
     Parameters
@@ -100,6 +109,12 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
         Time constant of the first-order actuator lag after the friction element, seconds.
     ts_s : float
         Sample period, seconds.
+    y0_pct : float or array (m,)
+        Stem position at the first sample, % of span: the valve is stuck there after a motion in
+        direction ``f0`` (the input stood at ``y0 + f0 (S - J) / 2`` when it stuck). NaN (default):
+        stuck at the first input sample.
+    xs0_pct : float or array (m,)
+        Input value at which the valve stuck (with ``y0_pct``; NaN: ``y0 + f0 (S - J) / 2``).
 
     Returns
     -------
@@ -112,10 +127,10 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
         raise DataError(f"ts_s must be > 0 seconds, got {ts_s}")
     S_dn = S_up if S_dn is None else S_dn
     J_dn = J_up if J_dn is None else J_dn
-    params = [S_up, J_up, S_dn, J_dn, dS_pct_per_s, dJ_pct_per_s, f0, tau_lag_s]
+    params = [S_up, J_up, S_dn, J_dn, dS_pct_per_s, dJ_pct_per_s, f0, tau_lag_s, y0_pct, xs0_pct]
     scalar = all(np.ndim(p) == 0 for p in params)
     m = max(int(np.size(p)) for p in params)
-    S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, tau_ = (_param(p, m) for p in params)
+    S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, tau_, y0_, xs0_ = (_param(p, m) for p in params)
     for nm, arr in (("S_up", S_up_), ("J_up", J_up_), ("S_dn", S_dn_), ("J_dn", J_dn_)):
         if np.any(~np.isfinite(arr)) or np.any(arr < 0):
             raise DataError(f"{nm} must be finite and >= 0 % of span")
@@ -126,8 +141,8 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
     a = np.where(tau_ > 0, np.exp(-ts_s / np.where(tau_ > 0, tau_, 1.0)), 0.0)
     out = np.empty((m, x.shape[0]))
     if x.shape[0]:
-        _aug_kernel(x, S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, np.ascontiguousarray(a),
-                    float(ts_s), out)
+        _aug_kernel(x, S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, np.ascontiguousarray(a), y0_,
+                    xs0_, float(ts_s), out)
     return out[0] if scalar else out
 
 
