@@ -89,12 +89,13 @@ def controller_action(op_pct, pv, ts_s: float, sp=None) -> ControllerAction:
         # dop[k] (OP[k+1] - OP[k]) against de and e of row k+1 (lag 0) or row k (lag 1)
         a = dop[lag:]
         b1 = de[: de.shape[0] - lag]
-        b2 = e[1 + 0: e.shape[0] - lag]
+        b2 = e[1: e.shape[0] - lag]
         m = a.shape[0]
         A = np.column_stack([b1[:m], b2[:m], np.ones(m)])
         # a saturated or held OP is not the control law at work
         keep = np.abs(a) > 0
         keep &= (x[1 + lag: 1 + lag + m] > 0.0) & (x[1 + lag: 1 + lag + m] < 100.0)
+        keep &= np.isfinite(a) & np.isfinite(A).all(axis=1)
         if np.count_nonzero(keep) < 10:
             continue
         coef, *_ = np.linalg.lstsq(A[keep], a[keep], rcond=None)

@@ -56,3 +56,12 @@ def test_identify_reports_the_controller_and_uses_its_sign():
     assert d["controller"]["action"] == "direct"
     assert res.process.gain < 0
     assert res.stiction and res.cls == "undershoot"
+
+
+def test_gaps_in_the_setpoint_do_not_break_the_estimate():
+    rec = sticky_loop(3.0, 1.0, n=1500, gain=1.5, tau_s=15.0, delay_s=2.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=4)
+    sp = rec.sp.copy()
+    sp[100:130] = np.nan
+    a = controller_action(rec.op, rec.pv, rec.ts_s, sp=sp)
+    assert a.sign == 1 and a.r2 > 0.99
