@@ -1030,15 +1030,16 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                                      float(col[i])))
             # 5. refine the best few: structure polish and Nelder-Mead on (S, J, lags)
             results.sort(key=lambda r: r.sse)
-            refined = []
-            for cur in results[: max(2, n_refine)]:
+            def refine(cur: _Best) -> _Best:
                 for rnd in range(refine_rounds):
                     if structure is None and rnd > 0:
                         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
                         if sq < cur.sse:
                             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
                     cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None)
-                refined.append(cur)
+                return cur
+
+            refined = [refine(cur) for cur in results[: max(2, n_refine)]]
             # 6. J, S and the dead time trade off (a larger J looks like a longer delay, a larger S
             # like a slower process): profile the cost over J/S, S and every dead time of the grid
             # near the best lags, and refine the best candidate of each valve shape (deadband,
@@ -1070,13 +1071,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                         i, p = np.unravel_index(int(np.argmin(sub)), sub.shape)
                         alt = _Best(float(Sm_[i]), float(Jm_[i]), float(Fm_[i]), lcfg.take(int(p)),
                                     float(sub[i, p]))
-                        for rnd in range(refine_rounds):
-                            if rnd > 0:
-                                cq, sq = polish_structure(alt.S, alt.J, alt.F, alt.cfg, 0)
-                                if sq < alt.sse:
-                                    alt = _Best(alt.S, alt.J, alt.F, cq, sq)
-                            alt = _nelder_mead_refine(prob, alt, ts_s, fixed=False)
-                        refined.append(alt)
+                        refined.append(refine(alt))
             results = refined + results
             best = min(results, key=lambda r: r.sse)
         return best

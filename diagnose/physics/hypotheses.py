@@ -32,6 +32,22 @@ VALVE_SIDE = "valve"
 PROCESS_SIDE = "process"
 
 
+def _best_distinct(cands: list, sse, key, k: int) -> list:
+    """The ``k`` cheapest candidates whose ``key`` differs: on rough costs, distinct starting points
+    rather than neighbours of one."""
+    out, seen = [], set()
+    for i in np.argsort(sse):
+        c = cands[int(i)]
+        kk = key(c)
+        if kk in seen:
+            continue
+        seen.add(kk)
+        out.append(c)
+        if len(out) == k:
+            break
+    return out
+
+
 @dataclass(frozen=True)
 class Fitted:
     """A fitted hypothesis on one stage.
@@ -232,16 +248,7 @@ class AsymmetricStiction(PhysicsHypothesis):
                  for su in g_s for sd in g_s for ru in (0.1, 0.4, 0.7, 1.0) for rd in (0.1, 0.4, 0.7, 1.0)
                  for f in (1, -1) for y0 in y0s]
             gs = train_sse(stage, g)
-            seen = set()
-            for i in np.argsort(gs):
-                c = g[int(i)]
-                key = (round(c.S_up_pct, 6), round(c.S_dn_pct, 6))
-                if key in seen:
-                    continue
-                seen.add(key)
-                starts.append(c)
-                if len(seen) == 2:
-                    break
+            starts += _best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 2)
         results = []
         for st in starts:
             b = self._scan(stage, st, S, wide)
@@ -517,17 +524,8 @@ class TimeVaryingFriction(PhysicsHypothesis):
         sse = train_sse(stage, cands)
         # the cost is rough (the valve's initial state and every slip's timing): the best few
         # distinct drifts each get their initial state fitted
-        tops, seen = [], set()
-        for i in np.argsort(sse):
-            c = cands[int(i)]
-            key = (round(math.log(max(c.S_up_pct, 1e-3)) / 0.06),
-                   round(c.dS_pct_per_s * T / max(c.S_up_pct, 1e-9) / 0.06))
-            if key in seen:
-                continue
-            seen.add(key)
-            tops.append(c)
-            if len(tops) == 4:
-                break
+        tops = _best_distinct(cands, sse, lambda c: (round(math.log(max(c.S_up_pct, 1e-3)) / 0.06),
+                                                     round(c.dS_pct_per_s * T / max(c.S_up_pct, 1e-9) / 0.06)), 4)
         cands = []
         for c in tops:
             c, _ = fit_initial_state(stage, c)

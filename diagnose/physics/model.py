@@ -28,7 +28,7 @@ from numba import njit
 
 from ..errors import DataError
 from ..process_model import ProcessModel
-from .valve import augmented_valve, characteristic
+from .valve import _aug_start, _aug_step, augmented_valve, characteristic
 
 IDENTITY = ProcessModel(kind="foptd", gain=1.0, tau_s=0.0, delay_s=0.0, bias=0.0)
 
@@ -208,7 +208,7 @@ def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.nd
 def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ, ts_s, E,
                   y, w, out):  # pragma: no cover - compiled
     """Training SSE of many candidate augmented models in one pass per candidate: the augmented
-    valve (`valve._aug_kernel`, step for step), the installed characteristic, the lags, dead time
+    valve (`valve._aug_step`, the step `valve._aug_kernel` runs), the installed characteristic, the lags, dead time
     and optional integrator, and the weighted least squares of [z, 1, E...] -- without holding
     any (candidates x samples) matrix."""
     m = S_up.shape[0]
@@ -251,16 +251,8 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1,
         a2i = a2[i]
         second = a2i >= 0.0
         ig = integ[i]
-        xp = min(max(x[0], 0.0), 100.0)
+        xp, yp, xss = _aug_start(x[0], su, ju, sd, jd, f, y0[i], xs0[i])
         up = False
-        yp = xp
-        xss = xp
-        if not math.isnan(y0[i]):
-            yp = min(max(y0[i], 0.0), 100.0)
-            h0 = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-            xss = yp + f * h0
-            if not math.isnan(xs0[i]):
-                xss = xs0[i]
         stuck = True
         zv = yp
         u0 = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
@@ -278,30 +270,8 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1,
                     sd = max(sdn0 + dsi * t, 0.0)
                     ju = max(jup0 + dji * t, 0.0)
                     jd = max(jdn0 + dji * t, 0.0)
-                xk = min(max(x[k], 0.0), 100.0)
-                v = xk - xp
-                up_k = v > 0.0
-                if not stuck and (v == 0.0 or up_k != up):
-                    stuck = True
-                    xss = xp
-                if stuck:
-                    dd = xk - xss
-                    s_new = sd if f > 0 else su
-                    j_same = ju if f > 0 else jd
-                    if -f * dd > s_new:
-                        f = -f
-                        stuck = False
-                    elif f * dd > j_same:
-                        stuck = False
-                    if not stuck:
-                        half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-                        yp = min(max(xk - f * half, 0.0), 100.0)
-                else:
-                    half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-                    yp = min(max(xk - f * half, 0.0), 100.0)
+                xp, up, stuck, xss, f, yp = _aug_step(x[k], xp, up, stuck, xss, f, yp, su, sd, ju, jd)
                 zv = a * zv + (1.0 - a) * yp
-                xp = xk
-                up = up_k
                 uk = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
             else:
                 uk = u0

@@ -9,7 +9,7 @@ One compiled kernel runs many candidate valves over one input series. Each candi
 * a starting direction ``f0``.
 
 With S_up = S_dn, J_up = J_dn, no drift and no lag it equals `diagnose.stiction_model.stiction_batch`
-sample for sample (tests/test_physics_valve.py pins this). Reversal into direction f must beat S of
+sample for sample (tests/test_physics.py pins this). Reversal into direction f must beat S of
 direction f; a restart in the same direction f must beat J of direction f; while moving in direction
 f the stem sits at ``x - f (S_f - J_f) / 2``.
 
@@ -26,6 +26,52 @@ from numba import njit
 from ..errors import DataError
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _aug_start(x0, su, ju, sd, jd, f, y0, xs0):  # pragma: no cover - compiled
+    """Valve state at the first sample: (input, stem, stick point). NaN ``y0``: stuck at the first
+    input; else stuck at ``y0`` after a motion in direction f, i.e. where the input was
+    ``y0 + f (S_f - J_f) / 2`` (or at ``xs0`` when given)."""
+    xp = min(max(x0, 0.0), 100.0)
+    yp = xp
+    xss = xp
+    if not math.isnan(y0):
+        yp = min(max(y0, 0.0), 100.0)
+        h0 = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+        xss = yp + f * h0
+        if not math.isnan(xs0):
+            xss = xs0
+    return xp, yp, xss
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _aug_step(xk, xp, up, stuck, xss, f, yp, su, sd, ju, jd):  # pragma: no cover - compiled
+    """One sample of the augmented valve (before the actuator lag): the new state
+    (input, direction of the increment, stuck, stick point, direction of motion, stem)."""
+    xk = min(max(xk, 0.0), 100.0)
+    v = xk - xp
+    up_k = v > 0.0
+    if not stuck and (v == 0.0 or up_k != up):
+        stuck = True
+        xss = xp
+    if stuck:
+        d = xk - xss
+        # reversal into direction -f must beat S of that direction
+        s_new = sd if f > 0 else su
+        j_same = ju if f > 0 else jd
+        if -f * d > s_new:
+            f = -f
+            stuck = False
+        elif f * d > j_same:
+            stuck = False
+        if not stuck:
+            half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+            yp = min(max(xk - f * half, 0.0), 100.0)
+    else:
+        half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
+        yp = min(max(xk - f * half, 0.0), 100.0)
+    return xk, up_k, stuck, xss, f, yp
+
+
 @njit(cache=True, nogil=True, boundscheck=False)
 def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s, out):  # pragma: no cover
     m = S_up.shape[0]
@@ -33,18 +79,9 @@ def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s, out
     for i in range(m):
         f = f0[i]
         a = a_lag[i]
-        xp = min(max(x[0], 0.0), 100.0)
+        xp, yp, xss = _aug_start(x[0], max(S_up[i], 0.0), max(J_up[i], 0.0), max(S_dn[i], 0.0),
+                                 max(J_dn[i], 0.0), f, y0[i], xs0[i])
         up = False
-        yp = xp
-        xss = xp
-        if not math.isnan(y0[i]):
-            # stuck at y0 after a motion in direction f: it stuck where the input was y0 + f half
-            yp = min(max(y0[i], 0.0), 100.0)
-            h0 = ((max(S_up[i], 0.0) - max(J_up[i], 0.0)) if f > 0
-                  else (max(S_dn[i], 0.0) - max(J_dn[i], 0.0))) / 2.0
-            xss = yp + f * h0
-            if not math.isnan(xs0[i]):
-                xss = xs0[i]
         stuck = True
         z = yp
         out[i, 0] = z
@@ -54,32 +91,9 @@ def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s, out
             sd = max(S_dn[i] + dS[i] * t, 0.0)
             ju = max(J_up[i] + dJ[i] * t, 0.0)
             jd = max(J_dn[i] + dJ[i] * t, 0.0)
-            xk = min(max(x[k], 0.0), 100.0)
-            v = xk - xp
-            up_k = v > 0.0
-            if not stuck and (v == 0.0 or up_k != up):
-                stuck = True
-                xss = xp
-            if stuck:
-                d = xk - xss
-                # reversal into direction -f must beat S of that direction
-                s_new = sd if f > 0 else su
-                j_same = ju if f > 0 else jd
-                if -f * d > s_new:
-                    f = -f
-                    stuck = False
-                elif f * d > j_same:
-                    stuck = False
-                if not stuck:
-                    half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-                    yp = min(max(xk - f * half, 0.0), 100.0)
-            else:
-                half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-                yp = min(max(xk - f * half, 0.0), 100.0)
+            xp, up, stuck, xss, f, yp = _aug_step(x[k], xp, up, stuck, xss, f, yp, su, sd, ju, jd)
             z = a * z + (1.0 - a) * yp
             out[i, k] = z
-            xp = xk
-            up = up_k
     return out
 
 
