@@ -428,10 +428,12 @@ class _Configs:
         return int(self.a1.shape[0])
 
 
-def _make_configs(entries, ts_s: float) -> _Configs:
-    """entries: iterable of (kind, tau_s, tau2_s, delay_samples)."""
+def _make_configs(entries, ts_s: float, tau_max_s: float = math.inf) -> _Configs:
+    """entries: iterable of (kind, tau_s, tau2_s, delay_samples); lags above ``tau_max_s`` are
+    clipped to it (the local refinements scale lags freely)."""
     kinds, a1, a2, d, integ, tau, tau2 = [], [], [], [], [], [], []
     for kind, t1, t2, dd in entries:
+        t1, t2 = min(t1, tau_max_s), min(t2, tau_max_s)
         kinds.append(kind)
         a1.append(lag_coefficient(t1, ts_s))
         a2.append(lag_coefficient(t2, ts_s) if kind == "soptd" else -1.0)
@@ -722,7 +724,7 @@ def _nelder_mead(f, x0, steps, *, max_iter: int = 60, tol: float = 1e-3):
 
 
 def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: bool, max_iter: int = 60,
-                        tol: float = 1e-3) -> _Best:
+                        tol: float = 1e-3, tau_max_s: float = math.inf) -> _Best:
     """Refine S, J (and the lags, dead time fixed) of one candidate by Nelder-Mead.
 
     Both starting directions are scored at every point; the better one counts.
@@ -742,7 +744,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
 
     def cost(v):
         S, J, tau = unpack(v)
-        cfg = _make_configs([(kind, tau, tau * ratio2, d)], ts_s)
+        cfg = _make_configs([(kind, tau, tau * ratio2, d)], ts_s, tau_max_s)
         sse, _ = prob.sse([S, S], [J, J], [1.0, -1.0], cfg)
         return float(sse[:, 0].min())
 
@@ -759,7 +761,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
     if fb >= cur.sse:
         return cur
     S, J, tau = unpack(xb)
-    cfg = _make_configs([(kind, tau, tau * ratio2, d)], ts_s)
+    cfg = _make_configs([(kind, tau, tau * ratio2, d)], ts_s, tau_max_s)
     sse, _ = prob.sse([S, S], [J, J], [1.0, -1.0], cfg)
     k = int(np.argmin(sse[:, 0]))
     return _Best(S, J, (1.0, -1.0)[k], cfg, float(sse[k, 0]))
@@ -888,11 +890,17 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     dmin = int(round((min_delay_s if min_delay_s is not None else ts_s) / ts_s))
     dmin = min(max(dmin, 0), dmax)
 
+    # tau_range_s bounds every lag, the local refinements' too
+    tau_max = max(tau_range_s[1], 0.0) if tau_range_s is not None else math.inf
+
+    def make_configs(entries, ts):
+        return _make_configs(entries, ts, tau_max)
+
     if structure is not None:
         k_, t1_, t2_, d_ = structure
-        all_cfg = _make_configs([(k_, t1_, t2_, int(round(d_ / ts_s)))], ts_s)
+        all_cfg = make_configs([(k_, t1_, t2_, int(round(d_ / ts_s)))], ts_s)
     else:
-        all_cfg = _make_configs(_process_grid(ts_s, n, kinds, max_delay_s, tau_range_s, dmin), ts_s)
+        all_cfg = make_configs(_process_grid(ts_s, n, kinds, max_delay_s, tau_range_s, dmin), ts_s)
 
     def best_structure(S, J, F) -> tuple[int, float]:
         sse, _ = prob.sse([S], [J], [F], all_cfg)
@@ -905,7 +913,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             return cfg.take(p), None
         entries = _local_process_entries(cfg.kind[p], float(cfg.tau[p]), float(cfg.tau2[p]),
                                          int(cfg.d[p]), dmax, 2.0 ** np.arange(-1.0, 1.01, 0.25), dmin)
-        loc = _make_configs(entries, ts_s)
+        loc = make_configs(entries, ts_s)
         sse, _ = prob.sse([S], [J], [F], loc)
         q = int(np.argmin(sse[0]))
         return loc.take(q), float(sse[0, q])
@@ -951,7 +959,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                 entries = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
                 if "integrating" in kinds:
                     entries += [("integrating", float(ts_s), 0.0, dd) for dd in dset]
-                gcfg = _make_configs(entries, ts_s)
+                gcfg = make_configs(entries, ts_s)
             else:
                 gcfg = best.cfg
             sse_g, _ = prob.sse(Sg0, Jg0, Fg0, gcfg)
@@ -989,7 +997,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     cfgs.append((key, c))
             # 4. ... a dense (S, J, f0) grid at those structures (the valley in S and J is narrow)
             ent = [k for k, _ in cfgs]
-            dcfg = _make_configs(ent, ts_s)
+            dcfg = make_configs(ent, ts_s)
             S_dense = _s_grid(x, dense_S, float(S_grid[-1]))
             Sd, Rd, Fd = np.meshgrid(S_dense, np.linspace(0.0, 2.0, dense_ratios), [1.0, -1.0], indexing="ij")
             Sd, Jd, Fd = Sd.ravel(), (Sd * Rd).ravel(), Fd.ravel()
@@ -1018,7 +1026,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                         keys.append(key)
                         new.append(key)
                 if new:
-                    ncfg = _make_configs(new, ts_s)
+                    ncfg = make_configs(new, ts_s)
                     sse_n, _ = prob.sse(Sd, Jd, Fd, ncfg)
                     for p in range(len(ncfg)):
                         for r in profile_ratios:
@@ -1036,7 +1044,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
                         if sq < cur.sse:
                             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
-                    cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None)
+                    cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None, tau_max_s=tau_max)
                 return cur
 
             refined = [refine(cur) for cur in results[: max(2, n_refine)]]
@@ -1060,7 +1068,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     ent = [(kd, t0 * f, t0 * f * r2 if kd == "soptd" else 0.0, dd)
                            for kd in sorted({k0, "foptd"} & set(kinds) | {k0}) for f in (0.5, 1.0, 2.0)
                            for dd in d_set]
-                    lcfg = _make_configs(ent, ts_s)
+                    lcfg = make_configs(ent, ts_s)
                     sse_l, _ = prob.sse(Sm_, Jm_, Fm_, lcfg)
                     bands = [Rm_ == 0.0, (Rm_ > 0.0) & (Rm_ < 0.85), (Rm_ >= 0.85) & (Rm_ <= 1.15),
                              Rm_ > 1.15]
@@ -1086,7 +1094,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         base = (cp.kind, cp.tau_s if cp.kind != "integrating" else max(cp.tau_s, 0.0),
                 cp.tau2_s, d0)
         if auto_hp:
-            cfg0 = _make_configs([base], ts_s)
+            cfg0 = make_configs([base], ts_s)
             costs = []
             for hp in AUTO_HP_CANDIDATES:
                 pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed, gain_sign)
@@ -1100,17 +1108,17 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         dset = sorted({min(dmax, max(dmin, d0 + k * dstep)) for k in range(-3, 4)})
         entries = [(cp.kind, cp.tau_s * f, cp.tau2_s * f, dd) for f in 2.0 ** np.arange(-1.0, 1.01, 0.5)
                    for dd in dset]
-        loc = _make_configs(entries, ts_s)
+        loc = make_configs(entries, ts_s)
         sse, _ = prob.sse([S0], [J0], [F0], loc)
         k = int(np.argmin(sse[0]))
         cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]))
         if stiction:
-            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False)
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max)
         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
         if sq is not None and sq < cur.sse:
             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
         if stiction:
-            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False)
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max)
         return cur
 
     if max_samples is not None and n > max_samples and structure is None:
@@ -1140,7 +1148,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     if stiction and best.S > 0:
         best = _zoom(prob, best, rounds=2, size=9, span=0.06)
         if structure is None:
-            best = _nelder_mead_refine(prob, best, ts_s, fixed=False, max_iter=100, tol=1e-6)
+            best = _nelder_mead_refine(prob, best, ts_s, fixed=False, max_iter=100, tol=1e-6, tau_max_s=tau_max)
 
     surface_cost = None
     if stiction and surface:

@@ -120,6 +120,23 @@ def test_fit_valve_on_op_mv_is_exact_on_exact_data():
     assert vf.simulate(rec.op).shape == rec.op.shape
 
 
+def test_fit_valve_keeps_the_actuator_lag_within_max_lag_s():
+    # a 4 s actuator lag after the friction: the local refinements scale lags freely, and used to
+    # return lags above the bound the caller asked for
+    rec = sticky_loop(3.0, 1.0, n=2000, noise_std=0.05, load_walk_std=0.01, seed=1)
+    a = np.exp(-1.0 / 4.0)
+    stem = np.empty_like(rec.mv)
+    stem[0] = rec.mv[0]
+    for k in range(1, stem.shape[0]):
+        stem[k] = a * stem[k - 1] + (1.0 - a) * rec.mv[k]
+    free = fit_valve(rec.op, stem, rec.ts_s, max_lag_s=10.0)
+    assert free.lag_s == pytest.approx(4.0, rel=0.1)
+    for bound in (0.0, 2.0):
+        vf = fit_valve(rec.op, stem, rec.ts_s, max_lag_s=bound)
+        assert vf.lag_s <= bound + 1e-12
+        assert vf.rmse > free.rmse
+
+
 @pytest.mark.parametrize("op,pv,match", [
     (np.full(200, 50.0), np.linspace(0, 1, 200), "OP is constant"),
     (np.linspace(0, 1, 200), np.full(200, 3.0), "PV is constant"),
