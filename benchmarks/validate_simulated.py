@@ -105,7 +105,14 @@ def evaluate(rows: list[dict]) -> dict:
     pred = np.array([r["class"] for r in rows])
     sticky = truth != "none"
     det = np.array([r["stiction"] for r in rows])
+    plausible = [r["true_class"] == r["class"] or r["true_class"] in r.get("class_alternatives", ())
+                 for r in rows]
+    n_alt = [len(r.get("class_alternatives", ())) for r in rows if r["stiction"]]
     out = {"loops": len(rows), "class_accuracy": float(np.mean(truth == pred)),
+           # the true class is the reported one or one the data also allow (`class_alternatives`)
+           "class_in_plausible_set": float(np.mean(plausible)),
+           "mean_class_alternatives_flagged": float(np.mean(n_alt)) if n_alt else 0.0,
+           "flagged_with_alternatives": float(np.mean([k > 0 for k in n_alt])) if n_alt else 0.0,
            "healthy_none_rate": float(np.mean(pred[~sticky] == "none")) if (~sticky).any() else None,
            "sticky_detected_rate": float(np.mean(det[sticky])) if sticky.any() else None}
     tp = np.sum(det & sticky)
@@ -168,7 +175,8 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str =
         res = identify(case.record, **identify_opts)
         dt = time.perf_counter() - t0
         row = {"loop": case.record.name, "true_class": case.cls, "true_S": case.S_pct, "true_J": case.J_pct,
-               "class": res.cls, "stiction": res.stiction, "S": res.S_pct, "J": res.J_pct,
+               "class": res.cls, "class_alternatives": list(res.class_alternatives),
+               "stiction": res.stiction, "S": res.S_pct, "J": res.J_pct,
                "S_fit": res.fitted_S_pct, "J_fit": res.fitted_J_pct,
                "improvement": res.detection.get("improvement"), "t_stat": res.detection.get("t_stat"),
                "insample": res.detection.get("insample_improvement"), "rule": res.detection.get("rule"),

@@ -119,6 +119,9 @@ class Identification:
     controller : ControllerAction or None
         The controller's action and PI tuning read from OP, PV and SP; its sign constrains the
         process gain of the OP/PV fit.
+    class_alternatives : tuple of str
+        Other stiction classes the class test does not reject (their best cost lies within the
+        same bound that accepts J = 0 or J = S); empty when the class is clear or ``none``.
     """
 
     loop: str
@@ -145,6 +148,7 @@ class Identification:
     fitted_S_pct: float = 0.0
     fitted_J_pct: float = 0.0
     controller: ControllerAction | None = None
+    class_alternatives: tuple = ()
 
     @property
     def klass(self) -> str:
@@ -156,6 +160,7 @@ class Identification:
             "loop": self.loop,
             "stiction": bool(self.stiction),
             "class": self.cls,
+            "class_alternatives": list(self.class_alternatives),
             "S": float(self.S_pct),
             "J": float(self.J_pct),
             "S_interval": [float(self.S_interval_pct[0]), float(self.S_interval_pct[1])],
@@ -268,6 +273,15 @@ def _detect(op: np.ndarray, y: np.ndarray, ts_s: float, fitter, n_blocks: int, *
             "train_S_pct": f_v.S_pct, "train_J_pct": f_v.J_pct}
 
 
+def _class_names(S_pct: np.ndarray, J_pct: np.ndarray) -> np.ndarray:
+    """`diagnose.stiction_model.stiction_class` for arrays of S > 0 (no ``none``)."""
+    S = np.asarray(S_pct, float)
+    J = np.asarray(J_pct, float)
+    tol = np.maximum(0.1, 0.15 * S)
+    return np.where(J <= tol, "deadband", np.where(np.abs(J - S) <= tol, "no_offset",
+                                                   np.where(J < S, "undershoot", "overshoot")))
+
+
 def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit,
                 burn_frac: float = 0.05, gain_sign: float | None = None) -> dict[str, Any]:
     """Re-examine J with the valve's initial stuck point free, and test the special shapes.
@@ -323,8 +337,15 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
     best = {"free": (c_fit, S0, fit.J_pct, fit.f0, 0.0), "deadband": (np.inf,), "no_offset": (np.inf,)}
     per_ratio = [(np.inf, 1.0, x0)] * ratios.shape[0]      # best (cost, f0, first OP) per J/S
 
+    by_class: dict[str, float] = {}      # best cost per class shape (for the plausible set)
+
     def keep(c, Sv, Jv, Rv, F, xs0):
         nonlocal per_ratio
+        names = _class_names(Sv, Jv)
+        for name in np.unique(names):
+            cm = float(c[names == name].min())
+            if cm < by_class.get(str(name), np.inf):
+                by_class[str(name)] = cm
         for key, sel in (("free", np.ones(c.shape[0], bool)), ("deadband", Rv == 0.0),
                          ("no_offset", Rv == 1.0)):
             cm = np.where(sel, c, np.inf)
@@ -365,7 +386,10 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
     c_free = best["free"][0]
     bound = c_free * (1.0 + CLASS_TEST_CHI2 / nu)
     out: dict[str, Any] = {"cost_fit": c_fit, "cost_free": c_free, "bound": bound,
-                           "cost_deadband": best["deadband"][0], "cost_no_offset": best["no_offset"][0]}
+                           "cost_deadband": best["deadband"][0], "cost_no_offset": best["no_offset"][0],
+                           "free_S_pct": best["free"][1], "free_J_pct": best["free"][2]}
+    # every class shape the data do not reject, best first (the reported class is one of them)
+    out["plausible"] = sorted((k for k, v in by_class.items() if v <= bound), key=by_class.get)
     ok = [k for k in ("deadband", "no_offset") if best[k][0] <= bound]
     pick = min(ok, key=lambda k: best[k][0]) if ok else "free"
     c, S, J, F, dl = best[pick]
@@ -400,6 +424,7 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
     """
     _check(record)
     findings = _quality(record)
+    alternatives: tuple = ()
     warnings: list[dict[str, str]] = []
     compression = False
     for f in findings:
@@ -496,6 +521,8 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         cls = stiction_class(S, J) if stiction else "none"
         if stiction and cls == "none":
             stiction = False
+        if stiction and ctest is not None:
+            alternatives = tuple(k for k in ctest["plausible"] if k != cls)
         # confidence: how far the evidence is from the decision boundary
         t = det["t_stat"]
         t_margin = (abs(t - T_CRIT) / T_CRIT if math.isfinite(t) else 3.0) if t is not None else 3.0
@@ -543,4 +570,5 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         process=fit.process, rmse=float(rmse), r2=float(r2), oscillation=osc, warnings=tuple(uniq),
         confidence=float(min(max(confidence, 0.0), 1.0)), method=method, detection=det,
         data_quality=findings, fit=fit, valve_fit=valve_fit, linear_fit=linear, n=record.n, ts_s=ts,
-        fitted_S_pct=float(fitted_S), fitted_J_pct=float(fitted_J), controller=ctl)
+        fitted_S_pct=float(fitted_S), fitted_J_pct=float(fitted_J), controller=ctl,
+        class_alternatives=alternatives)

@@ -133,6 +133,20 @@ def test_class_test_does_not_force_a_shape_the_data_reject(sticky_result):
     assert ct["cost_deadband"] > ct["bound"] and ct["cost_no_offset"] > ct["bound"]
 
 
+def test_class_alternatives_name_the_shapes_the_data_cannot_separate(sticky_result):
+    # clean undershoot: one shape only
+    assert sticky_result.cls == "undershoot" and sticky_result.class_alternatives == ()
+    assert sticky_result.to_dict()["class_alternatives"] == []
+    # J = 1.2 S, just past the no-offset tolerance, in heavy noise: both shapes stay plausible
+    rec = sticky_loop(3.0, 3.6, n=1500, noise_std=0.6, load_walk_std=0.05, tau_s=40.0, delay_s=4.0,
+                      seed=2)
+    res = identify(_no_mv(rec))
+    assert res.stiction
+    assert res.cls not in res.class_alternatives
+    assert {"overshoot", "no_offset"} <= {res.cls, *res.class_alternatives}
+    assert set(res.detection["class_test"]["plausible"]) == {res.cls, *res.class_alternatives}
+
+
 def test_class_test_finds_the_needle_in_S(monkeypatch):
     """With J > 0 the cost is a needle in S: started from an S 7 % off, the fine scan lands within
     0.5 % of the true S at a far lower cost than the coarse grid alone."""

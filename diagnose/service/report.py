@@ -161,7 +161,9 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     osc = oscillation_info(result)
     sev = result.get("severity") or {}
     rows = [
-        ["Class", fmt(result.get("class"))],
+        ["Class", fmt(result.get("class")) + (
+            f" (the data also allow: {', '.join(result['class_alternatives'])})"
+            if result.get("class_alternatives") else "")],
         ["S (deadband + stickband)", f"{fmt(result.get('S'))} % of span, interval {fmt_interval(result.get('S_interval'))}"],
         ["J (slip jump)", f"{fmt(result.get('J'))} % of span, interval {fmt_interval(result.get('J_interval'))}"],
         ["Confidence", fmt(result.get("confidence"), ".0%")],

@@ -40,6 +40,8 @@ def summary(d: dict[str, Any]) -> str:
         src = " from OP/MV" if d.get("method") == "op_mv" else ""
         lines.append(f"  S = {d['S']:.2f} % [{si[0]:.2f}, {si[1]:.2f}]   J = {d['J']:.2f} % "
                      f"[{ji[0]:.2f}, {ji[1]:.2f}]  (% of valve span{src})")
+        if d.get("class_alternatives"):
+            lines.append(f"  the data also allow class {' or '.join(d['class_alternatives'])}")
     p = d.get("process") or {}
     if p:
         extra = f", tau2 {p['tau2_s']:.3g} s" if "tau2_s" in p else ""
