@@ -4,8 +4,9 @@
 
 1. data checks (too short, constant OP or PV: `DataError`) and data quality (`diagnose.quality`);
 2. S, J and the verdict: the valve + process model against the linear-only model (S = J = 0),
-   with three kinds of evidence: a held-out test (even/odd interleaved blocks), the in-sample
-   reduction of the prediction-error cost, and a sharply determined S; always S >= 0.5 %;
+   with four kinds of evidence: a held-out test (even/odd interleaved blocks), the in-sample
+   reduction of the prediction-error cost, a sharply determined S, and the likelihood ratio of a
+   backlash-shaped (J = 0) valve; always S >= 0.5 %;
 3. S, J and the process from the fit on the whole record (`diagnose.fit.fit_hammerstein`); when the
    stem position MV is recorded, S, J and the class come from the direct OP -> MV fit
    (`diagnose.fit.fit_valve`) and ``method`` says so;
@@ -59,6 +60,10 @@ N_BATCHES = 24
 SHARP_REL_WIDTH = 0.3
 SHARP_MIN_INSAMPLE = 0.01
 SHARP_MIN_S_PCT = 1.0
+#: A backlash-shaped fit (J = 0 after the class test, S >= SHARP_MIN_S_PCT) also counts as evidence
+#: when its likelihood ratio over the linear model, ``n_eff ln(c_linear / c_deadband)``, exceeds
+#: the 0.1 % quantile of chi-square with one degree of freedom (docs/fitting.md).
+BACKLASH_LR = 10.83
 #: One-sided critical value of the paired t statistic (about 1 % for 20+ batches).
 T_CRIT = 2.0
 #: The class test: 95 % quantile of chi-square with two degrees of freedom, the joint (S, J) region
@@ -503,8 +508,19 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         det["S_rel_width"] = rel_width
         sharp_ok = (valve_fit is None and rel_width <= SHARP_REL_WIDTH and ins > SHARP_MIN_INSAMPLE
                     and S >= SHARP_MIN_S_PCT)
+        # A backlash-shaped valve (J = 0 after the class test) is tested against the linear model
+        # by its own likelihood ratio (one extra parameter, S): a deadband cannot mimic load steps
+        # the way a slip jump can, so its in-sample gain is not inflated like the free fit's
+        backlash_ok = False
+        if (ctest is not None and S >= SHARP_MIN_S_PCT and stiction_class(S, J) == "deadband"
+                and linear.cost > 0 and ctest["cost_fit"] > 0):
+            ratio = (fit.cost / linear.cost) * ctest["cost_deadband"] / ctest["cost_fit"]
+            n_eff = fit.n_eff if math.isfinite(fit.n_eff) else float(record.n)
+            lr = n_eff * math.log(1.0 / ratio) if ratio > 0 else math.inf
+            det["backlash_lr"] = lr
+            backlash_ok = lr > BACKLASH_LR
         # The held-out test is run only where it can change the verdict.
-        if S >= S_MIN_PCT and not (insample_ok or sharp_ok):
+        if S >= S_MIN_PCT and not (insample_ok or sharp_ok or backlash_ok):
             if valve_fit is not None:
                 det.update(_detect(op, record.mv, ts, fit_valve, n_blocks))
             else:
@@ -514,10 +530,10 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         imp = det["improvement"]
         heldout_ok = imp is not None and imp > threshold and det["t_stat"] > T_CRIT
         det["rule"] = ("heldout" if heldout_ok else "insample" if insample_ok else "sharp" if sharp_ok
-                       else "none")
+                       else "backlash" if backlash_ok else "none")
         if ctest is not None:
             det["class_test"] = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in ctest.items()}
-        stiction = bool((heldout_ok or insample_ok or sharp_ok) and S >= S_MIN_PCT)
+        stiction = bool((heldout_ok or insample_ok or sharp_ok or backlash_ok) and S >= S_MIN_PCT)
         cls = stiction_class(S, J) if stiction else "none"
         if stiction and cls == "none":
             stiction = False
@@ -529,7 +545,7 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         if stiction and det["rule"] == "heldout":
             margin = min(t_margin, abs(imp - threshold) / 0.05)
         elif stiction:
-            margin = ins / 0.1             # in-sample / sharp evidence: the size of the improvement
+            margin = ins / 0.1             # in-sample / sharp / backlash evidence: the size of the improvement
         elif S < S_MIN_PCT:
             margin = 3.0 * (S_MIN_PCT - S) / S_MIN_PCT      # no valve band worth reporting
         else:

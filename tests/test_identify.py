@@ -147,6 +147,21 @@ def test_class_alternatives_name_the_shapes_the_data_cannot_separate(sticky_resu
     assert set(res.detection["class_test"]["plausible"]) == {res.cls, *res.class_alternatives}
 
 
+def test_a_backlash_on_a_slow_process_is_found_by_its_likelihood_ratio():
+    # deadband valve, slow process, noisy: the in-sample gain (about 1 %) is below the in-sample
+    # threshold and S is not sharp, but the deadband-shaped fit's likelihood ratio is clear
+    kw = dict(n=3000, noise_std=0.2, load_walk_std=0.02, tau_s=60.0, delay_s=8.0, seed=1)
+    res = identify(_no_mv(sticky_loop(2.5, 0.0, **kw)))
+    det = res.detection
+    assert det["insample_improvement"] < 0.05
+    assert res.stiction and res.cls == "deadband" and det["rule"] == "backlash"
+    assert det["backlash_lr"] > 10.83
+    assert res.S_pct == pytest.approx(2.5, rel=0.15)
+    # the same loop with a healthy valve is left alone
+    healthy = identify(_no_mv(sticky_loop(0.0, 0.0, **kw)))
+    assert not healthy.stiction and healthy.detection["rule"] == "none"
+
+
 def test_class_test_finds_the_needle_in_S(monkeypatch):
     """With J > 0 the cost is a needle in S: started from an S 7 % off, the fine scan lands within
     0.5 % of the true S at a far lower cost than the coarse grid alone."""
