@@ -27,7 +27,7 @@ from ..record import LoopRecord
 
 #: Bump when the result layout or the service's own logic changes: it is part of the input hash,
 #: so a nightly re-run after an upgrade re-diagnoses every loop.
-PIPELINE_REVISION = "2"
+PIPELINE_REVISION = "3"
 
 SCHEMA = "stiction.loop/1"
 
