@@ -16,7 +16,8 @@ to ``--jsonl`` and a markdown fragment to ``--md``.
     python benchmarks/validate_physics.py [--per-effect 12] [--n 3000] [--seed0 1000] [--jobs N]
 
 ``--jobs N`` runs N records side by side (one process each; results identical, per-record times
-then measured under that load).
+then measured under that load). ``--only EFFECT[:SEED[:mv]],...`` re-runs just those records (e.g.
+the misses while iterating); ``--sets mv`` or ``--sets pv`` one half.
 """
 
 from __future__ import annotations
@@ -101,6 +102,10 @@ def main(argv=None) -> int:
     ap.add_argument("--md", default="docs/_bench_physics.md")
     ap.add_argument("--sets", default="pv,mv", help="pv, mv or both")
     ap.add_argument("--resume", action="store_true", help="reuse records already in --jsonl")
+    ap.add_argument("--only", default="",
+                    help="run only these records: comma-separated EFFECT, EFFECT:SEED or EFFECT:SEED:mv "
+                         "(e.g. time_varying_friction:2000,actuator_lag:2003:mv); the table then covers "
+                         "those records only")
     ap.add_argument("--jobs", type=int, default=1,
                     help="worker processes (records are independent; timings per record are then "
                          "measured side by side)")
@@ -128,6 +133,17 @@ def main(argv=None) -> int:
         for e in sets:
             for i in range(args.per_effect):
                 jobs.append((e, args.seed0 + i, mv))
+    if args.only:
+        keep = [tuple(tok.split(":")) for tok in args.only.split(",") if tok]
+
+        def wanted(e: str, seed: int, mv: bool) -> bool:
+            for k in keep:
+                if k[0] != e or (len(k) > 1 and int(k[1]) != seed) or (len(k) > 2 and (k[2] == "mv") != mv):
+                    continue
+                return True
+            return False
+
+        jobs = [j for j in jobs if wanted(*j)]
     rows = []
     t_all = time.perf_counter()
     todo = [(e, seed, mv, args.n) for e, seed, mv in jobs if (e, seed, mv) not in done]

@@ -103,6 +103,39 @@ def test_initial_valve_state_is_recovered():
     assert np.array_equal(augmented_valve(x, **kw), augmented_valve(x, y0_pct=np.nan, **kw))
 
 
+def test_fine_valve_polish_reaches_the_sharp_minimum():
+    # OP -> MV with an actuator lag: the output-error cost is V-shaped in S (1 % off moves slips by
+    # samples); a start 5 % off in S and J (the 3 % grids' typical miss) is polished to the truth
+    from diagnose.physics.hypotheses import _fine_valve
+
+    x = _walk(1500, 12)
+    kw = dict(S_up=3.157, J_up=1.28, f0=1, ts_s=1.0, tau_lag_s=6.0)
+    rng = np.random.default_rng(12)
+    y = augmented_valve(x, **kw) + rng.normal(0, 0.1, x.size)
+    train = np.zeros(x.size, bool)
+    train[:1000] = True
+    stage = Stage("valve", x, y, 1.0, train)
+    start = Structure.plain(3.32, 1.34, 1, ProcessModel("foptd", 1.0, 0.0, 0.0, 0.0)).replace(tau_lag_s=6.0)
+    start, c0 = fit_initial_state(stage, start)
+    best = _fine_valve(stage, start, "tau_lag_s")
+    c1 = float(train_sse(stage, [best])[0])
+    assert c1 < 0.5 * c0
+    assert c1 / train.sum() < 1.5 * 0.1 ** 2
+    assert best.S_up_pct == pytest.approx(3.157, rel=0.01)
+
+
+def test_loop_stage_carries_the_controllers_sign():
+    from diagnose.physics.explain import _stage_for
+
+    rec, _ = concealed_loop("none", 5, n=1500)
+    train = np.zeros(rec.n, bool)
+    train[:1000] = True
+    assert _stage_for(rec, "loop", train).gain_sign == 1
+    # the same loop on a process whose PV falls as the valve opens (direct-acting controller)
+    flipped = rec.replace(pv=-rec.pv, sp=-rec.sp)
+    assert _stage_for(flipped, "loop", train).gain_sign == -1
+
+
 def test_concealed_twin_differs_only_by_the_effect():
     rec, _ = concealed_loop("asymmetric_stiction", 7, n=800, with_mv=True)
     twin, _ = concealed_loop("asymmetric_stiction", 7, n=800, with_mv=True, apply_effect=False)

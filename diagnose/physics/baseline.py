@@ -89,7 +89,8 @@ def _from_fit_module(stage: Stage) -> Baseline | None:
     train = stage.train
     try:
         if stage.name == "loop" and hasattr(fitmod, "fit_hammerstein"):
-            res = fitmod.fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train)
+            res = fitmod.fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train,
+                                         gain_sign=stage.gain_sign or None)
             struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(res.f0), res.process)
             stem_hat, y_hat = res.simulate(stage.x)
             return Baseline(struct, np.asarray(y_hat, float), np.asarray(stem_hat, float),

@@ -28,10 +28,11 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..controller import controller_action
 from ..errors import DataError, StictionWarning
 from ..record import LoopRecord
 from .baseline import Baseline, _grid_baseline, make_baseline
-from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, get
+from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, _fine_valve, get
 from .locate import Mismatch, locate, slips_and_reversals
 from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
                     refine_plain, rmse)
@@ -168,7 +169,14 @@ def _stage_for(record: LoopRecord, name: str, train: np.ndarray) -> Stage:
                             "scale it to % of span")
         x = x + (50.0 - 0.5 * (lo + hi))
     y = np.asarray(record.pv if name == "loop" else record.mv, float)
-    return Stage(name=name, x=x, y=y, ts_s=record.ts_s, train=train)
+    sign = 0
+    if name == "loop":
+        # the controller's action (from the training part) fixes the process gain's sign: a fit
+        # with the other sign explains PV through the controller, not the plant
+        tr = np.flatnonzero(train)
+        sp = None if record.sp is None else np.asarray(record.sp, float)[tr]
+        sign = int(controller_action(np.asarray(record.op, float)[tr], y[tr], record.ts_s, sp=sp).sign)
+    return Stage(name=name, x=x, y=y, ts_s=record.ts_s, train=train, gain_sign=sign)
 
 
 def _burn_in(base: Baseline, stage: Stage) -> int:
@@ -275,6 +283,10 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
                 r0 = r1
         stage, ref = full, r0
         ref, ref_sse = best_of(stage, [ref])
+    if stage.name == "valve":
+        # OP -> MV: the cost is sharp in S; every valve-stage hypothesis gets the same fine polish
+        ref = _fine_valve(stage, ref)
+        ref, ref_sse = best_of(stage, [ref])
     ref_hat, ref_stem, _ = predict(stage, ref)
     # a leading stretch the plain model still cannot follow at all (far above the rest) is not
     # scored
@@ -310,6 +322,9 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
             r, c = refine_plain(stage, p, rounds=1)
             if c < best_sse:
                 best_ref, best_sse = r, c
+    if stage.name == "valve" and best_ref is not ref:
+        best_ref = _fine_valve(stage, best_ref)
+        best_sse = best_of(stage, [best_ref])[1]
     if best_sse < ref_sse * (1.0 - 1e-6):
         ref, ref_sse = best_ref, best_sse
         ref_hat, _, _ = predict(stage, ref)

@@ -110,6 +110,10 @@ class Stage:
     ts_s : float
     train : ndarray of bool (n,)
         Samples the fit may score; the rest is held out.
+    gain_sign : {+1, -1, 0}
+        Sign the process gain must have (the controller's action, `diagnose.controller`; 0:
+        unknown). Passed to the fitting stage, so that its OP -> PV fit cannot be the controller
+        path (``PV = -OP / Kc``).
     """
 
     name: str
@@ -117,6 +121,7 @@ class Stage:
     y: np.ndarray
     ts_s: float
     train: np.ndarray
+    gain_sign: int = 0
 
     @property
     def n(self) -> int:
