@@ -33,7 +33,7 @@ from .fit import (MIN_SAMPLES, HammersteinFit, ValveFit, _burn_in, _make_configs
                   _score_weights, fit_hammerstein, fit_valve)
 from .oscillation import Oscillation, oscillation_context
 from .record import Finding, LoopRecord
-from .stiction_model import stiction_class
+from .stiction_model import stiction_class, stiction_classes
 
 #: Relative reduction of the held-out output error the valve model must achieve over the
 #: linear-only model to call stiction (see docs/fitting.md for how it was chosen).
@@ -278,15 +278,6 @@ def _detect(op: np.ndarray, y: np.ndarray, ts_s: float, fitter, n_blocks: int, *
             "train_S_pct": f_v.S_pct, "train_J_pct": f_v.J_pct}
 
 
-def _class_names(S_pct: np.ndarray, J_pct: np.ndarray) -> np.ndarray:
-    """`diagnose.stiction_model.stiction_class` for arrays of S > 0 (no ``none``)."""
-    S = np.asarray(S_pct, float)
-    J = np.asarray(J_pct, float)
-    tol = np.maximum(0.1, 0.15 * S)
-    return np.where(J <= tol, "deadband", np.where(np.abs(J - S) <= tol, "no_offset",
-                                                   np.where(J < S, "undershoot", "overshoot")))
-
-
 def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit,
                 burn_frac: float = 0.05, gain_sign: float | None = None) -> dict[str, Any]:
     """Re-examine J with the valve's initial stuck point free, and test the special shapes.
@@ -346,8 +337,8 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
 
     def keep(c, Sv, Jv, Rv, F, xs0):
         nonlocal per_ratio
-        names = _class_names(Sv, Jv)
-        for name in np.unique(names):
+        names = stiction_classes(Sv, Jv)
+        for name in np.unique(names[names != "none"]):
             cm = float(c[names == name].min())
             if cm < by_class.get(str(name), np.inf):
                 by_class[str(name)] = cm

@@ -230,15 +230,19 @@ def stiction_class(S_pct: float, J_pct: float, *, tol_pct: float | None = None) 
     The default tolerance is max(0.1 % of span, 15 % of S): an identification can rarely tell
     J from S closer than that. See docs/model.md.
     """
-    if tol_pct is None:
-        tol_pct = max(0.1, 0.15 * S_pct)
-    if S_pct <= max(tol_pct, 0.1) and J_pct <= max(tol_pct, 0.1):
-        return "none"
-    if J_pct <= tol_pct:
-        return "deadband"
-    if abs(J_pct - S_pct) <= tol_pct:
-        return "no_offset"
-    return "undershoot" if J_pct < S_pct else "overshoot"
+    return str(stiction_classes([S_pct], [J_pct], tol_pct=tol_pct)[0])
+
+
+def stiction_classes(S_pct, J_pct, *, tol_pct: float | None = None) -> np.ndarray:
+    """`stiction_class` for arrays of (S, J) pairs (% of span); returns an array of class names."""
+    S = np.asarray(S_pct, dtype=float)
+    J = np.asarray(J_pct, dtype=float)
+    tol = np.maximum(0.1, 0.15 * S) if tol_pct is None else np.full(S.shape, float(tol_pct))
+    lim = np.maximum(tol, 0.1)
+    return np.where((S <= lim) & (J <= lim), "none",
+                    np.where(J <= tol, "deadband",
+                             np.where(np.abs(J - S) <= tol, "no_offset",
+                                      np.where(J < S, "undershoot", "overshoot"))))
 
 
 CLASSES = ("none", "deadband", "undershoot", "no_offset", "overshoot")
