@@ -278,6 +278,19 @@ def _detect(op: np.ndarray, y: np.ndarray, ts_s: float, fitter, n_blocks: int, *
             "train_S_pct": f_v.S_pct, "train_J_pct": f_v.J_pct}
 
 
+def _backlash_lr(fit: HammersteinFit, linear: HammersteinFit, ctest: dict[str, Any]) -> float | None:
+    """Likelihood ratio of the class test's deadband-shaped valve (J = 0) over the linear model,
+    ``n_eff ln(c_linear / c_deadband)``, on the fit's cost scale (None when a cost is not positive).
+
+    One extra parameter (S): a deadband cannot mimic a load step the way a slip jump can, so this
+    shape's in-sample gain is not inflated like the free fit's (docs/fitting.md, "Detection")."""
+    if not (linear.cost > 0 and ctest["cost_fit"] > 0):
+        return None
+    ratio = (fit.cost / linear.cost) * ctest["cost_deadband"] / ctest["cost_fit"]
+    n_eff = fit.n_eff if math.isfinite(fit.n_eff) else float(fit.n_fit)
+    return n_eff * math.log(1.0 / ratio) if ratio > 0 else math.inf
+
+
 def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit,
                 burn_frac: float = 0.05, gain_sign: float | None = None) -> dict[str, Any]:
     """Re-examine J with the valve's initial stuck point free, and test the special shapes.
@@ -499,17 +512,12 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         det["S_rel_width"] = rel_width
         sharp_ok = (valve_fit is None and rel_width <= SHARP_REL_WIDTH and ins > SHARP_MIN_INSAMPLE
                     and S >= SHARP_MIN_S_PCT)
-        # A backlash-shaped valve (J = 0 after the class test) is tested against the linear model
-        # by its own likelihood ratio (one extra parameter, S): a deadband cannot mimic load steps
-        # the way a slip jump can, so its in-sample gain is not inflated like the free fit's
         backlash_ok = False
-        if (ctest is not None and S >= SHARP_MIN_S_PCT and stiction_class(S, J) == "deadband"
-                and linear.cost > 0 and ctest["cost_fit"] > 0):
-            ratio = (fit.cost / linear.cost) * ctest["cost_deadband"] / ctest["cost_fit"]
-            n_eff = fit.n_eff if math.isfinite(fit.n_eff) else float(record.n)
-            lr = n_eff * math.log(1.0 / ratio) if ratio > 0 else math.inf
-            det["backlash_lr"] = lr
-            backlash_ok = lr > BACKLASH_LR
+        if ctest is not None and S >= SHARP_MIN_S_PCT and stiction_class(S, J) == "deadband":
+            lr = _backlash_lr(fit, linear, ctest)
+            if lr is not None:
+                det["backlash_lr"] = lr
+                backlash_ok = lr > BACKLASH_LR
         # The held-out test is run only where it can change the verdict.
         if S >= S_MIN_PCT and not (insample_ok or sharp_ok or backlash_ok):
             if valve_fit is not None:
