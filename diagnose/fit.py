@@ -57,6 +57,8 @@ GLOBAL_DELAYS = (0, 2, 5, 12)
 PROFILE_RATIOS = (0.0, 0.5, 1.0, 1.5, 2.0)
 #: S relative to the best fit's, profiled with J/S and the dead time (step 6 of the search)
 PROFILE_S_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.2)
+#: refinements keep S at or below this multiple of the S grid's end (OP's 0.5-99.5 % range)
+S_CAP_FACTOR = 1.2
 
 
 # --------------------------------------------------------------------------------------------------
@@ -724,10 +726,11 @@ def _nelder_mead(f, x0, steps, *, max_iter: int = 60, tol: float = 1e-3):
 
 
 def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: bool, max_iter: int = 60,
-                        tol: float = 1e-3, tau_max_s: float = math.inf) -> _Best:
+                        tol: float = 1e-3, tau_max_s: float = math.inf, S_max_pct: float = math.inf) -> _Best:
     """Refine S, J (and the lags, dead time fixed) of one candidate by Nelder-Mead.
 
-    Both starting directions are scored at every point; the better one counts.
+    Both starting directions are scored at every point; the better one counts. S stays at or
+    below ``S_max_pct``.
     """
     kind = cur.cfg.kind[0]
     d = int(cur.cfg.d[0])
@@ -737,7 +740,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
     best_f = [cur.F]
 
     def unpack(v):
-        S = abs(v[0]) * scale
+        S = min(abs(v[0]) * scale, S_max_pct)
         J = abs(v[1]) * scale
         tau = tau0 * math.exp(v[2]) if not fixed else tau0
         return S, J, tau
@@ -767,7 +770,8 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
     return _Best(S, J, (1.0, -1.0)[k], cfg, float(sse[k, 0]))
 
 
-def _zoom(prob: "_Problem", cur: _Best, *, rounds: int = 2, size: int = 9, span: float = 0.15) -> _Best:
+def _zoom(prob: "_Problem", cur: _Best, *, rounds: int = 2, size: int = 9, span: float = 0.15,
+          S_max_pct: float = math.inf) -> _Best:
     """Local (S, J, f0) grid around ``cur`` at its structure, shrinking by 4 each round.
 
     The cost is piecewise constant in S and J (the valve path changes only when a threshold
@@ -776,7 +780,7 @@ def _zoom(prob: "_Problem", cur: _Best, *, rounds: int = 2, size: int = 9, span:
     dS = span * max(cur.S, 0.05)
     dJ = span * max(cur.J, 0.5 * cur.S, 0.05)
     for _ in range(rounds):
-        Sl = np.unique(np.clip(cur.S + dS * np.linspace(-1, 1, size), 1e-6, None))
+        Sl = np.unique(np.clip(cur.S + dS * np.linspace(-1, 1, size), 1e-6, max(S_max_pct, 1e-6)))
         Jl = np.unique(np.clip(cur.J + dJ * np.linspace(-1, 1, size), 0.0, None))
         Sm, Jm, Fm = np.meshgrid(Sl, Jl, [1.0, -1.0], indexing="ij")
         sse, _ = prob.sse(Sm.ravel(), Jm.ravel(), Fm.ravel(), cur.cfg)
@@ -934,6 +938,10 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed, gain_sign)
 
     S_grid = _s_grid(x, n_S, S_max_pct)
+    # a valve that sticks and slips both ways needs OP to travel more than S: a larger S can only
+    # fit by never reversing (a ratchet that follows a drift), so refinements stop a little past
+    # the grid's end (the OP range)
+    S_cap = S_CAP_FACTOR * float(S_grid[-1])
     J_grid = np.concatenate([[0.0], 1.5 * S_grid[-1] * (np.arange(1, n_J) / (n_J - 1)) ** 1.4])
 
     def search() -> _Best:
@@ -1044,7 +1052,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
                         if sq < cur.sse:
                             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
-                    cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None, tau_max_s=tau_max)
+                    cur = _nelder_mead_refine(prob, cur, ts_s, fixed=structure is not None, tau_max_s=tau_max,
+                                              S_max_pct=S_cap)
                 return cur
 
             refined = [refine(cur) for cur in results[: max(2, n_refine)]]
@@ -1057,7 +1066,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                 top_r = min(refined, key=lambda r: r.sse)
                 if top_r.S > 0:
                     Jr = np.asarray(DEFAULT_J_RATIOS, float)
-                    Sm_, Rm_, Fm_ = np.meshgrid(top_r.S * np.asarray(PROFILE_S_FACTORS), Jr, [1.0, -1.0],
+                    Sp_ = np.unique(np.minimum(top_r.S * np.asarray(PROFILE_S_FACTORS), S_cap))
+                    Sm_, Rm_, Fm_ = np.meshgrid(Sp_, Jr, [1.0, -1.0],
                                                 indexing="ij")
                     Sm_, Rm_, Fm_ = Sm_.ravel(), Rm_.ravel(), Fm_.ravel()
                     Jm_ = Sm_ * Rm_
@@ -1113,12 +1123,12 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         k = int(np.argmin(sse[0]))
         cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]))
         if stiction:
-            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max)
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
         if sq is not None and sq < cur.sse:
             cur = _Best(cur.S, cur.J, cur.F, cq, sq)
         if stiction:
-            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max)
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
         return cur
 
     if max_samples is not None and n > max_samples and structure is None:
@@ -1146,9 +1156,10 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     sse0, _ = prob.sse([best.S], [best.J], [best.F], best.cfg)
     best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]))
     if stiction and best.S > 0:
-        best = _zoom(prob, best, rounds=2, size=9, span=0.06)
+        best = _zoom(prob, best, rounds=2, size=9, span=0.06, S_max_pct=S_cap)
         if structure is None:
-            best = _nelder_mead_refine(prob, best, ts_s, fixed=False, max_iter=100, tol=1e-6, tau_max_s=tau_max)
+            best = _nelder_mead_refine(prob, best, ts_s, fixed=False, max_iter=100, tol=1e-6, tau_max_s=tau_max,
+                                       S_max_pct=S_cap)
 
     surface_cost = None
     if stiction and surface:
