@@ -31,8 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from diagnose.fit import (_burn_in, _make_configs, _op_offset, _Problem, _score_weights,  # noqa: E402
-                          fit_hammerstein)
+from diagnose.fit import _op_offset, fit_hammerstein  # noqa: E402
+from diagnose.output_error import _burn_in, _make_configs, _Problem, _score_weights  # noqa: E402
 from validate_simulated import make_case  # noqa: E402
 
 
@@ -62,7 +62,7 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel"):
         # plain: the reference valve in Python, scipy.signal.lfilter, numpy least squares
         from scipy.signal import lfilter
 
-        from diagnose.fit import _legendre_basis
+        from diagnose.output_error import _legendre_basis
         from diagnose.stiction_model import stiction_reference
 
         a = math.exp(-ts_s / hp_tau_s) if hp_tau_s else None

@@ -29,9 +29,9 @@ import numpy as np
 
 from .errors import DataError
 from .controller import ControllerAction, controller_action
-from .fit import (MIN_SAMPLES, HammersteinFit, ValveFit, _burn_in, _make_configs, _Problem,
-                  _score_weights, fit_hammerstein, fit_valve)
+from .fit import HammersteinFit, ValveFit, fit_hammerstein, fit_valve
 from .oscillation import Oscillation, oscillation_context
+from .output_error import MIN_SAMPLES, _burn_in, _make_configs, _Problem, _score_weights
 from .record import Finding, LoopRecord
 from .stiction_model import stiction_class, stiction_classes
 
@@ -349,7 +349,6 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
     by_class: dict[str, float] = {}      # best cost per class shape (for the plausible set)
 
     def keep(c, Sv, Jv, Rv, F, xs0):
-        nonlocal per_ratio
         names = stiction_classes(Sv, Jv)
         for name in np.unique(names[names != "none"]):
             cm = float(c[names == name].min())

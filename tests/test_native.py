@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import diagnose.fit as fit
+import diagnose.output_error as oe
 import diagnose.native as nv
 import diagnose.process_model as pm
 import diagnose.stiction_model as sm
@@ -52,7 +53,8 @@ def test_every_identify_kernel_has_an_up_to_date_native_twin(cache):
     st = nv.status()
     assert st["native"], st["reason"]
     for key in ("diagnose.stiction_model._batch_kernel", "diagnose.process_model._lag_filter",
-                "diagnose.fit._ham_sse", "diagnose.fit._hp_filter_2d", "diagnose.fit._valve_smooth"):
+                "diagnose.output_error._ham_sse", "diagnose.output_error._hp_filter_2d",
+                "diagnose.output_error._valve_smooth"):
         deps = nv._TWINS[key][1]
         stale = {d: nv.fingerprint(d) for d, fp in deps.items() if nv.fingerprint(d) != fp}
         assert not stale, (f"{key}: the Python kernel changed; port the change to diagnose/native/kernels.c "
@@ -89,9 +91,9 @@ def test_valve_smooth_native_equals_numba_and_python(cache):
     rng = np.random.default_rng(3)
     x = _walk(rng, 800)
     for s, j, f in [(2.0, 0.5, 1.0), (1.0, 3.0, -1.0), (4.0, 0.0, 1.0), (0.0, 0.0, 1.0)]:
-        a = fit._valve_smooth.native(x, s, j, f, np.empty(x.size))
-        b = fit._valve_smooth.numba(x, s, j, f, np.empty(x.size))
-        c = fit._valve_smooth.py_func(x, s, j, f, np.empty(x.size))
+        a = oe._valve_smooth.native(x, s, j, f, np.empty(x.size))
+        b = oe._valve_smooth.numba(x, s, j, f, np.empty(x.size))
+        c = oe._valve_smooth.py_func(x, s, j, f, np.empty(x.size))
         np.testing.assert_array_equal(_bits(a), _bits(b))
         np.testing.assert_array_equal(a, c)
 
@@ -110,9 +112,9 @@ def test_lag_filter_native_equals_numba_and_python(cache, a1, a2, d, integ):
 @pytest.mark.parametrize("m", [1, 3])
 def test_hp_filter_native_equals_numba_and_python(cache, m):
     v = np.random.default_rng(5).normal(size=(500, m)).cumsum(axis=0)
-    a = fit._hp_filter_2d.native(v, 0.9)
-    b = fit._hp_filter_2d.numba(v, 0.9)
-    c = fit._hp_filter_2d.py_func(v, 0.9)
+    a = oe._hp_filter_2d.native(v, 0.9)
+    b = oe._hp_filter_2d.numba(v, 0.9)
+    c = oe._hp_filter_2d.py_func(v, 0.9)
     np.testing.assert_array_equal(_bits(a), _bits(b))
     np.testing.assert_array_equal(a, c)
 
@@ -125,7 +127,7 @@ def _ham_case(rng, n, m, P, K, hp, gfix, smooth):
     kinds = rng.choice(["foptd", "soptd", "integrating"], P)
     entries = [(k, float(rng.uniform(0.5, 30.0)), float(rng.uniform(0.5, 10.0)), int(rng.integers(0, 9)))
                for k in kinds]
-    cfg = fit._make_configs(entries, 1.0)
+    cfg = oe._make_configs(entries, 1.0)
     w = (rng.random(n) < 0.8).astype(float)
     w[:20] = 0.0
     y = rng.normal(size=n).cumsum() * 0.1
@@ -147,14 +149,14 @@ def _ham_reference(args, smooth, gfix):
     gain = np.empty((m, P))
     for i in range(m):
         if smooth:
-            u = fit._valve_smooth.py_func(x, S[i], J[i], F[i], np.empty(x.size))
+            u = oe._valve_smooth.py_func(x, S[i], J[i], F[i], np.empty(x.size))
         else:
             u = stiction_reference(x, S[i], J[i], int(F[i]))
         for p in range(P):
             z = pm._lag_filter.py_func(u - u[0], a1[p], a2[p] if a2[p] >= 0 else 0.0, int(d[p]),
                                        bool(integ[p]), ts)
             # the kernel starts the lags at rest at 0 with the dead time filled by u0 (0 here)
-            v = fit._hp_filter_2d.py_func(z[:, None], ahp)[:, 0] if ahp >= 0 else z
+            v = oe._hp_filter_2d.py_func(z[:, None], ahp)[:, 0] if ahp >= 0 else z
             szz, szy, szq = float(np.sum(w * v * v)), float(yw @ v), Qw.T @ v
             zzp, zyp = szz - szq @ szq, szy - szq @ Qty
             if gfix == gfix:
@@ -177,7 +179,7 @@ def test_ham_sse_native_equals_numba_bit_for_bit_and_reference(cache, m, P, K, h
     args, smooth, gfix = _ham_case(rng, 700, m, P, K, hp, gfix, smooth)
     outs = {}
     for name in ("native", "numba"):
-        k = getattr(fit._ham_sse, name)
+        k = getattr(oe._ham_sse, name)
         sse, gain = np.empty((m, P)), np.empty((m, P))
         k(*args, sse, gain, smooth, gfix)
         outs[name] = (sse, gain)
@@ -311,7 +313,7 @@ def test_required_native_reuses_the_cached_library(cache, monkeypatch):
 def test_kernels_pickle_by_reference():
     import pickle
     assert pickle.loads(pickle.dumps(sm._batch_kernel)) is sm._batch_kernel
-    assert pickle.loads(pickle.dumps(fit._ham_sse)) is fit._ham_sse
+    assert pickle.loads(pickle.dumps(oe._ham_sse)) is oe._ham_sse
 
 
 def test_a_damaged_library_is_rebuilt(tmp_path, monkeypatch):

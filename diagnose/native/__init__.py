@@ -1,9 +1,9 @@
 """Compiled kernels without the numba start-up cost: a native (C) fast path, numba as fallback.
 
 The fitting stage spends its time in a handful of small loops (`diagnose.stiction_model._batch_kernel`,
-`diagnose.process_model._lag_filter`, `diagnose.fit._ham_sse`, `diagnose.fit._hp_filter_2d`,
-`diagnose.fit._valve_smooth`). They are written once, in Python, and decorated with `njit` from this
-module instead of numba's. That decorator is lazy:
+`diagnose.process_model._lag_filter`, `diagnose.output_error._ham_sse`,
+`diagnose.output_error._hp_filter_2d`, `diagnose.output_error._valve_smooth`). They are written once, in
+Python, and decorated with `njit` from this module instead of numba's. That decorator is lazy:
 
 * importing a module that defines kernels does not import numba (numba's import and the first
   load of its cached machine code cost about a second, more than a whole identification);
@@ -581,15 +581,15 @@ def _make_ham_sse(lib):
 _TWINS: dict[str, tuple[Callable, dict[str, str]]] = {
     "diagnose.stiction_model._batch_kernel": (_make_batch_kernel, {
         "diagnose.stiction_model._batch_kernel": "9cefad784174"}),
-    "diagnose.fit._valve_smooth": (_make_valve_smooth, {
-        "diagnose.fit._valve_smooth": "3fc687fd5279"}),
+    "diagnose.output_error._valve_smooth": (_make_valve_smooth, {
+        "diagnose.output_error._valve_smooth": "3fc687fd5279"}),
     "diagnose.process_model._lag_filter": (_make_lag_filter, {
         "diagnose.process_model._lag_filter": "c1d48f13f90f"}),
-    "diagnose.fit._hp_filter_2d": (_make_hp_filter_2d, {
-        "diagnose.fit._hp_filter_2d": "f398745ca6a3"}),
-    "diagnose.fit._ham_sse": (_make_ham_sse, {
-        "diagnose.fit._ham_sse": "7c86161513b8",
-        "diagnose.fit._one_structure": "5acad93837b7",
-        "diagnose.fit._valve_smooth": "3fc687fd5279",
+    "diagnose.output_error._hp_filter_2d": (_make_hp_filter_2d, {
+        "diagnose.output_error._hp_filter_2d": "f398745ca6a3"}),
+    "diagnose.output_error._ham_sse": (_make_ham_sse, {
+        "diagnose.output_error._ham_sse": "7c86161513b8",
+        "diagnose.output_error._one_structure": "5acad93837b7",
+        "diagnose.output_error._valve_smooth": "3fc687fd5279",
         "diagnose.stiction_model._batch_kernel": "9cefad784174"}),
 }

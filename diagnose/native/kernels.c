@@ -6,10 +6,10 @@
  * -ffp-contract=off (no fused multiply-add), it returns the same numbers bit for bit:
  *
  *   stiction_batch  <- diagnose.stiction_model._batch_kernel
- *   valve_smooth    <- diagnose.fit._valve_smooth
+ *   valve_smooth    <- diagnose.output_error._valve_smooth
  *   lag_filter      <- diagnose.process_model._lag_filter
- *   hp_filter_2d    <- diagnose.fit._hp_filter_2d
- *   ham_sse         <- diagnose.fit._ham_sse (each job as diagnose.fit._one_structure)
+ *   hp_filter_2d    <- diagnose.output_error._hp_filter_2d
+ *   ham_sse         <- diagnose.output_error._ham_sse (each job as diagnose.output_error._one_structure)
  *
  * min/max follow numba's (and Python's) builtins: max(a, b) = b > a ? b : a,
  * min(a, b) = b < a ? b : a.
@@ -145,7 +145,7 @@ static void stiction_lanes(const double *x, int64_t n, const double s_[LANES], c
     }
 }
 
-/* diagnose.fit._valve_smooth: the valve with the slip instant interpolated inside the sample. */
+/* diagnose.output_error._valve_smooth: the valve with the slip instant interpolated inside the sample. */
 void valve_smooth(const double *x, int64_t n, double s, double j, double f0, double *out)
 {
     if (n <= 0)
@@ -225,7 +225,7 @@ void lag_filter(const double *u, int64_t n, double a1, double a2, int64_t d, int
     }
 }
 
-/* diagnose.fit._hp_filter_2d: (1 - q^-1) / (1 - a q^-1) down each column of v (n x m). */
+/* diagnose.output_error._hp_filter_2d: (1 - q^-1) / (1 - a q^-1) down each column of v (n x m). */
 void hp_filter_2d(const double *v, int64_t n, int64_t m, int64_t ldv, double a, double *out)
 {
     if (n <= 0)
@@ -265,7 +265,7 @@ static inline void finish_one(double szz, double szy, const double *szq, const d
 }
 
 /*
- * diagnose.fit._ham_sse: output-error SSE (and gain) of every (valve candidate i, structure p).
+ * diagnose.output_error._ham_sse: output-error SSE (and gain) of every (valve candidate i, structure p).
  * sse and gain are m x P (row-major). Returns 0, or -1 when memory runs out.
  *
  * The numba kernel runs four structures of one candidate at a time and the leftover structures one
