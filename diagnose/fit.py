@@ -16,7 +16,7 @@ and the load coefficients are linear and solved by least squares inside one comp
    exact local (S, J, f0) zoom and a final Nelder-Mead;
 5. the error surface on the global grid at the final structure, and intervals from it.
 
-Records longer than ``max_samples`` are searched on block means first and refined at full rate.
+Records longer than ``max_samples`` are searched on a full-rate window and refined on the whole record.
 The cost of a candidate (the compiled simulation and least-squares pass) is in
 `diagnose.output_error`; this module holds the search and its results.
 PV is prefiltered with an integrated-noise model (see ``hp_tau_s``). Details: docs/fitting.md.
@@ -47,8 +47,6 @@ from .stiction_model import stiction_batch
 
 #: Default noise prefilter time constant, in samples (see `fit_hammerstein`, ``hp_tau_s``).
 AUTO_HP_SAMPLES = 10.0
-#: Records longer than ``max_samples`` are searched on block averages of about this many samples.
-COARSE_SAMPLES = 2000
 #: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
 DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
@@ -279,6 +277,17 @@ def _interval(values: np.ndarray, inside: np.ndarray, best: float, grid: np.ndar
     return (max(0.0, min(lo - step_lo, best)), max(hi + step_hi, best))
 
 
+def _search_window(x: np.ndarray, m: int) -> int:
+    """Start of the ``m``-sample window in which OP covers the widest robust range (the earliest
+    of equals): the part of a long record that shows the valve the most."""
+    n = x.shape[0]
+    if n <= m:
+        return 0
+    starts = np.unique(np.r_[np.arange(0, n - m + 1, max(1, m // 4)), n - m])
+    spans = [float(np.percentile(x[i:i + m], 99.5) - np.percentile(x[i:i + m], 0.5)) for i in starts]
+    return int(starts[int(np.argmax(spans))])
+
+
 def _s_grid(x: np.ndarray, n_S: int, S_max_pct: float | None) -> np.ndarray:
     if S_max_pct is None:
         lo, hi = np.percentile(x, [0.5, 99.5])
@@ -452,8 +461,9 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         Smallest dead time searched (default one sample: logged PV cannot respond to the OP logged
         at the same instant, and allowing it lets the fit explain PV through the controller).
     max_samples : int or None
-        Longer records are searched on block averages of about `COARSE_SAMPLES` samples first,
-        then refined at the full rate (None: always full rate).
+        Longer records are searched on a window of this many samples at the full rate (the one
+        where OP covers the widest range), and the result is refined on the whole record (None:
+        search the whole record).
     J_ratios : sequence of float, optional
         J/S ratios of the global grid (default `DEFAULT_J_RATIOS`).
     dense_S, dense_ratios : int
@@ -698,13 +708,12 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             best = min(results, key=lambda r: r.sse)
         return best
 
-    def refine_from(coarse: "HammersteinFit") -> _Best:
-        """Full-rate refinement of a fit made on block-averaged data."""
+    def refine_from(part: "HammersteinFit") -> _Best:
+        """Refinement on the whole record of a fit made on a window of it."""
         nonlocal prob
-        q = int(round(coarse.ts_s / ts_s))
-        cp = coarse.process
+        cp = part.process
         d0 = int(round(cp.delay_s / ts_s))
-        S0, J0, F0 = coarse.S_pct, coarse.J_pct, float(coarse.f0)
+        S0, J0, F0 = part.S_pct, part.J_pct, float(part.f0)
         base = (cp.kind, cp.tau_s if cp.kind != "integrating" else max(cp.tau_s, 0.0),
                 cp.tau2_s, d0)
         if auto_hp:
@@ -718,8 +727,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             hp_new = None if hp_best is None else hp_best * ts_s
             if hp_new != prob.hp_tau_s:
                 prob = _Problem(x, y, ts_s, w, load_order, hp_new, gain_fixed, gain_sign)
-        dstep = max(1, q // 3)
-        dset = sorted({min(dmax, max(dmin, d0 + k * dstep)) for k in range(-3, 4)})
+        dset = sorted({min(dmax, max(dmin, d0 + k)) for k in range(-3, 4)})
         entries = [(cp.kind, cp.tau_s * f, cp.tau2_s * f, dd) for f in 2.0 ** np.arange(-1.0, 1.01, 0.5)
                    for dd in dset]
         loc = make_configs(entries, ts_s)
@@ -736,13 +744,14 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         return cur
 
     if max_samples is not None and n > max_samples and structure is None:
-        q = int(math.ceil(n / min(max_samples, COARSE_SAMPLES)))
-        nd = n // q
-        xd = x[: nd * q].reshape(nd, q).mean(axis=1)
-        yd = y[: nd * q].reshape(nd, q).mean(axis=1)
-        wd = w[: nd * q].reshape(nd, q).min(axis=1) > 0
-        wd[: max(1, burn // q)] = True      # the coarse fit applies its own burn-in
-        coarse = fit_hammerstein(xd, yd, ts_s * q, train=wd, stiction=stiction, kinds=kinds,
+        # search a full-rate window, refine on the whole record: slips happen at the sample level,
+        # and block means smear them (searching block means of 10 000-sample loops got J wrong by
+        # half and the class wrong in a third of the simulated loops, see docs/validation.md)
+        i0 = _search_window(x, max_samples)
+        sl = slice(i0, i0 + max_samples)
+        tw = w[sl] > 0
+        tw[: max(0, burn - i0)] = True      # the window's fit applies its own burn-in
+        part = fit_hammerstein(x[sl], y[sl], ts_s, train=tw, stiction=stiction, kinds=kinds,
                                  max_delay_s=max_delay_s, n_S=n_S, n_J=n_J, S_max_pct=float(S_grid[-1]),
                                  load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
                                  hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
@@ -752,7 +761,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                  dense_S=dense_S, dense_ratios=dense_ratios,
                                  dense_structures=dense_structures, n_refine=n_refine,
                                  profile_ratios=profile_ratios)
-        best = refine_from(coarse)
+        best = refine_from(part)
     else:
         best = search()
 

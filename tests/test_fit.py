@@ -192,3 +192,15 @@ def test_refinements_keep_S_within_the_OP_range():
     fit = fit_hammerstein(op, pv, 1.0, gain_sign=1.0)
     op_range = float(np.percentile(op, 99.5) - np.percentile(op, 0.5))
     assert fit.S_pct <= 1.2 * op_range + 1e-9
+
+
+def test_a_long_record_is_searched_at_the_full_rate():
+    # the 10 000-sample loop of the speed benchmark (`stiction simulate --S 3 --J 1 --n 10000`):
+    # searched on block means it came out as a deadband (J 0.27 %); slips happen at the sample
+    # level, so long records are searched on a full-rate window and refined on the whole record
+    rec = sticky_loop(3.0, 1.0, n=10000, gain=1.0, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=0)
+    fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s)
+    assert abs(fit.S_pct - 3.0) < 0.1 * 3.0
+    assert abs(fit.J_pct - 1.0) < 0.2 * 1.0
+    assert fit.n_fit == 10000
