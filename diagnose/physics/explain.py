@@ -15,7 +15,8 @@ position):
    ``min_reduction`` below the reference's, (b) also below the baseline's by half that, and (c) its
    held-out BIC, ``n_eff ln(SSE_h / SSE_ref) + k ln(n_eff)`` with ``n_eff`` the effective number of
    independent held-out residuals and ``k`` the added parameters, is below ``STRONG_BIC`` (-6). The accepted one
-   with the lowest held-out BIC is named; none accepted -> ``missing_physics = None``.
+   with the lowest held-out BIC (ranked with one ``n_eff`` per stage, the reference's) is named; none
+   accepted -> ``missing_physics = None``.
 """
 
 from __future__ import annotations
@@ -241,6 +242,16 @@ class _StageRun:
     fitted: list = field(default_factory=list)   # (Fitted, y_hat, HypothesisResult)
     loc_hat: np.ndarray | None = None
     loc_stem: np.ndarray | None = None
+    n_eff: float = 1.0   # effective number of independent held-out residuals of the reference
+
+    def rank_bic(self, res: "HypothesisResult") -> float:
+        """Held-out BIC difference of an accepted hypothesis for ranking: the same form as
+        ``delta_bic`` but with one ``n_eff`` for the whole stage (the reference's), so that the
+        ranking follows the held-out error and the parameter count rather than the colour of each
+        model's own residual."""
+        n = max(self.n_eff, 1.0)
+        ratio = max(res.heldout_rmse, 1e-300) / max(self.ref_rmse, 1e-300)
+        return 2.0 * n * math.log(ratio) + res.n_extra * math.log(n)
 
 
 def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: bool,
@@ -340,6 +351,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     e_ref = (stage.y - ref_hat)[ho]
     sse_ref = float(e_ref @ e_ref)
     n_eff = effective_n(e_ref)
+    run.n_eff = n_eff
     n_eff_tr = effective_n((stage.y - ref_hat)[stage.train])
     for h in hyps:
         fitted = fits[h.name]
@@ -466,7 +478,8 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
 
     all_results = [(sn, f, yh, res) for sn, r in runs.items() for f, yh, res in r.fitted]
     accepted = [t for t in all_results if t[3].accepted]
-    winner = min(accepted, key=lambda t: t[3].delta_bic) if accepted else None
+    # two accepted on one stage: the one that explains the held-out data best for its parameters
+    winner = min(accepted, key=lambda t: runs[t[0]].rank_bic(t[3])) if accepted else None
     report_stage = winner[0] if winner else ("valve" if "valve" in runs and "loop" not in runs else
                                              ("loop" if "loop" in runs else "valve"))
     run = runs[report_stage]

@@ -187,6 +187,65 @@ def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> St
     return best
 
 
+def _fine_asym(stage: Stage, struct: Structure) -> Structure:
+    """Fine polish of an asymmetric valve on the valve stage (OP -> MV), as `_fine_valve` for a
+    symmetric one: both S scaled together in 0.5 % steps over +-6 %, then each side's S in 0.5 %
+    steps over +-6 % with its J/S over the whole range, then 0.1 % and 1 % steps, then the initial
+    state; twice. The one-direction scans step S by 1-2 %, and 1 % off in S moves every slip."""
+    best, cost = best_of(stage, [struct])
+    for _ in range(2):
+        cands = [best.replace(S_up_pct=best.S_up_pct * m, S_dn_pct=best.S_dn_pct * m,
+                              J_up_pct=best.J_up_pct * m * mj, J_dn_pct=best.J_dn_pct * m * mj, f0=f)
+                 for m in 1.0 + np.linspace(-0.06, 0.06, 25) for mj in (0.9, 1.0, 1.1) for f in (1, -1)]
+        b, _ = best_of(stage, cands + [best])
+        for side in ("up", "dn"):
+            S0 = max(getattr(b, f"S_{side}_pct"), 0.05)
+            cands = [b.replace(**{f"S_{side}_pct": S0 * m, f"J_{side}_pct": S0 * m * r})
+                     for m in 1.0 + np.linspace(-0.06, 0.06, 25) for r in np.linspace(0.0, 1.45, 30)]
+            b, _ = best_of(stage, cands + [b])
+            S1, J1 = getattr(b, f"S_{side}_pct"), max(getattr(b, f"J_{side}_pct"), 0.02)
+            cands = [b.replace(**{f"S_{side}_pct": S1 * m, f"J_{side}_pct": J1 * mj})
+                     for m in 1.0 + np.linspace(-0.01, 0.01, 21) for mj in 1.0 + np.linspace(-0.08, 0.08, 17)]
+            b, _ = best_of(stage, cands + [b])
+        b, c = fit_initial_state(stage, b)
+        if c >= cost * (1.0 - 1e-4):
+            break
+        best, cost = b, c
+    return best
+
+
+def _dynamics_starts(stage: Stage, struct: Structure, k: int = 2) -> list[Structure]:
+    """The ``k`` best distinct process dynamics for a fixed (augmented) valve, from a global
+    (tau x dead time) grid, each refit locally and with its own initial valve state.
+
+    Valve and process co-adapt: a plain fit's process (often a short lag with a long dead time)
+    wants a wrong valve, and a local search of the valve from it stays in that basin; the
+    augmented valve's own best process is searched again globally."""
+    if stage.fixed_dynamics:
+        return []
+    p0 = struct.process
+    ts = stage.ts_s
+    T = stage.train.sum() * ts
+    taus = sorted(set(np.geomspace(ts, max(T / 6.0, 2 * ts), 12).tolist()
+                      + [max(p0.tau_s, ts) * m for m in (0.7, 1.0, 1.4)]))
+    d0 = int(round(p0.delay_s / ts))
+    delays = sorted(set(range(0, 16)) | {d0})
+    cands = [struct.replace(process=dataclasses.replace(p0, tau_s=float(t), delay_s=d * ts))
+             for t in taus for d in delays]
+    sse = train_sse(stage, cands)
+    tops = _best_distinct(cands, sse, lambda c: (round(math.log(max(c.process.tau_s, ts)) / 0.35),
+                                                 int(round(c.process.delay_s / ts)) // 3), k + 1)
+    out = []
+    for c in tops:
+        if abs(c.process.tau_s - p0.tau_s) < 1e-9 and abs(c.process.delay_s - p0.delay_s) < 1e-9:
+            continue
+        c, _ = refit_dynamics(stage, c, rounds=1)
+        if c.y0_pct is not None:
+            c, _ = fit_initial_state(stage, c)
+        out.append(c)
+    return out[:k]
+
+
 class ActuatorLag(PhysicsHypothesis):
     """First-order lag of the stem after the friction element (pneumatic actuator, positioner).
 
@@ -291,7 +350,11 @@ class AsymmetricStiction(PhysicsHypothesis):
         for st in starts:
             b = self._scan(stage, st, S, wide)
             results.append((best_of(stage, [b])[1], b))
-        return min(results, key=lambda t: t[0])[1]
+        best = min(results, key=lambda t: t[0])[1]
+        if stage.name == "valve":
+            # OP -> MV: the cost is sharp in S on both sides; the scans step S by 1-2 %
+            best = _fine_asym(stage, best)
+        return best
 
     def _scan(self, stage, start, S, wide):
         best = start
@@ -548,11 +611,32 @@ class TimeVaryingFriction(PhysicsHypothesis):
         centres = {round(max(reference.S_up_pct, 0.2), 6)}
         if context.baseline is not None and context.baseline.S_up_pct > 0.2:
             centres.add(round(context.baseline.S_up_pct, 6))
+        best = self._grid(stage, reference, centres, T)
+        if stage.name == "valve":
+            return _fine_valve(stage, best, "dS_pct_per_s")
+        # valve and process co-adapt: search the drifting valve's own process globally, then the
+        # drift again from it (around the drift's mid-span S and the reference's)
+        cost = best_of(stage, [best])[1]
+        mid = 0.5 * T
+        for st in _dynamics_starts(stage, best):
+            c_mid = round(max(best.S_up_pct + best.dS_pct_per_s * mid, 0.2), 6)
+            plain = st.replace(dS_pct_per_s=0.0, dJ_pct_per_s=0.0)
+            b = self._grid(stage, plain, centres | {c_mid}, T, extra=[st])
+            b, c = best_of(stage, [b])
+            if c < cost:
+                best, cost = b, c
+        return best
+
+    def _grid(self, stage, reference, centres, T, extra=()):
+        """The drift search around one plain start: S at the start and the end of the fitted span
+        on fine geometric grids around each of ``centres`` (J drifting alike), the initial state of
+        the best few distinct drifts, then local polish rounds with the dynamics refit. ``extra``:
+        further candidates to keep (e.g. the drift the search restarts from)."""
         m_start = np.exp(np.arange(math.log(0.55), math.log(1.35), 0.03))
         q_end = np.exp(np.concatenate([np.arange(-0.6, -0.035, 0.03), np.arange(0.04, 0.61, 0.03)]))
         r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
         ratios = sorted({round(r0, 3), 0.3, 0.6, 0.9})
-        cands = [reference]
+        cands = [reference] + list(extra)
         y0s = _y0_options(stage, reference)
         for Sc in centres:
             cands += [reference.replace(S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r, f0=f,
@@ -586,8 +670,6 @@ class TimeVaryingFriction(PhysicsHypothesis):
             cands.append(best)
             best, _ = best_of(stage, cands)
             best, _ = refit_dynamics(stage, best, rounds=1)
-        if stage.name == "valve":
-            best = _fine_valve(stage, best, "dS_pct_per_s")
         return best
 
     def _params(self, struct, reference, stage, coef):
