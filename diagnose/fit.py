@@ -277,15 +277,23 @@ def _interval(values: np.ndarray, inside: np.ndarray, best: float, grid: np.ndar
     return (max(0.0, min(lo - step_lo, best)), max(hi + step_hi, best))
 
 
-def _search_window(x: np.ndarray, m: int) -> int:
+def _search_window(x: np.ndarray, m: int, scored: np.ndarray | None = None) -> int:
     """Start of the ``m``-sample window in which OP covers the widest robust range (the earliest
-    of equals): the part of a long record that shows the valve the most."""
+    of equals): the part of a long record that shows the valve the most. With a training mask
+    ``scored``, the range of the scored samples times their share of the window counts."""
     n = x.shape[0]
     if n <= m:
         return 0
     starts = np.unique(np.r_[np.arange(0, n - m + 1, max(1, m // 4)), n - m])
-    spans = [float(np.percentile(x[i:i + m], 99.5) - np.percentile(x[i:i + m], 0.5)) for i in starts]
-    return int(starts[int(np.argmax(spans))])
+    values = []
+    for i in starts:
+        xs = x[i:i + m] if scored is None else x[i:i + m][scored[i:i + m]]
+        if xs.shape[0] < MIN_SAMPLES:
+            values.append(-1.0)
+            continue
+        span = float(np.percentile(xs, 99.5) - np.percentile(xs, 0.5))
+        values.append(span if scored is None else span * xs.shape[0] / m)
+    return int(starts[int(np.argmax(values))])
 
 
 def _s_grid(x: np.ndarray, n_S: int, S_max_pct: float | None) -> np.ndarray:
@@ -747,7 +755,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         # search a full-rate window, refine on the whole record: slips happen at the sample level,
         # and block means smear them (searching block means of 10 000-sample loops got J wrong by
         # half and the class wrong in a third of the simulated loops, see docs/validation.md)
-        i0 = _search_window(x, max_samples)
+        i0 = _search_window(x, max_samples, None if train is None else w > 0)
         sl = slice(i0, i0 + max_samples)
         tw = w[sl] > 0
         tw[: max(0, burn - i0)] = True      # the window's fit applies its own burn-in

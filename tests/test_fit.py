@@ -204,3 +204,14 @@ def test_a_long_record_is_searched_at_the_full_rate():
     assert abs(fit.S_pct - 3.0) < 0.1 * 3.0
     assert abs(fit.J_pct - 1.0) < 0.2 * 1.0
     assert fit.n_fit == 10000
+
+
+def test_a_long_record_with_a_training_mask_is_searched_where_it_is_scored():
+    # the window of a long record must hold training samples: here only the first 40 % are
+    rec = sticky_loop(3.0, 1.0, n=10000, gain=1.0, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=0)
+    train = np.zeros(rec.n, bool)
+    train[:4000] = True
+    fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s, train=train)
+    assert abs(fit.S_pct - 3.0) < 0.1 * 3.0
+    assert fit.n_fit == 10000
