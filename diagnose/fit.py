@@ -760,15 +760,15 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         tw = w[sl] > 0
         tw[: max(0, burn - i0)] = True      # the window's fit applies its own burn-in
         part = fit_hammerstein(x[sl], y[sl], ts_s, train=tw, stiction=stiction, kinds=kinds,
-                                 max_delay_s=max_delay_s, n_S=n_S, n_J=n_J, S_max_pct=float(S_grid[-1]),
-                                 load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
-                                 hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
-                                 tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
-                                 surface=False, gain_fixed=gain_fixed, gain_sign=gain_sign,
-                                 J_ratios=J_ratios,
-                                 dense_S=dense_S, dense_ratios=dense_ratios,
-                                 dense_structures=dense_structures, n_refine=n_refine,
-                                 profile_ratios=profile_ratios)
+                               max_delay_s=max_delay_s, n_S=n_S, n_J=n_J, S_max_pct=float(S_grid[-1]),
+                               load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
+                               hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
+                               tau_range_s=tau_range_s, min_delay_s=min_delay_s, max_samples=None,
+                               surface=False, gain_fixed=gain_fixed, gain_sign=gain_sign,
+                               J_ratios=J_ratios,
+                               dense_S=dense_S, dense_ratios=dense_ratios,
+                               dense_structures=dense_structures, n_refine=n_refine,
+                               profile_ratios=profile_ratios)
         best = refine_from(part)
     else:
         best = search()
