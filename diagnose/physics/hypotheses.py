@@ -151,6 +151,18 @@ def _with_sj(struct: Structure, S: float, J: float, f0: int | None = None) -> St
                           f0=struct.f0 if f0 is None else f0)
 
 
+def _polish(stage: Stage, struct: Structure, one_round) -> Structure:
+    """Up to two rounds of ``one_round`` (a structure -> a better structure by fine grids), each
+    followed by the initial state; stops when a round gains less than 0.01 % of the cost."""
+    best, cost = best_of(stage, [struct])
+    for _ in range(2):
+        b, c = fit_initial_state(stage, one_round(best))
+        if c >= cost * (1.0 - 1e-4):
+            break
+        best, cost = b, c
+    return best
+
+
 def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Structure:
     """Fine polish of a symmetric valve on the valve stage (OP -> MV), where the output-error cost
     is V-shaped and sharp: 1 % off in S moves every slip by a sample or two and can cost ten times
@@ -159,8 +171,7 @@ def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> St
     S(t) scaled in 0.5 % steps over +-12 % with J(t)/S(t) over its whole range (and ``extra``,
     ``tau_lag_s`` or ``dS_pct_per_s``, +-30 %), then S in 0.1 % and J in 1 % steps, then the
     initial state; twice. A drift is scaled with S (J drifts in proportion)."""
-    best, cost = best_of(stage, [struct])
-    for _ in range(2):
+    def one_round(best: Structure) -> Structure:
         S0, dS0 = max(best.S_up_pct, 0.05), best.dS_pct_per_s
         e0 = getattr(best, extra) if extra else 0.0
         ems = (0.7, 0.85, 1.0, 1.15, 1.3) if e0 else (1.0,)
@@ -179,12 +190,9 @@ def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> St
         cands = [b.replace(S_up_pct=S1 * m, S_dn_pct=S1 * m, J_up_pct=J1 * mj, J_dn_pct=J1 * mj,
                            dS_pct_per_s=dS1 * m, dJ_pct_per_s=dJ1 * mj)
                  for m in 1.0 + np.linspace(-0.02, 0.02, 41) for mj in 1.0 + np.linspace(-0.08, 0.08, 17)]
-        b, _ = best_of(stage, cands + [b])
-        b, c = fit_initial_state(stage, b)
-        if c >= cost * (1.0 - 1e-4):
-            break
-        best, cost = b, c
-    return best
+        return best_of(stage, cands + [b])[0]
+
+    return _polish(stage, struct, one_round)
 
 
 def _fine_asym(stage: Stage, struct: Structure) -> Structure:
@@ -192,8 +200,7 @@ def _fine_asym(stage: Stage, struct: Structure) -> Structure:
     symmetric one: both S scaled together in 0.5 % steps over +-6 %, then each side's S in 0.5 %
     steps over +-6 % with its J/S over the whole range, then 0.1 % and 1 % steps, then the initial
     state; twice. The one-direction scans step S by 1-2 %, and 1 % off in S moves every slip."""
-    best, cost = best_of(stage, [struct])
-    for _ in range(2):
+    def one_round(best: Structure) -> Structure:
         cands = [best.replace(S_up_pct=best.S_up_pct * m, S_dn_pct=best.S_dn_pct * m,
                               J_up_pct=best.J_up_pct * m * mj, J_dn_pct=best.J_dn_pct * m * mj, f0=f)
                  for m in 1.0 + np.linspace(-0.06, 0.06, 25) for mj in (0.9, 1.0, 1.1) for f in (1, -1)]
@@ -207,11 +214,9 @@ def _fine_asym(stage: Stage, struct: Structure) -> Structure:
             cands = [b.replace(**{f"S_{side}_pct": S1 * m, f"J_{side}_pct": J1 * mj})
                      for m in 1.0 + np.linspace(-0.01, 0.01, 21) for mj in 1.0 + np.linspace(-0.08, 0.08, 17)]
             b, _ = best_of(stage, cands + [b])
-        b, c = fit_initial_state(stage, b)
-        if c >= cost * (1.0 - 1e-4):
-            break
-        best, cost = b, c
-    return best
+        return b
+
+    return _polish(stage, struct, one_round)
 
 
 def _dynamics_starts(stage: Stage, struct: Structure, k: int = 2) -> list[Structure]:
