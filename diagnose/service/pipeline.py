@@ -25,9 +25,9 @@ import numpy as np
 from ..errors import StictionError
 from ..record import LoopRecord
 
-#: Bump when the result layout or the service's own logic changes: it is part of the input hash,
-#: so a nightly re-run after an upgrade re-diagnoses every loop.
-PIPELINE_REVISION = "3"
+#: Bump when the result layout, the service's own logic or the results it computes change: it is
+#: part of the input hash, so a nightly re-run after an upgrade re-diagnoses every loop.
+PIPELINE_REVISION = "4"
 
 SCHEMA = "stiction.loop/1"
 
