@@ -49,8 +49,15 @@ from .stiction_model import stiction_batch
 AUTO_HP_SAMPLES = 10.0
 #: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
 DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
+# J stays at or below this multiple of S in the refinements (the grids end at 2): in a steady
+# limit cycle the valve moves mostly by jumps, so the jump size and the process gain trade off
+# and J could otherwise run away (J = 7 S with a quarter of the gain was seen; J above 100 % too)
+J_MAX_RATIO = 3.0
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
 AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
+# first stuck points tried on a long record's whole-record refinement, as multiples of max(S, J)
+# around OP's first sample
+START_DELTAS = (-1.0, -0.5, 0.5, 1.0)
 #: Dead times (samples) of the global (S, J) grid's structures, besides the linear model's.
 GLOBAL_DELAYS = (0, 2, 5, 12)
 #: J/S ratios whose best valve picks its own process structure (one per class shape)
@@ -114,6 +121,10 @@ class HammersteinFit:
         Offset added to OP before the valve model (nonzero only when OP was not in 0..100 %).
     n_eff : float
         Effective number of independent residuals used for the interval bound.
+    start_op_pct : float or None
+        The valve's first stuck point, % of span (OP's first sample plus ``op_offset_pct`` unless
+        the fit chose another: the valve's state at the start of a record is unknown). None: OP's
+        first sample.
     """
 
     S_pct: float
@@ -134,6 +145,7 @@ class HammersteinFit:
     hp_tau_s: float | None = None
     score_coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
     load_order: int = 0
+    start_op_pct: float | None = None
 
     def heldout_cost(self, op_pct, pv, mask) -> float:
         """Mean squared (prefiltered) output error on the samples in ``mask``.
@@ -152,6 +164,7 @@ class HammersteinFit:
         m[mask] = True
         if x.shape[0] != self.n_fit or not m.any():
             raise DataError("heldout_cost needs the fitted record's OP/PV and a non-empty mask")
+        x = self._with_start(x)
         mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0])[0]
         proto = ProcessModel(kind=self.process.kind, gain=1.0, tau_s=self.process.tau_s,
                              delay_s=self.process.delay_s, bias=0.0, tau2_s=self.process.tau2_s)
@@ -170,11 +183,20 @@ class HammersteinFit:
         x = np.asarray(op_pct, dtype=float) + self.op_offset_pct
         if x.ndim != 1 or x.shape[0] == 0 or not np.all(np.isfinite(x)):
             raise DataError("op_pct must be a non-empty 1-D series of finite values")
+        if x.shape[0] == self.n_fit:
+            x = self._with_start(x)
         mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0])[0] - self.op_offset_pct
         pv = self.process.simulate(mv, self.ts_s)
         if self.load.shape[0] > 1 and x.shape[0] == self.n_fit:
             pv = pv + _legendre_basis(x.shape[0], self.load.shape[0] - 1)[:, 1:] @ self.load[1:]
         return mv, pv
+
+    def _with_start(self, x: np.ndarray) -> np.ndarray:
+        if self.start_op_pct is None:
+            return x
+        x = np.array(x, dtype=float)
+        x[0] = self.start_op_pct
+        return x
 
     @property
     def stiction_class(self) -> str:
@@ -311,6 +333,7 @@ class _Best:
     F: float
     cfg: _Configs
     sse: float
+    x0: float | None = None      # the valve's first stuck point (None: OP's first sample)
 
 
 def _nelder_mead(f, x0, steps, *, max_iter: int = 60, tol: float = 1e-3):
@@ -362,7 +385,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
 
     def unpack(v):
         S = min(abs(v[0]) * scale, S_max_pct)
-        J = abs(v[1]) * scale
+        J = min(abs(v[1]) * scale, J_MAX_RATIO * S)
         tau = tau0 * math.exp(v[2]) if not fixed else tau0
         return S, J, tau
 
@@ -405,6 +428,7 @@ def _zoom(prob: "_Problem", cur: _Best, *, rounds: int = 2, size: int = 9, span:
         Jl = np.unique(np.clip(cur.J + dJ * np.linspace(-1, 1, size), 0.0, None))
         Sm, Jm, Fm = np.meshgrid(Sl, Jl, [1.0, -1.0], indexing="ij")
         sse, _ = prob.sse(Sm.ravel(), Jm.ravel(), Fm.ravel(), cur.cfg)
+        sse[Jm.ravel() > J_MAX_RATIO * Sm.ravel() * (1 + 1e-12), :] = np.inf
         i = int(np.argmin(sse[:, 0]))
         if sse[i, 0] < cur.sse:
             cur = _Best(float(Sm.ravel()[i]), float(Jm.ravel()[i]), float(Fm.ravel()[i]), cur.cfg,
@@ -511,6 +535,15 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             raise DataError(f"hp_tau_s must be a number of seconds, None or 'auto', got {hp_tau_s!r}")
         hp_tau_s = AUTO_HP_SAMPLES * ts_s
     prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed, gain_sign)
+    prob.x = np.array(x)          # private: a long record's refinement sets the first sample
+    x_first = float(x[0])
+
+    def set_start(x0: float | None) -> None:
+        prob.x[0] = x_first if x0 is None else x0
+
+    def keep_start(res: _Best, x0: float | None) -> _Best:
+        return _Best(res.S, res.J, res.F, res.cfg, res.sse, x0)
+
     dmax = int(round((max_delay_s if max_delay_s is not None else min(n * ts_s / 10.0, 60 * ts_s)) / ts_s))
     dmax = max(0, min(dmax, n // 5))
     dmin = int(round((min_delay_s if min_delay_s is not None else ts_s) / ts_s))
@@ -724,31 +757,53 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         S0, J0, F0 = part.S_pct, part.J_pct, float(part.f0)
         base = (cp.kind, cp.tau_s if cp.kind != "integrating" else max(cp.tau_s, 0.0),
                 cp.tau2_s, d0)
+        cfg0 = make_configs([base], ts_s)
+        # the window's starting state holds at the window's start, not the record's: a valve
+        # started on the wrong side, or stuck at the wrong point, can stay stuck in the middle of
+        # the whole record's limit cycle. Its direction and first stuck point are nuisances (as in
+        # the class test): stuck near OP's first sample, or at an extreme of OP's travel in the
+        # burn-in, where a valve in a limit cycle waits for the next reversal.
+        starts = [(None, F0)]
+        if stiction and S0 > 0:
+            head = x[: max(burn, 2)]
+            pts = [x_first + dl * max(S0, J0) for dl in START_DELTAS] + [float(head.min()), float(head.max())]
+            starts += [(None, -F0)] + [(min(max(p_, 0.0), 100.0), Fv) for p_ in pts for Fv in (F0, -F0)]
+        cs = []
+        for p_, Fv in starts:
+            set_start(p_)
+            cs.append(float(prob.sse([S0], [J0], [Fv], cfg0)[0][0, 0]))
+        x0, F0 = starts[int(np.argmin(cs))]
+        set_start(x0)
         if auto_hp:
-            cfg0 = make_configs([base], ts_s)
             costs = []
             for hp in AUTO_HP_CANDIDATES:
-                pr = _Problem(x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed, gain_sign)
+                pr = _Problem(prob.x, y, ts_s, w, load_order, None if hp is None else hp * ts_s, gain_fixed,
+                              gain_sign)
                 c, _ = pr.sse([S0], [J0], [F0], cfg0)
                 costs.append(float(c[0, 0]) * pr.y_std ** 2)
             hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
             hp_new = None if hp_best is None else hp_best * ts_s
             if hp_new != prob.hp_tau_s:
                 prob = _Problem(x, y, ts_s, w, load_order, hp_new, gain_fixed, gain_sign)
+                prob.x = np.array(x)
+                set_start(x0)
         dset = sorted({min(dmax, max(dmin, d0 + k)) for k in range(-3, 4)})
         entries = [(cp.kind, cp.tau_s * f, cp.tau2_s * f, dd) for f in 2.0 ** np.arange(-1.0, 1.01, 0.5)
                    for dd in dset]
         loc = make_configs(entries, ts_s)
         sse, _ = prob.sse([S0], [J0], [F0], loc)
         k = int(np.argmin(sse[0]))
-        cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]))
+        cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]), x0)
         if stiction:
-            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
+            cur = keep_start(_nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max,
+                                                 S_max_pct=S_cap), x0)
         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
         if sq is not None and sq < cur.sse:
-            cur = _Best(cur.S, cur.J, cur.F, cq, sq)
+            cur = _Best(cur.S, cur.J, cur.F, cq, sq, x0)
         if stiction:
-            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
+            cur = keep_start(_nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max,
+                                                 S_max_pct=S_cap), x0)
+        set_start(None)
         return cur
 
     if max_samples is not None and n > max_samples and structure is None:
@@ -774,8 +829,10 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         best = search()
 
     prob.smooth = False
+    x0 = best.x0
+    set_start(x0)          # the rest (polish, surface, result) is at the chosen starting state
     sse0, _ = prob.sse([best.S], [best.J], [best.F], best.cfg)
-    best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]))
+    best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]), x0)
     if stiction and best.S > 0:
         best = _zoom(prob, best, rounds=2, size=9, span=0.06, S_max_pct=S_cap)
         if structure is None:
@@ -800,10 +857,11 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         loc_cost = sse_loc[:, 0].reshape(Sm.shape).min(axis=2)
 
     return _finish(prob, best, ts_s, off, S_grid, J_grid, surface_cost,
-                   (Sl, Jl, loc_cost) if surface_cost is not None else None, load_order)
+                   (Sl, Jl, loc_cost) if surface_cost is not None else None, load_order, x0)
 
 
-def _finish(prob: _Problem, best: _Best, ts_s, off, S_grid, J_grid, surface_cost, local, load_order):
+def _finish(prob: _Problem, best: _Best, ts_s, off, S_grid, J_grid, surface_cost, local, load_order,
+            start_op=None):
     cfg = best.cfg
     kind = cfg.kind[0]
     x = prob.x
@@ -882,7 +940,8 @@ def _finish(prob: _Problem, best: _Best, ts_s, off, S_grid, J_grid, surface_cost
                           ts_s=float(ts_s), rmse=rmse, r2=r2, S_interval_pct=S_int, J_interval_pct=J_int,
                           surface=surface, load=load, n_fit=prob.n, op_offset_pct=off, n_eff=ne,
                           cost=float(res_f @ res_f) / n_sc, hp_tau_s=prob.hp_tau_s,
-                          score_coef=np.asarray(score_coef, float), load_order=load_order)
+                          score_coef=np.asarray(score_coef, float), load_order=load_order,
+                          start_op_pct=start_op)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -318,9 +318,11 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
         None), ``S_pct``, ``J_pct``, ``f0``, ``delta_pct``.
     """
     x = np.asarray(op, dtype=float) + fit.op_offset_pct
+    w = _score_weights(x.shape[0], None, _burn_in(x, burn_frac))
+    if fit.start_op_pct is not None:
+        x[0] = fit.start_op_pct      # the fit's own starting point is the reference
     y = np.asarray(pv, dtype=float)
     n = x.shape[0]
-    w = _score_weights(n, None, _burn_in(x, burn_frac))
     prob = _Problem(x, y, ts_s, w, fit.load_order, fit.hp_tau_s, None, gain_sign)
     p = fit.process
     cfg = _make_configs([(p.kind, p.tau_s, p.tau2_s, int(round(p.delay_s / ts_s)))], ts_s)

@@ -215,3 +215,56 @@ def test_a_long_record_with_a_training_mask_is_searched_where_it_is_scored():
     fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s, train=train)
     assert abs(fit.S_pct - 3.0) < 0.1 * 3.0
     assert fit.n_fit == 10000
+
+
+def test_refinements_keep_J_within_the_cap():
+    # in a steady limit cycle the valve moves mostly by jumps, so J and the process gain trade off
+    # and the cost can keep falling as J grows (J = 7 S with a quarter of the gain was seen on a
+    # simulated loop): even on a cost that always prefers a larger J, the refinements stop at the cap
+    from diagnose.fit import J_MAX_RATIO, _Best, _nelder_mead_refine, _zoom
+    from diagnose.output_error import _make_configs
+
+    class JHungry:
+        def sse(self, S, J, F, cfg):
+            S, J = np.asarray(S, float), np.asarray(J, float)
+            c = (S - 3.0) ** 2 + 1.0 / (1.0 + J)
+            return c[:, None], np.ones((S.shape[0], 1))
+
+    cfg = _make_configs([("foptd", 15.0, 0.0, 3)], 1.0)
+    start = _Best(3.0, 6.0, 1.0, cfg, 0.0 + 1.0 / 7.0)
+    for res in (_zoom(JHungry(), start, rounds=6, span=0.5), _nelder_mead_refine(JHungry(), start, 1.0, fixed=True)):
+        assert res.J > 6.0                          # the cost did pull J up ...
+        assert res.J <= J_MAX_RATIO * res.S * (1 + 1e-9)   # ... to the cap at most
+
+
+def _benchmark_case(seed: int, name: str, n: int):
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        import validate_simulated as V
+    finally:
+        sys.path.pop(0)
+    rng = np.random.default_rng(seed)
+    for i in range(120):
+        case = V.make_case(i, rng, n=n, min_delay_s=1)
+        while case.cls != "none" and case.info["mv_moves"] < V.MIN_MOVES:
+            case = V.make_case(i, rng, n=n, min_delay_s=1)
+        if case.record.name == name:
+            return case
+    raise AssertionError(name)
+
+
+def test_a_long_record_is_refined_from_its_own_starting_state():
+    # blind seed 60601, loop SIM049 at 10 000 samples (overshoot, S 6.9 %, J 11.2 %): the window's
+    # starting direction, reused at the record's start, left the model valve stuck in the middle
+    # of the limit cycle for the whole record, and the fit degenerated (process gain 0, r2 0)
+    case = _benchmark_case(60601, "SIM049", 10000)
+    op, pv = case.record.op, case.record.pv
+    fit = fit_hammerstein(op, pv, 1.0, gain_sign=-1.0, surface=False)
+    assert fit.r2 > 0.9 and fit.process.gain < 0
+    assert fit.start_op_pct is not None
+    # the result simulates from the starting state it was fitted with
+    _, pv_hat = fit.simulate(op)
+    res = (pv - pv_hat)[op.shape[0] // 4:]
+    assert np.sqrt(np.mean(res ** 2)) < 1.5 * fit.rmse
