@@ -49,10 +49,6 @@ from .stiction_model import stiction_batch
 AUTO_HP_SAMPLES = 10.0
 #: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
 DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
-# J stays at or below this multiple of S in the refinements (the grids end at 2): in a steady
-# limit cycle the valve moves mostly by jumps, so the jump size and the process gain trade off
-# and J could otherwise run away (J = 7 S with a quarter of the gain was seen; J above 100 % too)
-J_MAX_RATIO = 3.0
 #: Noise-model time constants (samples) tried by ``hp_tau_s="auto"``; None is pure output error.
 AUTO_HP_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
 # first stuck points tried on a long record's whole-record refinement, as multiples of max(S, J)
@@ -374,7 +370,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
                         tol: float = 1e-3, tau_max_s: float = math.inf, S_max_pct: float = math.inf) -> _Best:
     """Refine S, J (and the lags, dead time fixed) of one candidate by Nelder-Mead.
 
-    Both starting directions are scored at every point; the better one counts. S stays at or
+    Both starting directions are scored at every point; the better one counts. S and J stay at or
     below ``S_max_pct``.
     """
     kind = cur.cfg.kind[0]
@@ -385,7 +381,7 @@ def _nelder_mead_refine(prob: "_Problem", cur: _Best, ts_s: float, *, fixed: boo
 
     def unpack(v):
         S = min(abs(v[0]) * scale, S_max_pct)
-        J = min(abs(v[1]) * scale, J_MAX_RATIO * S)
+        J = min(abs(v[1]) * scale, S_max_pct)
         tau = tau0 * math.exp(v[2]) if not fixed else tau0
         return S, J, tau
 
@@ -425,10 +421,9 @@ def _zoom(prob: "_Problem", cur: _Best, *, rounds: int = 2, size: int = 9, span:
     dJ = span * max(cur.J, 0.5 * cur.S, 0.05)
     for _ in range(rounds):
         Sl = np.unique(np.clip(cur.S + dS * np.linspace(-1, 1, size), 1e-6, max(S_max_pct, 1e-6)))
-        Jl = np.unique(np.clip(cur.J + dJ * np.linspace(-1, 1, size), 0.0, None))
+        Jl = np.unique(np.clip(cur.J + dJ * np.linspace(-1, 1, size), 0.0, max(S_max_pct, 0.0)))
         Sm, Jm, Fm = np.meshgrid(Sl, Jl, [1.0, -1.0], indexing="ij")
         sse, _ = prob.sse(Sm.ravel(), Jm.ravel(), Fm.ravel(), cur.cfg)
-        sse[Jm.ravel() > J_MAX_RATIO * Sm.ravel() * (1 + 1e-12), :] = np.inf
         i = int(np.argmin(sse[:, 0]))
         if sse[i, 0] < cur.sse:
             cur = _Best(float(Sm.ravel()[i]), float(Jm.ravel()[i]), float(Fm.ravel()[i]), cur.cfg,
