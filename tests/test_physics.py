@@ -176,6 +176,56 @@ def test_dynamics_restart_leaves_a_plain_fits_basin():
     assert abs(best.process.delay_s - 4.0) <= 2.0
 
 
+def test_joint_process_polish_trades_the_characteristic_against_the_dynamics():
+    # OP -> PV through an installed characteristic: a start with the characteristic's exponent and
+    # the process lag both off (and the valve's last direction wrong) is polished to the noise; the
+    # one-at-a-time refits it replaced (exponent, then S and J, then dynamics) stay far above it
+    from diagnose.physics.hypotheses import _joint_process_polish
+    from diagnose.physics.model import best_of, refine_sj, refit_dynamics
+
+    rng = np.random.default_rng(15)
+    n = 2000
+    x = np.clip(np.repeat([30.0, 70.0, 45.0, 80.0, 25.0], n // 5) + 0.5 * np.cumsum(rng.normal(0, 0.6, n)),
+                2.0, 98.0)
+    true = Structure(S_up_pct=3.8, J_up_pct=1.9, S_dn_pct=3.8, J_dn_pct=1.9, f0=1, char_c=2.13,
+                     process=ProcessModel("foptd", 1.0, 20.0, 4.0, 0.0))
+    stem = augmented_valve(x, S_up=3.8, J_up=1.9, f0=1, ts_s=1.0)
+    y = 1.5 * true.process.regressor(characteristic(stem, 2.13), 1.0) + 5.0 + rng.normal(0, 0.1, n)
+    train = np.zeros(n, bool)
+    train[:1300] = True
+    stage = Stage("loop", x, y, 1.0, train)
+    start = true.replace(char_c=1.6, f0=-1, process=ProcessModel("foptd", 1.0, 25.0, 4.0, 0.0))
+    one, _ = best_of(stage, [start.replace(char_c=float(1.6 + d)) for d in np.linspace(-0.4, 0.4, 9)])
+    one, _ = refine_sj(stage, one, s_span=0.04, n_s=9, j_span=0.15, n_j=5, both_f0=False)
+    _, c_one = refit_dynamics(stage, one, rounds=1)
+    best = _joint_process_polish(stage, start, "char_c")
+    c = float(train_sse(stage, [best])[0])
+    assert c / train.sum() < 1.3 * 0.1 ** 2
+    assert c < 0.2 * c_one
+    assert best.char_c == pytest.approx(2.13, abs=0.06)
+    assert best.process.tau_s == pytest.approx(20.0, rel=0.05)
+
+
+def test_load_periods_ranked_with_the_coarse_grid():
+    # published seed 1003: the plain fit is an integrating process that follows the load through OP;
+    # a load added to it helps at no period (the true one ranks last on it), the coarse valve x
+    # dynamics grid with the load ranks the true period first
+    rec, truth = concealed_loop("external_disturbance", 1003, n=3000)
+    train = np.zeros(rec.n, bool)
+    train[60:1950] = True
+    stage = Stage("loop", np.asarray(rec.op, float), np.asarray(rec.pv, float), rec.ts_s, train)
+    plain = Structure.plain(2.926, 1.219, 1, ProcessModel("integrating", 1.0, 14.9, 0.0, 0.0))
+    plain = plain.replace(y0_pct=35.48)
+    hyp = REGISTRY["external_disturbance"]
+    y_hat, _, _ = predict(stage, plain)
+    periods = hyp.candidate_periods(stage, plain, Context(limit_cycle_period_s=truth["limit_cycle_period_s"],
+                                                          residual=stage.y - y_hat))
+    ranked = hyp.rank_periods(stage, plain, periods)
+    assert ranked[0][1].period_s == pytest.approx(truth["period_s"], rel=0.02)
+    on_plain = [float(train_sse(stage, [st])[0]) for _, st, _ in ranked]
+    assert on_plain[0] > min(on_plain[1:])
+
+
 def test_loop_stage_carries_the_controllers_sign():
     from diagnose.physics.explain import _stage_for
 

@@ -45,15 +45,35 @@ def _global_sj(stage: Stage, struct: Structure, span: float, step: float = 0.025
 
 
 def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
-                   template: Structure | None = None) -> Structure:
+                   template: Structure | None = None, coarse: list | None = None) -> Structure:
     """Global search of the plain model: coarse (S, J, f0) x FOPTD dynamics grid, then a fine global
     (S, J, f0) grid and the dynamics in turn. ``template`` carries extra physics held fixed during
-    the search (e.g. a load period)."""
+    the search (e.g. a load period); ``coarse``: the coarse grid's starts when already computed
+    (`coarse_starts` with the same template)."""
     x = stage.x
     span = float(np.ptp(x[: stage.n_fit]))
     if stage.fixed_dynamics:
         best = _global_sj(stage, Structure.plain(0.0, 0.0, 1, IDENTITY), span)
         return best
+    starts = [st for _, st in (coarse if coarse is not None else coarse_starts(stage, n_starts, template))]
+    if start is not None:
+        starts.append(start)
+    results = []
+    for st in starts:
+        best = st
+        for _ in range(2):
+            best = _global_sj(stage, best, span)
+            best, c = refit_dynamics(stage, best, rounds=2)
+        results.append((c, best))
+    return min(results, key=lambda t: t[0])[1]
+
+
+def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = None) -> list:
+    """The coarse (S, J, f0) x FOPTD dynamics grid of `_grid_baseline`: the best candidate of each
+    of the ``n_starts`` best dynamics, as (training SSE, Structure), cheapest first. ``template``
+    carries extra physics held fixed (e.g. a load period)."""
+    x = stage.x
+    span = float(np.ptp(x[: stage.n_fit]))
     S_grid = [0.0] + list(np.geomspace(0.2, max(0.8 * span, 0.3), 24))
     ratios = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
     T = stage.train.sum() * stage.ts_s
@@ -68,17 +88,8 @@ def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int =
     cands = [v.replace(process=p) for p in dyn for v in valves]
     sse = train_sse(stage, cands).reshape(len(dyn), len(valves))
     best_per_dyn = sse.min(axis=1)
-    starts = [cands[int(i) * len(valves) + int(np.argmin(sse[i]))] for i in np.argsort(best_per_dyn)[:n_starts]]
-    if start is not None:
-        starts.append(start)
-    results = []
-    for st in starts:
-        best = st
-        for _ in range(2):
-            best = _global_sj(stage, best, span)
-            best, c = refit_dynamics(stage, best, rounds=2)
-        results.append((c, best))
-    return min(results, key=lambda t: t[0])[1]
+    return [(float(best_per_dyn[i]), cands[int(i) * len(valves) + int(np.argmin(sse[i]))])
+            for i in np.argsort(best_per_dyn)[:n_starts]]
 
 
 def _from_fit_module(stage: Stage) -> Baseline | None:
