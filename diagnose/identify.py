@@ -299,7 +299,8 @@ def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit
     a record is stuck wherever its history left it, and a sticky valve keeps that memory until OP
     makes an excursion larger than S (in noisy closed loops this can take thousands of samples):
     with the wrong starting point even the true (S, J) scores badly. Here the starting stuck point
-    is a nuisance parameter, ``x_ss = OP[0] + delta``, ``delta/max(S, J)`` in -1..1 (5 values),
+    is a nuisance parameter, ``x_ss = OP[0] + delta`` (OP[0]: the fit's own first stuck point,
+    ``start_op_pct``, where it chose one), ``delta/max(S, J)`` in -1..1 (5 values),
     both starting directions, at the fitted process structure, over a local grid of S (+-10 %, plus
     the best S of a fine scan and its close neighbours: with J > 0 the cost is a needle in S)
     and J/S in 0..2 (17 values): about 1200 valve runs.
