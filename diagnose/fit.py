@@ -329,7 +329,6 @@ class _Best:
     F: float
     cfg: _Configs
     sse: float
-    x0: float | None = None      # the valve's first stuck point (None: OP's first sample)
 
 
 def _nelder_mead(f, x0, steps, *, max_iter: int = 60, tol: float = 1e-3):
@@ -536,9 +535,6 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     def set_start(x0: float | None) -> None:
         prob.x[0] = x_first if x0 is None else x0
 
-    def keep_start(res: _Best, x0: float | None) -> _Best:
-        return _Best(res.S, res.J, res.F, res.cfg, res.sse, x0)
-
     dmax = int(round((max_delay_s if max_delay_s is not None else min(n * ts_s / 10.0, 60 * ts_s)) / ts_s))
     dmax = max(0, min(dmax, n // 5))
     dmin = int(round((min_delay_s if min_delay_s is not None else ts_s) / ts_s))
@@ -744,8 +740,9 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             best = min(results, key=lambda r: r.sse)
         return best
 
-    def refine_from(part: "HammersteinFit") -> _Best:
-        """Refinement on the whole record of a fit made on a window of it."""
+    def refine_from(part: "HammersteinFit") -> tuple[_Best, float | None]:
+        """Refinement on the whole record of a fit made on a window of it, and the first stuck
+        point it chose (None: OP's first sample); ``prob`` is left at that starting state."""
         nonlocal prob
         cp = part.process
         d0 = int(round(cp.delay_s / ts_s))
@@ -788,18 +785,15 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         loc = make_configs(entries, ts_s)
         sse, _ = prob.sse([S0], [J0], [F0], loc)
         k = int(np.argmin(sse[0]))
-        cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]), x0)
+        cur = _Best(S0, J0, F0, loc.take(k), float(sse[0, k]))
         if stiction:
-            cur = keep_start(_nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max,
-                                                 S_max_pct=S_cap), x0)
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
         cq, sq = polish_structure(cur.S, cur.J, cur.F, cur.cfg, 0)
         if sq is not None and sq < cur.sse:
-            cur = _Best(cur.S, cur.J, cur.F, cq, sq, x0)
+            cur = _Best(cur.S, cur.J, cur.F, cq, sq)
         if stiction:
-            cur = keep_start(_nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max,
-                                                 S_max_pct=S_cap), x0)
-        set_start(None)
-        return cur
+            cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
+        return cur, x0
 
     if max_samples is not None and n > max_samples and structure is None:
         # search a full-rate window, refine on the whole record: slips happen at the sample level,
@@ -819,15 +813,14 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                dense_S=dense_S, dense_ratios=dense_ratios,
                                dense_structures=dense_structures, n_refine=n_refine,
                                profile_ratios=profile_ratios)
-        best = refine_from(part)
+        # the rest (polish, surface, result) stays at the starting state the refinement chose
+        best, x0 = refine_from(part)
     else:
-        best = search()
+        best, x0 = search(), None
 
     prob.smooth = False
-    x0 = best.x0
-    set_start(x0)          # the rest (polish, surface, result) is at the chosen starting state
     sse0, _ = prob.sse([best.S], [best.J], [best.F], best.cfg)
-    best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]), x0)
+    best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]))
     if stiction and best.S > 0:
         best = _zoom(prob, best, rounds=2, size=9, span=0.06, S_max_pct=S_cap)
         if structure is None:
