@@ -151,13 +151,17 @@ def _with_sj(struct: Structure, S: float, J: float, f0: int | None = None) -> St
                           f0=struct.f0 if f0 is None else f0)
 
 
-def _polish(stage: Stage, struct: Structure, one_round) -> Structure:
-    """Up to two rounds of ``one_round`` (a structure -> a better structure by fine grids), each
-    followed by the initial state; stops when a round gains less than 0.01 % of the cost."""
+def _polish(stage: Stage, struct: Structure, one_round, rounds: int = 2, tol: float = 1e-4,
+            keep_small_gain: bool = False) -> Structure:
+    """Up to ``rounds`` rounds of ``one_round`` (a structure -> a better structure by fine grids),
+    each followed by the initial state; stops when a round gains less than ``tol`` of the cost
+    (keeping that last round's result if it gained at all, with ``keep_small_gain``)."""
     best, cost = best_of(stage, [struct])
-    for _ in range(2):
+    for _ in range(rounds):
         b, c = fit_initial_state(stage, one_round(best))
-        if c >= cost * (1.0 - 1e-4):
+        if c >= cost * (1.0 - tol):
+            if keep_small_gain and c < cost:
+                best = b
             break
         best, cost = b, c
     return best
@@ -234,10 +238,10 @@ def _joint_process_polish(stage: Stage, struct: Structure, effect: str, rounds: 
         return struct
     ts = stage.ts_s
     T = max(stage.train.sum() * ts, ts)
-    best, cost = best_of(stage, [struct])
     steps = np.concatenate([np.linspace(-1.0, 1.0, 13), [-0.1, -0.05, 0.05, 0.1]])
     taus = np.exp(np.concatenate([np.linspace(-0.3, 0.3, 13), [-0.03, -0.015, 0.015, 0.03]]))
-    for _ in range(rounds):
+
+    def one_round(best: Structure) -> Structure:
         p = best.process
         if effect == "char_c":
             c0 = best.char_c
@@ -252,14 +256,9 @@ def _joint_process_polish(stage: Stage, struct: Structure, effect: str, rounds: 
                  for e in extra]
         b, _ = best_of(stage, cands + [best])
         b, _ = refit_dynamics(stage, b, rounds=1)
-        b, _ = refine_sj(stage, b, s_span=0.06, n_s=13, j_span=0.2, n_j=9)
-        b, c = fit_initial_state(stage, b)
-        if c >= cost * (1.0 - 1e-3):
-            if c < cost:
-                best, cost = b, c
-            break
-        best, cost = b, c
-    return best
+        return refine_sj(stage, b, s_span=0.06, n_s=13, j_span=0.2, n_j=9)[0]
+
+    return _polish(stage, struct, one_round, rounds=rounds, tol=1e-3, keep_small_gain=True)
 
 
 def _dynamics_starts(stage: Stage, struct: Structure, k: int = 2) -> list[Structure]:
