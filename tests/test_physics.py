@@ -420,3 +420,41 @@ def test_concealed_generator_is_seeded_and_complete():
         assert np.array_equal(a.pv, b.pv) and ta == tb and ta["effect"] == e
     with pytest.raises(DataError, match="unknown effect"):
         concealed_loop("gremlins", 0)
+
+
+def _true_stem(rec, seed):
+    # the generator adds N(0, 0.1) % measurement noise to the simulated stem from seed + 3
+    return rec.mv - np.random.default_rng(seed + 3).normal(0.0, 0.1, rec.n)
+
+
+def test_concealed_generator_draws_a_stuck_valve_again():
+    from diagnose.physics.locate import slips_and_reversals
+
+    def moves(stem):
+        return slips_and_reversals(stem, eps=0.01)[0].size
+
+    moves_needed = (0.65, 10, 5)
+    # drift seed 5002: friction grows until the valve sticks where PV meets the setpoint, for good
+    raw, t_raw = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True)
+    assert moves(_true_stem(raw, 5002)[:1950]) < 10
+    rec, truth = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True, min_moves=moves_needed)
+    assert truth["draw"] >= 1 and truth["seed"] == 5002
+    stem = _true_stem(rec, 5002 * 1000 + truth["draw"])
+    assert moves(stem[:1950]) >= 10 and moves(stem[1950:]) >= 5
+    twin, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True, apply_effect=False,
+                             min_moves=moves_needed)
+    assert np.array_equal(twin.sp, rec.sp) and not np.array_equal(twin.mv, rec.mv)
+    # a draw whose valve moves is kept as it is
+    a, ta = concealed_loop("none", 5001, n=3000, with_mv=True)
+    b, tb = concealed_loop("none", 5001, n=3000, with_mv=True, min_moves=moves_needed)
+    assert tb["draw"] == 0 and np.array_equal(a.pv, b.pv) and np.array_equal(a.mv, b.mv)
+
+
+def test_explain_warns_when_the_valve_never_moves():
+    stuck, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True)
+    ex = explain(stuck, target="mv", hypotheses=["actuator_lag"])
+    idle = [w for w in ex.warnings if w["code"] == "physics.valve_idle"]
+    assert len(idle) == 1 and "0 times in the training part" in idle[0]["message"]
+    moving, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True, min_moves=(0.65, 10, 5))
+    ex = explain(moving, target="mv", hypotheses=["actuator_lag"])
+    assert not any(w["code"] == "physics.valve_idle" for w in ex.warnings)

@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import DataError
 from ..record import LoopRecord
 from ..simulate import FOPTD, random_walk, simc_pi, simulate_loop, sinusoid
-from .locate import limit_cycle_period
+from .locate import limit_cycle_period, slips_and_reversals
 from .plant import AugmentedValve, CharacteristicProcess
 
 EFFECTS = ("none", "actuator_lag", "asymmetric_stiction", "valve_characteristic",
@@ -38,8 +38,17 @@ def _sp_steps(n: int, rng: np.random.Generator, gain: float, levels_pct: tuple[f
 
 
 def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, with_mv: bool = False,
-                   name: str | None = None, apply_effect: bool = True) -> tuple[LoopRecord, dict[str, Any]]:
+                   name: str | None = None, apply_effect: bool = True,
+                   min_moves: tuple[float, int, int] | None = None) -> tuple[LoopRecord, dict[str, Any]]:
     """One closed-loop record with ``effect`` hidden in the plant.
+
+    With ``min_moves=(train_fraction, k_train, k_heldout)`` a draw whose (noise-free) stem moves
+    fewer than ``k_train`` times in the leading ``train_fraction`` of the record, or fewer than
+    ``k_heldout`` times in the rest, is drawn again from a derived seed (``seed * 1000 + k``,
+    ``truth["draw"] = k``): a valve that stays stuck through a part carries no trace of its
+    friction there, so no method can learn or judge a valve-side effect from it (a PI loop whose
+    valve sticks where PV meets the setpoint, with a small load, can stay stuck for an hour).
+    The effect-free twin (``apply_effect=False``) follows its effect record's draw.
 
     Parameters
     ----------
@@ -57,6 +66,9 @@ def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, 
         False: draw everything as for ``effect`` (same plant, controller, noise, setpoints) but
         leave the effect out of the plant -- the record's effect-free twin, to measure how much the
         effect changes what is recorded.
+    min_moves : (train_fraction, k_train, k_heldout), optional
+        Draw again until the stem moves often enough in both parts (see above); None keeps the
+        seed's first draw whatever its valve does.
 
     Returns
     -------
@@ -66,6 +78,38 @@ def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, 
     """
     if effect not in EFFECTS:
         raise DataError(f"unknown effect {effect!r}; choose from {', '.join(EFFECTS)}")
+    if min_moves is None:
+        return _draw(effect, seed, n, ts_s, with_mv, name, apply_effect)
+    frac, k_tr, k_ho = min_moves
+    n_tr = int(round(frac * n))
+    for k in range(_MAX_DRAWS):
+        s = seed if k == 0 else seed * 1000 + k
+        rec, truth = _draw(effect, s, n, ts_s, True, name, True)
+        stem = rec.mv - _mv_noise(s, n)
+        if _moves(stem[:n_tr]) >= k_tr and _moves(stem[n_tr:]) >= k_ho:
+            break
+    else:
+        raise DataError(f"{effect} seed {seed}: no draw in {_MAX_DRAWS} moves its valve {k_tr} times in "
+                        f"the training part and {k_ho} in the held-out part")
+    rec, truth = _draw(effect, s, n, ts_s, with_mv, name or f"{effect}-{seed}", apply_effect)
+    truth.update(seed=seed, draw=k)
+    return rec, truth
+
+
+_MAX_DRAWS = 50
+
+
+def _moves(stem_pct: np.ndarray) -> int:
+    # a lagged stem's glide after a slip counts once: motion below 0.01 % of span per sample is rest
+    return int(slips_and_reversals(stem_pct, eps=0.01)[0].size)
+
+
+def _mv_noise(seed: int, n: int) -> np.ndarray:
+    return np.random.default_rng(seed + 3).normal(0.0, 0.1, n)
+
+
+def _draw(effect: str, seed: int, n: int, ts_s: float, with_mv: bool, name: str | None,
+          apply_effect: bool) -> tuple[LoopRecord, dict[str, Any]]:
     rng = np.random.default_rng(seed)
     S = float(rng.uniform(2.5, 6.0))
     J = float(S * rng.uniform(0.2, 1.0))
@@ -112,7 +156,7 @@ def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, 
         truth["rangeability_R"] = R
     elif effect == "external_disturbance":
         # period away from the limit cycle's harmonics (measured on the clean loop of the same seed)
-        clean, _ = concealed_loop("none", seed, n=min(n, 1500), ts_s=ts_s, with_mv=True)
+        clean, _ = _draw("none", seed, min(n, 1500), ts_s, True, None, True)
         plc = limit_cycle_period(clean.mv, clean.op, ts_s) or 100.0
         for _ in range(50):
             period = float(rng.uniform(20.0, 250.0) * ts_s)
@@ -138,6 +182,6 @@ def concealed_loop(effect: str, seed: int, *, n: int = 3000, ts_s: float = 1.0, 
                         name=name or f"{effect}-{seed}")
     mv = None
     if with_mv:
-        mv = rec.mv + np.random.default_rng(seed + 3).normal(0.0, 0.1, n)
+        mv = rec.mv + _mv_noise(seed, n)
     rec = rec.replace(mv=mv, meta={**rec.meta, "concealed": effect})
     return rec, truth

@@ -43,6 +43,9 @@ MIN_SAMPLES = 300
 #: (Kass and Raftery 1995: 6-10 strong, > 10 very strong); a difference of a few units is what a
 #: better plain fit that the reference search missed can give on a clean record
 STRONG_BIC = -6.0
+#: fewer slips of the identified valve than this in the training / held-out part -> warning
+#: ``physics.valve_idle``: a valve that stays stuck carries no trace of its friction
+MIN_SLIPS_TRAIN, MIN_SLIPS_HELDOUT = 5, 3
 
 
 @dataclass(frozen=True)
@@ -520,6 +523,11 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
                          "message": "the baseline misses much of the held-out data but no hypothesis "
                                     "explains it significantly; see the located windows"})
 
+    for sn, r in runs.items():
+        idle = _idle_valve(r)
+        if idle:
+            warn.append({"code": "physics.valve_idle", "message": idle})
+            break
     text = _text(record, winner, runs, report_stage, base_rmse, improved_rmse)
     summary = dict(run.mismatch.summary)
     summary["stage"] = report_stage
@@ -540,6 +548,26 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
                        baseline_source=run.baseline.source, arrays=arrays,
                        stages={sn: {"baseline": r.baseline.structure, "reference": r.reference}
                                for sn, r in runs.items()})
+
+
+def _idle_valve(run: _StageRun) -> str | None:
+    """Message when the identified valve hardly moves in the training or the held-out part."""
+    if run.loc_stem is None or run.loc_hat is None:
+        return None
+    if run.stage.name == "valve":
+        # the predicted MV: a fit to a stuck stem may slip with no gain (least-squares scale ~ 0)
+        slips, _ = slips_and_reversals(np.asarray(run.loc_hat, float), eps=0.01)
+    else:
+        slips, _ = slips_and_reversals(np.asarray(run.loc_stem, float))
+    tr = run.stage.train
+    n_tr = int(np.sum(tr[slips]))
+    n_ho = int(np.sum(run.stage.heldout[slips]))
+    if n_tr >= MIN_SLIPS_TRAIN and n_ho >= MIN_SLIPS_HELDOUT:
+        return None
+    return (f"the identified valve moves only {n_tr} times in the training part and {n_ho} times in the "
+            "held-out part: a valve that stays stuck carries no trace of its friction, so valve-side "
+            "effects cannot be learned or judged from this record; a longer record, or one in which "
+            "the loop cycles, is needed")
 
 
 def _arrays(run: _StageRun, improved_hat: np.ndarray, record: LoopRecord, n_tr: int) -> dict[str, Any]:

@@ -112,8 +112,9 @@ class Stage:
         Samples the fit may score; the rest is held out.
     gain_sign : {+1, -1, 0}
         Sign the process gain must have (the controller's action, `diagnose.controller`; 0:
-        unknown). Passed to the fitting stage, so that its OP -> PV fit cannot be the controller
-        path (``PV = -OP / Kc``).
+        unknown). Passed to the fitting stage, and held by every model here (a least-squares gain
+        of the other sign is set to 0), so that no OP -> PV fit can be the controller path
+        (``PV = -OP / Kc``).
     """
 
     name: str
@@ -178,6 +179,11 @@ def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):
     X = _design(z, struct, stage.ts_s, n)
     tr = stage.train[:n]
     coef, *_ = np.linalg.lstsq(X[tr], stage.y[:n][tr], rcond=None)
+    if stage.gain_sign and coef[0] * stage.gain_sign < 0:
+        # PV moving against the valve is the controller's path, not the plant's (as in the fitting
+        # stage, `Stage.gain_sign`): the valve's column is left out
+        rest, *_ = np.linalg.lstsq(X[tr][:, 1:], stage.y[:n][tr], rcond=None)
+        coef = np.concatenate([[0.0], rest])
     if not np.all(np.isfinite(coef)):
         coef = np.zeros(X.shape[1])
     return X @ coef, coef
@@ -211,11 +217,12 @@ def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.nd
 
 @njit(cache=True, nogil=True, boundscheck=False)
 def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ, ts_s, E,
-                  y, w, out):  # pragma: no cover - compiled
+                  y, w, sgn, out):  # pragma: no cover - compiled
     """Training SSE of many candidate augmented models in one pass per candidate: the augmented
     valve (`valve._aug_step`, the step `valve._aug_kernel` runs), the installed characteristic, the lags, dead time
     and optional integrator, and the weighted least squares of [z, 1, E...] -- without holding
-    any (candidates x samples) matrix."""
+    any (candidates x samples) matrix. ``sgn`` (+1, -1; 0 free) is the sign the coefficient of z
+    must have; a fit with the other sign is refit with that coefficient 0."""
     m = S_up.shape[0]
     n = x.shape[0]
     q = E.shape[1]
@@ -326,6 +333,11 @@ def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1,
         for r in range(p):
             A[r, r] += 1e-9 * (A[r, r] + 1e-12)
         coef = np.linalg.solve(A, b)
+        if sgn != 0.0 and coef[0] * sgn < 0.0:
+            sub = np.linalg.solve(np.ascontiguousarray(A[1:, 1:]), np.ascontiguousarray(b[1:]))
+            coef[0] = 0.0
+            for r in range(1, p):
+                coef[r] = sub[r - 1]
         sse = yy - 2.0 * (coef @ b) + coef @ (A @ coef)
         out[i] = max(sse, 0.0)
     return out
@@ -370,7 +382,7 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         c = lambda j: np.ascontiguousarray(P[:, j])  # noqa: E731
         _fused_kernel(x, c(0), c(1), c(2), c(3), c(4), c(5), c(6), np.ascontiguousarray(a_lag), c(12), c(13), c(8),
                       np.ascontiguousarray(a1), np.ascontiguousarray(a2), d, np.full(m, integ, np.bool_),
-                      ts, E, yv, tr, res)
+                      ts, E, yv, tr, float(stage.gain_sign), res)
         out[idx] = res
     return out
 
