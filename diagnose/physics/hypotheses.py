@@ -203,7 +203,8 @@ def _fine_asym(stage: Stage, struct: Structure) -> Structure:
     """Fine polish of an asymmetric valve (on the loop stage with the dynamics held), as
     `_fine_valve` for a symmetric one: both S scaled together in 0.5 % steps over +-6 %, then each
     side's S in 0.5 % steps over +-6 % with its J/S over the whole range, then 0.1 % and 1 % steps,
-    then the initial state; twice. The one-direction scans step S by 1-2 %, and 1 % off in S moves every slip."""
+    then the initial state; twice. The one-direction scans step S by 1-2 %, and 1 % off in S moves
+    every slip."""
     def one_round(best: Structure) -> Structure:
         cands = [best.replace(S_up_pct=best.S_up_pct * m, S_dn_pct=best.S_dn_pct * m,
                               J_up_pct=best.J_up_pct * m * mj, J_dn_pct=best.J_dn_pct * m * mj, f0=f)
