@@ -405,7 +405,9 @@ class AsymmetricStiction(PhysicsHypothesis):
         else:
             # OP -> PV: the same fine polish around the process dynamics refit once between; an
             # asymmetric valve a few per cent off trains as well as the true one and extrapolates
-            # two to three times worse (fresh asymmetry 5001: held-out RMSE 0.30 -> 0.13)
+            # two to three times worse (fresh asymmetry 5001: held-out RMSE 0.30 -> 0.13). No net
+            # gain on the benchmark: fresh 5004 and 5005 train better and extrapolate worse
+            # polished (docs/missing-physics.md)
             best = _fine_asym(stage, best)
             best, _ = refit_dynamics(stage, best, rounds=1)
             best = _fine_asym(stage, best)
