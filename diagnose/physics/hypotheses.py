@@ -403,11 +403,10 @@ class AsymmetricStiction(PhysicsHypothesis):
             # OP -> MV: the cost is sharp in S on both sides; the scans step S by 1-2 %
             best = _fine_asym(stage, best)
         else:
-            # OP -> PV: the same fine polish around the process dynamics refit once between; an
-            # asymmetric valve a few per cent off trains as well as the true one and extrapolates
-            # two to three times worse (fresh asymmetry 5001: held-out RMSE 0.30 -> 0.13). No net
-            # gain on the benchmark: fresh 5004 and 5005 train better and extrapolate worse
-            # polished (docs/missing-physics.md)
+            # OP -> PV: the same fine polish around the process dynamics refit once between (fresh
+            # asymmetry 5001: the unpolished fit trained worse than the plain reference and was
+            # refused; polished, held-out 0.205 -> 0.135, named). No net gain on the benchmark:
+            # fresh 5004 and 5005 train better and extrapolate worse polished (missing-physics.md)
             best = _fine_asym(stage, best)
             best, _ = refit_dynamics(stage, best, rounds=1)
             best = _fine_asym(stage, best)
