@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     ap.add_argument("--resume", action="store_true", help="reuse records already in --jsonl")
     ap.add_argument("--raw-draws", action="store_true",
                     help="keep every seed's first draw, also when its valve stays stuck through the "
-                         "training or the held-out part (the sets before 2026-11-23 06 UTC); by default "
+                         "training or the held-out part (the sets before 2026-11-23 05 UTC); by default "
                          "such a draw is drawn again (concealed_loop(min_moves=...))")
     ap.add_argument("--only", default="",
                     help="run only these records: comma-separated EFFECT, EFFECT:SEED or EFFECT:SEED:mv "

@@ -435,7 +435,7 @@ def test_concealed_generator_draws_a_stuck_valve_again():
 
     moves_needed = (0.65, 10, 5)
     # drift seed 5002: friction grows until the valve sticks where PV meets the setpoint, for good
-    raw, t_raw = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True)
+    raw, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True)
     assert moves(_true_stem(raw, 5002)[:1950]) < 10
     rec, truth = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True, min_moves=moves_needed)
     assert truth["draw"] >= 1 and truth["seed"] == 5002
