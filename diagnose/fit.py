@@ -528,8 +528,12 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         if hp_tau_s != "auto":
             raise DataError(f"hp_tau_s must be a number of seconds, None or 'auto', got {hp_tau_s!r}")
         hp_tau_s = AUTO_HP_SAMPLES * ts_s
-    prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed, gain_sign)
-    prob.x = np.array(x)          # private: a long record's refinement sets the first sample
+    def new_problem(hp: float | None) -> _Problem:
+        p_ = _Problem(x, y, ts_s, w, load_order, hp, gain_fixed, gain_sign)
+        p_.x = np.array(x)        # private: a long record's refinement sets the first sample
+        return p_
+
+    prob = new_problem(hp_tau_s)
     x_first = float(x[0])
 
     def set_start(x0: float | None) -> None:
@@ -581,7 +585,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
         hp_tau_s = None if hp_best is None else hp_best * ts_s
         if hp_tau_s != prob.hp_tau_s:
-            prob = _Problem(x, y, ts_s, w, load_order, hp_tau_s, gain_fixed, gain_sign)
+            prob = new_problem(hp_tau_s)
 
     S_grid = _s_grid(x, n_S, S_max_pct)
     # a valve that sticks and slips both ways needs OP to travel more than S: a larger S can only
@@ -776,8 +780,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             hp_best = AUTO_HP_CANDIDATES[int(np.argmin(costs))]
             hp_new = None if hp_best is None else hp_best * ts_s
             if hp_new != prob.hp_tau_s:
-                prob = _Problem(x, y, ts_s, w, load_order, hp_new, gain_fixed, gain_sign)
-                prob.x = np.array(x)
+                prob = new_problem(hp_new)
                 set_start(x0)
         dset = sorted({min(dmax, max(dmin, d0 + k)) for k in range(-3, 4)})
         entries = [(cp.kind, cp.tau_s * f, cp.tau2_s * f, dd) for f in 2.0 ** np.arange(-1.0, 1.01, 0.5)
