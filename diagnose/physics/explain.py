@@ -35,6 +35,7 @@ from ..record import LoopRecord
 from .baseline import Baseline, _grid_baseline, make_baseline
 from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, _fine_valve, get
 from .locate import Mismatch, locate, slips_and_reversals
+from .posterior import predictive_mean
 from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
                     refine_plain, rmse)
 
@@ -348,6 +349,10 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
             again = h.fit(stage, ref, ctx)
             if again.train_sse < fits[h.name].train_sse:
                 fits[h.name] = again
+    # Every model is judged on the held-out part by its posterior-predictive mean (posterior.py):
+    # one fitted parameter set of a stiction model extrapolates by luck as much as by physics.
+    n_eff_tr = effective_n((stage.y - ref_hat)[stage.train])
+    ref_hat = predictive_mean(stage, ref, n_eff_tr).y_hat
     ref_rmse = rmse((stage.y - ref_hat)[ho])
     run = _StageRun(stage, base, base_rmse, ref, ref_hat, ref_rmse, mism)
     run.loc_hat, run.loc_stem = loc_hat, loc_stem
@@ -355,10 +360,10 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     sse_ref = float(e_ref @ e_ref)
     n_eff = effective_n(e_ref)
     run.n_eff = n_eff
-    n_eff_tr = effective_n((stage.y - ref_hat)[stage.train])
     for h in hyps:
         fitted = fits[h.name]
-        y_hat, _, _ = predict(stage, fitted.structure)
+        y_point, _, _ = predict(stage, fitted.structure)
+        y_hat = predictive_mean(stage, fitted.structure, n_eff_tr).y_hat
         e = (stage.y - y_hat)[ho]
         sse = float(e @ e)
         r_h = rmse(e)
@@ -376,7 +381,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         # trains no better but happens to extrapolate better is search luck, not physics)
         n_tr = n_eff_tr
         if fitted.train_sse < ref_sse:
-            n_tr = max(n_eff_tr, effective_n((stage.y - y_hat)[stage.train]))
+            n_tr = max(n_eff_tr, effective_n((stage.y - y_point)[stage.train]))
         dbic_tr = (n_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
                    + fitted.n_extra * math.log(n_tr))
         ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic <= STRONG_BIC
@@ -384,7 +389,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
                   and all(math.isfinite(v) for v in fitted.params.values())
                   and h.material(fitted.params, stage.n * stage.ts_s))
         tr = stage.train
-        tr_rmse = rmse((stage.y - y_hat)[tr])
+        tr_rmse = rmse((stage.y - y_point)[tr])
         res = HypothesisResult(name=fitted.name, params=dict(fitted.params), heldout_rmse=r_h,
                                accepted=ok, stage=stage.name, train_rmse=tr_rmse, reduction=red,
                                delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr)
