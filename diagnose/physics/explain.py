@@ -35,9 +35,9 @@ from ..record import LoopRecord
 from .baseline import Baseline, _grid_baseline, make_baseline
 from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, _fine_valve, get
 from .locate import Mismatch, locate, slips_and_reversals
-from .posterior import predictive_mean
 from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
                     refine_plain, rmse)
+from .posterior import predictive_mean
 
 MIN_SAMPLES = 300
 #: held-out BIC difference an augmented model must reach: "strong" evidence on the usual BIC scale
