@@ -6,8 +6,8 @@ dead time before the real slip reverses it, so a model whose S is a few tenths o
 span too high misses that slip and stays out of step until the next large excursion. The training
 data pin S no finer than that (on concealed drift records with the stem position, fits that train
 at the stem's noise, as well as the true model or better, their drift rate 6-8 % off, extrapolated
-four to eight times worse), so the held-out error of one fitted parameter set says as much about which of many
-equally good sets the search happened to stop at as about the physics.
+four to eight times worse), so the held-out error of one fitted parameter set says as much about
+which of many equally good sets the search happened to stop at as about the physics.
 
 `predictive_mean` therefore judges a model by its posterior-predictive mean: the whole-record
 prediction averaged over parameter sets drawn around the fit, weighted by their training
