@@ -533,17 +533,23 @@ def test_predictive_mean_is_seeded_and_keeps_a_plain_model_plain():
 
 
 def test_predictive_mean_averages_only_what_the_training_data_leave_free():
-    # a well-pinned valve (sharp likelihood): the average is the fit's own prediction; the same fit
-    # with almost no independent training residuals (flat likelihood) averages visibly other valves
+    # a sharp likelihood (a pinned valve): the average collapses onto one or two sets that train as
+    # well as the fit (scored after the valve's first slip, the best set there need not be the fit
+    # itself); the same fit with almost no independent training residuals (flat likelihood) averages
+    # many visibly other valves
     from diagnose.physics.posterior import predictive_mean
 
     stage = _valve_stage(S_up=3.0, J_up=1.0, f0=1, noise=0.05)
     plain, _ = fit_initial_state(stage, Structure.plain(3.0, 1.0, 1, ProcessModel("foptd", 1.0, 0.0, 0.0, 0.0)))
     point, _, _ = predict(stage, plain)
-    sharp = predictive_mean(stage, plain, 1e6).y_hat
-    flat = predictive_mean(stage, plain, 1.0).y_hat
-    assert np.sqrt(np.mean((sharp - point) ** 2)) < 0.01
-    assert np.sqrt(np.mean((flat - point) ** 2)) > 0.04
+    tr = stage.train
+    fit_rmse = np.sqrt(np.mean((stage.y - point)[tr] ** 2))
+    sharp = predictive_mean(stage, plain, 1e6)
+    flat = predictive_mean(stage, plain, 1.0)
+    assert sharp.ess < 3.0 and sharp.n_distinct <= 3
+    assert np.sqrt(np.mean((stage.y - sharp.y_hat)[tr] ** 2)) < 1.01 * fit_rmse
+    assert flat.n_distinct > 30 and flat.ess > 50.0
+    assert np.sqrt(np.mean((flat.y_hat - point) ** 2)) > 0.04
 
 
 def test_drift_with_the_stem_is_named_by_its_predictive_mean():
@@ -555,4 +561,37 @@ def test_drift_with_the_stem_is_named_by_its_predictive_mean():
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses
     assert h.params["dS_pct_per_h"] < 0 and truth["dS_pct_per_h"] < 0
+    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+
+
+def test_memory_burn_leaves_out_the_start_until_the_valve_has_slipped():
+    # a valve held stuck at the start by its initial state: the draws are scored only after the
+    # cloud has slipped (plus the process response), so the fitted initial state of the centre does
+    # not penalise sets far along a ridge; a valve that slips at once loses only those samples
+    from diagnose.physics.posterior import _memory_burn
+
+    n = 1500
+    x = np.concatenate([np.full(300, 50.0), 50.0 + 8.0 * np.sin(np.arange(n - 300) * 2 * np.pi / 100)])
+    train = np.zeros(n, bool)
+    train[:1200] = True
+    stage = Stage("valve", x, x.copy(), 1.0, train)
+    stuck = Structure.plain(3.0, 1.0, 1, ProcessModel("foptd", 1.0, 0.0, 0.0, 0.0))
+    cands = [stuck.replace(S_up_pct=s, S_dn_pct=s) for s in (2.5, 3.0, 3.5)]
+    w = np.full(3, 1 / 3)
+    burnt = _memory_burn(stage, cands, w)
+    first = int(np.argmax(burnt.train))
+    assert 300 < first < 330 and burnt.train[first:1200].all() and not burnt.train[1200:].any()
+    moving = Stage("valve", x[300:], x[300:].copy(), 1.0, train[:n - 300])
+    assert int(np.argmax(_memory_burn(moving, cands, w).train)) < 10
+
+
+def test_asymmetry_along_a_ridge_is_named_by_its_predictive_mean():
+    # fresh seed 5003 (OP/PV): the asymmetric fit (S open 2.5 % against the true 1.8 %) trains as
+    # well as the true valve, along a ridge of equally good fits whose held-out errors run from 0.37
+    # to 0.13; its own prediction is worse than the plain reference on the held-out part. Averaged
+    # along the ridge (adaptive rounds, scored after the valve has forgotten its initial state) it
+    # is named
+    rec, _ = concealed_loop("asymmetric_stiction", 5003, n=3000, min_moves=(0.65, 10, 5))
+    ex = explain(rec, target="pv", hypotheses=["asymmetric_stiction"])
+    assert ex.missing_physics == "asymmetric_stiction"
     assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
