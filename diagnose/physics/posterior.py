@@ -115,6 +115,12 @@ def _log_likelihood(stage: Stage, cands: list[Structure], n_eff: float, sse_min:
     return -0.5 * n_eff * (sse / max(m, 1e-300) - 1.0), m
 
 
+def _weights(log_w: np.ndarray) -> np.ndarray:
+    """Normalised weights from log weights (shifted by their maximum: no overflow)."""
+    w = np.exp(log_w - log_w.max())
+    return w / w.sum()
+
+
 def _memory_burn(stage: Stage, cands: list[Structure], w: np.ndarray) -> Stage:
     """The stage with the training samples before the valve forgets its initial state left out.
 
@@ -172,14 +178,10 @@ def predictive_mean(stage: Stage, struct: Structure, n_eff: float, *, seed: int 
     widths = rng.choice(np.asarray(EXPLORE_WIDTHS), size=(n_explore, 1))
     P = np.vstack([p0, p0 + rng.standard_normal((n_explore, k)) * widths * sc])
     cands = [_build(struct, names, p) for p in P]
-    ll, _ = _log_likelihood(stage, cands, n_eff)
-    w = np.exp(ll - ll.max())
-    w /= w.sum()
+    w = _weights(_log_likelihood(stage, cands, n_eff)[0])
     if n_adapt > 0:
         stage = _memory_burn(stage, cands, w)
-        ll, _ = _log_likelihood(stage, cands, n_eff)
-        w = np.exp(ll - ll.max())
-        w /= w.sum()
+        w = _weights(_log_likelihood(stage, cands, n_eff)[0])
     sse_min = None
     for _ in range(max(n_adapt, 1)):
         mu = w @ P
@@ -191,9 +193,7 @@ def predictive_mean(stage: Stage, struct: Structure, n_eff: float, *, seed: int 
         P = mu + (Z @ L.T) * sc
         cands = [_build(struct, names, p) for p in P]
         ll2, sse_min = _log_likelihood(stage, cands, n_eff, sse_min)
-        lw = ll2 + 0.5 * np.sum(Z ** 2, axis=1)          # likelihood / proposal density
-        w = np.exp(lw - lw.max())
-        w /= w.sum()
+        w = _weights(ll2 + 0.5 * np.sum(Z ** 2, axis=1))   # likelihood / proposal density
     ess = float(1.0 / np.sum(w ** 2))
     picks = rng.choice(n_draw, size=n_average, p=w)
     idx, counts = np.unique(picks, return_counts=True)
