@@ -546,7 +546,9 @@ def test_predictive_mean_averages_only_what_the_training_data_leave_free():
     fit_rmse = np.sqrt(np.mean((stage.y - point)[tr] ** 2))
     sharp = predictive_mean(stage, plain, 1e6)
     flat = predictive_mean(stage, plain, 1.0)
-    assert sharp.ess < 3.0 and sharp.n_distinct <= 3
+    # (ess, not the count of distinct picks, measures the collapse: 64 picks by weight can touch a
+    # few sets of tiny weight, and how many depends on the last bits of the linear algebra)
+    assert sharp.ess < 3.0 and sharp.n_distinct <= 6
     assert np.sqrt(np.mean((stage.y - sharp.y_hat)[tr] ** 2)) < 1.01 * fit_rmse
     assert flat.n_distinct > 30 and flat.ess > 50.0
     assert np.sqrt(np.mean((flat.y_hat - point) ** 2)) > 0.04
