@@ -11,7 +11,7 @@ Each record draws its plant, controller and effect parameters from its seed
   actuator_lag, asymmetric_stiction, time_varying_friction.
 
 Prints the confusion table, the held-out RMSE change and timings, writes one JSON line per record
-to ``--jsonl`` and a markdown fragment to ``--md``.
+to ``--jsonl`` and, with ``--md FILE``, the markdown to FILE.
 
     python benchmarks/validate_physics.py [--per-effect 12] [--n 3000] [--seed0 1000] [--jobs N]
 
@@ -104,7 +104,9 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=3000, help="samples per record (1 s sampling)")
     ap.add_argument("--seed0", type=int, default=1000)
     ap.add_argument("--jsonl", default="benchmarks/_physics_results.jsonl")
-    ap.add_argument("--md", default="docs/_bench_physics.md")
+    ap.add_argument("--md", default="",
+                    help="also write the markdown to this file (docs/_bench_physics.md holds several "
+                         "sets and the real recordings: write elsewhere and merge by hand)")
     ap.add_argument("--sets", default="pv,mv", help="pv, mv or both")
     ap.add_argument("--resume", action="store_true", help="reuse records already in --jsonl")
     ap.add_argument("--raw-draws", action="store_true",
