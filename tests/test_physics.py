@@ -601,29 +601,32 @@ def test_asymmetry_along_a_ridge_is_named_by_its_predictive_mean():
 
 # --- searched jointly with the process dynamics from OP/PV ---------------------------------------------
 
+def _named_from_op_pv(effect, seed):
+    """explain on one concealed OP/PV record with only the hidden effect's hypothesis: named, with
+    the held-out error well below the plain reference's; returns (hypothesis result, truth)."""
+    rec, truth = concealed_loop(effect, seed, n=3000, min_moves=(0.65, 10, 5))
+    ex = explain(rec, target="pv", hypotheses=[effect])
+    assert ex.missing_physics == effect
+    assert ex.improved_rmse < 0.6 * ex.mismatch["reference_rmse"]
+    (h,) = ex.hypotheses
+    return h, truth
+
+
 def test_drift_from_op_pv_is_searched_with_the_dynamics():
     # concealed drift 5004 (OP/PV; S rising from 10.3 % by 5.5 %/h): the plain fit's process (a
     # 7 s lag) cannot carry the drifting valve, and the drift searched from it trains at SSE 37
     # against the plain 38 (refused); the joint grid of drifting valves x dynamics finds the basin
-    rec, truth = concealed_loop("time_varying_friction", 5004, n=3000, min_moves=(0.65, 10, 5))
-    ex = explain(rec, target="pv", hypotheses=["time_varying_friction"])
-    assert ex.missing_physics == "time_varying_friction"
-    (h,) = ex.hypotheses
+    h, truth = _named_from_op_pv("time_varying_friction", 5004)
     assert abs(h.params["dS_pct_per_h"] / truth["dS_pct_per_h"] - 1.0) < 0.2
-    assert ex.improved_rmse < 0.6 * ex.mismatch["reference_rmse"]
 
 
 def test_asymmetry_from_op_pv_is_searched_on_a_global_grid():
     # concealed asymmetry 1002 (OP/PV; J/S 0.49 opening, 0.94 closing): from the coarse grid's
     # one J/S for both sides the search trained at SSE 185 and was refused; from the global
     # (S_open, S_close, J/S each side) grid, 69, named
-    rec, truth = concealed_loop("asymmetric_stiction", 1002, n=3000, min_moves=(0.65, 10, 5))
-    ex = explain(rec, target="pv", hypotheses=["asymmetric_stiction"])
-    assert ex.missing_physics == "asymmetric_stiction"
-    (h,) = ex.hypotheses
+    h, truth = _named_from_op_pv("asymmetric_stiction", 1002)
     assert h.params["S_open_pct"] > 2.0 * h.params["S_close_pct"]
     assert truth["S_open_pct"] > 2.0 * truth["S_close_pct"]
-    assert ex.improved_rmse < 0.6 * ex.mismatch["reference_rmse"]
 
 
 def test_an_external_load_far_below_the_residual_is_not_named():
