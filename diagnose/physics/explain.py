@@ -360,6 +360,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     sse_ref = float(e_ref @ e_ref)
     n_eff = effective_n(e_ref)
     run.n_eff = n_eff
+    ref_tr_rms = math.sqrt(ref_sse / max(int(stage.train.sum()), 1))   # for the materiality rules
     for h in hyps:
         fitted = fits[h.name]
         y_point, _, _ = predict(stage, fitted.structure)
@@ -387,8 +388,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic <= STRONG_BIC
                   and dbic_tr < 0
                   and all(math.isfinite(v) for v in fitted.params.values())
-                  and h.material(fitted.params, stage.n * stage.ts_s,
-                                 math.sqrt(ref_sse / max(int(stage.train.sum()), 1))))
+                  and h.material(fitted.params, stage.n * stage.ts_s, ref_tr_rms))
         tr = stage.train
         tr_rmse = rmse((stage.y - y_point)[tr])
         res = HypothesisResult(name=fitted.name, params=dict(fitted.params), heldout_rmse=r_h,
