@@ -63,6 +63,8 @@ class HypothesisResult:
     delta_bic: float
     n_extra: int
     train_delta_bic: float = float("nan")
+    #: why it was not accepted (the first rule it failed, in words); empty when accepted
+    refused: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "params": {k: _num(v) for k, v in self.params.items()},
@@ -70,7 +72,7 @@ class HypothesisResult:
                 "stage": self.stage, "target": _TARGET[self.stage], "train_rmse": _num(self.train_rmse),
                 "heldout_reduction": _num(self.reduction), "delta_bic": _num(self.delta_bic),
                 "train_delta_bic": _num(self.train_delta_bic),
-                "n_extra_params": int(self.n_extra)}
+                "n_extra_params": int(self.n_extra), "refused": self.refused}
 
 
 _TARGET = {"loop": "pv", "valve": "mv"}
@@ -385,15 +387,26 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
             n_tr = max(n_eff_tr, effective_n((stage.y - y_point)[stage.train]))
         dbic_tr = (n_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
                    + fitted.n_extra * math.log(n_tr))
-        ok = bool(red >= need and r_h <= base_rmse * (1.0 - 0.5 * min_reduction) and dbic <= STRONG_BIC
-                  and dbic_tr < 0
-                  and all(math.isfinite(v) for v in fitted.params.values())
-                  and h.material(fitted.params, stage.n * stage.ts_s, ref_tr_rms))
+        checks = [
+            (red >= need, f"held-out RMSE {100 * red:.0f} % below the refit plain model's, "
+                          f"{100 * need:.0f} % needed" + (" (a load at the loop's own oscillation period)"
+                                                          if on_lc else "")),
+            (r_h <= base_rmse * (1.0 - 0.5 * min_reduction),
+             f"held-out RMSE not {50 * min_reduction:.0f} % below the baseline's"),
+            (dbic <= STRONG_BIC, f"held-out BIC change {dbic:+.1f}, {STRONG_BIC:+.0f} needed"),
+            (dbic_tr < 0, f"trains no better than the plain model for its extra parameters "
+                          f"(training BIC change {dbic_tr:+.1f})"),
+            (all(math.isfinite(v) for v in fitted.params.values()), "parameters not finite"),
+            (h.material(fitted.params, stage.n * stage.ts_s, ref_tr_rms), "too small to matter"),
+        ]
+        failed = [why for passed, why in checks if not passed]
+        ok = not failed
         tr = stage.train
         tr_rmse = rmse((stage.y - y_point)[tr])
         res = HypothesisResult(name=fitted.name, params=dict(fitted.params), heldout_rmse=r_h,
                                accepted=ok, stage=stage.name, train_rmse=tr_rmse, reduction=red,
-                               delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr)
+                               delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr,
+                               refused=failed[0] if failed else "")
         run.fitted.append((fitted, y_hat, res))
     return run
 
@@ -623,9 +636,10 @@ def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
         best = min((t[2] for r in runs.values() for t in r.fitted), key=lambda h: h.heldout_rmse,
                    default=None)
         if best is not None:
-            parts.append(f"No missing physics named: the best hypothesis ({best.name}) changes the held-out "
-                         f"RMSE by {100 * best.reduction:.0f} % against the refit plain model, "
-                         "below the significance threshold.")
+            parts.append(f"No missing physics named: the best hypothesis ({best.name}, "
+                         f"{_TARGET[best.stage].upper()}) changes the held-out RMSE by "
+                         f"{-100 * best.reduction:+.0f} % against the refit plain model"
+                         + (f"; refused: {best.refused}." if best.refused else "."))
         else:
             parts.append("No hypothesis was tested.")
     return " ".join(parts)
