@@ -28,6 +28,7 @@ import os
 import sys
 import time
 from collections import Counter, defaultdict
+from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -124,7 +125,8 @@ def main(argv=None) -> int:
                     help="run on the real recordings in --data instead (prints a table, draws figures)")
     ap.add_argument("--examples", action="store_true",
                     help="draw one concealed example per effect to docs/figures/physics_concealed_*.png")
-    ap.add_argument("--data", default="/work/shared/data", help="folder of the shared real data")
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"),
+                    help="folder of the shared real data (default: ../shared/data beside the repository)")
     ap.add_argument("--figdir", default="docs/figures")
     args = ap.parse_args(argv)
     if args.real:

@@ -20,9 +20,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import DataError
-from .valve import characteristic
 from .model import (Stage, Structure, best_of, fit_initial_state, global_sj, predict, refine_sj,
                     refit_dynamics, sj_local, train_sse)
+from .valve import characteristic
 
 #: smallest change a valve-side hypothesis must make to S or J, relative to S, to be named: a few
 #: per cent is within the resolution of the plain model's own S (a slightly wrong plain S drifts
@@ -176,8 +176,10 @@ def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> St
     is V-shaped and sharp: 1 % off in S moves every slip by a sample or two and can cost ten times
     the noise, and the grids step S by 3 %.
 
-    S(t) scaled in 0.5 % steps over +-12 % with J(t)/S(t) over its whole range (and ``extra``,
+    First J/S over its whole range with the initial state refit at each value (`_profile_ratio`).
+    Then S(t) scaled in 0.5 % steps over +-12 % with J(t)/S(t) over its whole range (and ``extra``,
     ``tau_lag_s`` or ``dS_pct_per_s``, +-30 %), then S in 0.1 % and J in 1 % steps, then the
+    initial state; twice. Last S (+-1 %), J (+-30 %) and the extra (+-10 %) on one grid, then the
     initial state; twice. A drift is scaled with S (J drifts in proportion)."""
     def one_round(best: Structure) -> Structure:
         S0, dS0 = max(best.S_up_pct, 0.05), best.dS_pct_per_s
@@ -599,8 +601,9 @@ class ValveCharacteristic(PhysicsHypothesis):
                          ) -> list[float]:
         """Exponents c around the one that the loop's settled operating points prefer: the mean OP
         and mean PV of training windows whose PV stays within a quarter of its training range,
-        PV ~ a + b characteristic(OP, c) by least squares over a grid of c. Empty when they are
-        fewer than three operating points 20 % of travel apart, or the process integrates.
+        PV ~ a + b characteristic(OP, c) by least squares over a grid of c. Empty when the settled
+        windows' mean OPs fall in fewer than three 10 % bins of travel or span less than 20 %, or
+        when the process integrates (no settled operating points).
 
         Setpoint changes over much of the travel expose a characteristic best, and make the
         output-error cost a needle in c and the time constant (blind seed 10005: training SSE 45 at
