@@ -187,8 +187,8 @@ def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> St
         ems = (0.7, 0.85, 1.0, 1.15, 1.3) if e0 else (1.0,)
         cands = []
         for em in ems:
-            kw = {"tau_lag_s": e0 * em} if extra == "tau_lag_s" and e0 else {}
-            dS = dS0 * (em if extra == "dS_pct_per_s" else 1.0)
+            kw, de = _extra_scale(extra, e0, em)
+            dS = dS0 * de
             for m in 1.0 + np.linspace(-0.12, 0.12, 49):
                 for r in np.linspace(0.0, 1.45, 30):
                     cands += [best.replace(S_up_pct=S0 * m, S_dn_pct=S0 * m, J_up_pct=S0 * m * r,
@@ -211,8 +211,7 @@ def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> St
         ems = 1.0 + np.linspace(-0.1, 0.1, 11) if e0 else (1.0,)
         cands = []
         for em in ems:
-            kw = {"tau_lag_s": e0 * em} if extra == "tau_lag_s" and e0 else {}
-            de = em if extra == "dS_pct_per_s" else 1.0
+            kw, de = _extra_scale(extra, e0, em)
             cands += [best.replace(S_up_pct=S0 * m, S_dn_pct=S0 * m, J_up_pct=J0 * mj, J_dn_pct=J0 * mj,
                                    dS_pct_per_s=dS0 * m * de, dJ_pct_per_s=dJ0 * mj * de, **kw)
                       for m in 1.0 + np.linspace(-0.01, 0.01, 9) for mj in 1.0 + np.linspace(-0.3, 0.3, 25)]
@@ -233,16 +232,20 @@ def _profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Struct
     e0 = getattr(struct, extra) if extra else 0.0
     cands = []
     for em in ((0.85, 1.0, 1.15) if e0 else (1.0,)):
-        kw = {extra: e0 * em} if e0 else {}
-        dr = em if extra == "dS_pct_per_s" else 1.0
+        kw, de = _extra_scale(extra, e0, em)
         for r in np.linspace(0.0, 1.45, 30):
-            c = struct.replace(J_up_pct=S0 * r, J_dn_pct=S0 * r, dJ_pct_per_s=struct.dS_pct_per_s * r * dr, **kw)
+            c = struct.replace(J_up_pct=S0 * r, J_dn_pct=S0 * r, dS_pct_per_s=struct.dS_pct_per_s * de,
+                               dJ_pct_per_s=struct.dS_pct_per_s * r * de, **kw)
             cands.append(fit_initial_state(stage, c))
-    best, cost = best_of(stage, [struct])
-    for c, cc in cands:
-        if cc < cost:
-            best, cost = c, cc
-    return best
+    # the start itself first: it is kept unless a profiled value trains strictly better
+    return min([best_of(stage, [struct])] + cands, key=lambda t: t[1])[0]
+
+
+def _extra_scale(extra: str | None, e0: float, em: float) -> tuple[dict, float]:
+    """For ``extra``'s value ``e0`` scaled by ``em``: the lag to set (``tau_lag_s``) and the factor
+    on the drift rates (``dS_pct_per_s``; 1 otherwise)."""
+    lag = {"tau_lag_s": e0 * em} if extra == "tau_lag_s" and e0 else {}
+    return lag, (em if extra == "dS_pct_per_s" else 1.0)
 
 
 def _fine_asym(stage: Stage, struct: Structure) -> Structure:
