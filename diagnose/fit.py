@@ -17,6 +17,8 @@ and the load coefficients are linear and solved by least squares inside one comp
 5. the error surface on the global grid at the final structure, and intervals from it.
 
 Records longer than ``max_samples`` are searched on a full-rate window and refined on the whole record.
+With ``windows`` (`diagnose.identify` uses three), equal windows spread over the record are searched
+as well, each result is refined on the whole record, and the cheapest whole-record fit is kept.
 The cost of a candidate (the compiled simulation and least-squares pass) is in
 `diagnose.output_error`; this module holds the search and its results.
 PV is prefiltered with an integrated-noise model (see ``hp_tau_s``). Details: docs/fitting.md.
@@ -62,6 +64,10 @@ PROFILE_RATIOS = (0.0, 0.5, 1.0, 1.5, 2.0)
 PROFILE_S_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.2)
 #: refinements keep S at or below this multiple of the S grid's end (OP's 0.5-99.5 % range)
 S_CAP_FACTOR = 1.2
+#: Longest and shortest extra search window (``windows`` of `fit_hammerstein`), samples: a window
+#: shorter than this is not searched (records under three times this have no extra windows).
+WINDOW_MAX_SAMPLES = 2000
+WINDOW_MIN_SAMPLES = 500
 
 
 # --------------------------------------------------------------------------------------------------
@@ -314,6 +320,18 @@ def _search_window(x: np.ndarray, m: int, scored: np.ndarray | None = None) -> i
     return int(starts[int(np.argmax(values))])
 
 
+def _extra_windows(n: int, k: int, w: np.ndarray) -> list[tuple[int, int]]:
+    """(start, length) of ``k`` equal windows spread evenly over ``n`` samples (`fit_hammerstein`'s
+    ``windows``), leaving out windows too short or with too few scored samples to search."""
+    if k <= 0:
+        return []
+    m = min(n // k, WINDOW_MAX_SAMPLES)
+    if m < WINDOW_MIN_SAMPLES:
+        return []
+    starts = [int(round(i * (n - m) / (k - 1))) if k > 1 else (n - m) // 2 for i in range(k)]
+    return [(i0, m) for i0 in starts if np.count_nonzero(w[i0:i0 + m]) >= WINDOW_MIN_SAMPLES // 2]
+
+
 def _s_grid(x: np.ndarray, n_S: int, S_max_pct: float | None) -> np.ndarray:
     if S_max_pct is None:
         lo, hi = np.percentile(x, [0.5, 99.5])
@@ -443,7 +461,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     gain_sign: float | None = None,
                     J_ratios=None, dense_S: int = 36, dense_ratios: int = 17,
                     dense_structures: int = 0, n_refine: int = 3,
-                    profile_ratios=PROFILE_RATIOS) -> HammersteinFit:
+                    profile_ratios=PROFILE_RATIOS, windows: int = 0) -> HammersteinFit:
     """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
 
     Parameters
@@ -490,6 +508,14 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         Longer records are searched on a window of this many samples at the full rate (the one
         where OP covers the widest range), and the result is refined on the whole record (None:
         search the whole record).
+    windows : int
+        Also search this many equal windows spread evenly over the record (first, middle and last
+        third for three; each at most `WINDOW_MAX_SAMPLES` long, none shorter than
+        `WINDOW_MIN_SAMPLES`), refine each window's result on the whole record like a long record's,
+        and keep the cheapest whole-record fit. With J > 0 the cost is a needle in S and which
+        valley the search ends in hangs on the noise of the samples it sees: a few independent
+        looks, judged on all the data, find the truth's valley far more often (docs/fitting.md,
+        "Search windows"). 0: no extra windows.
     J_ratios : sequence of float, optional
         J/S ratios of the global grid (default `DEFAULT_J_RATIOS`).
     dense_S, dense_ratios : int
@@ -798,15 +824,13 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
             cur = _nelder_mead_refine(prob, cur, ts_s, fixed=False, tau_max_s=tau_max, S_max_pct=S_cap)
         return cur, x0
 
-    if max_samples is not None and n > max_samples and structure is None:
-        # search a full-rate window, refine on the whole record: slips happen at the sample level,
-        # and block means smear them (searching block means of 10 000-sample loops got J wrong by
-        # half and the class wrong in a third of the simulated loops, see docs/validation.md)
-        i0 = _search_window(x, max_samples, None if train is None else w > 0)
-        sl = slice(i0, i0 + max_samples)
+    def search_window(span: tuple[int, int]) -> "HammersteinFit":
+        """The ordinary search on samples ``i0 .. i0 + m`` of the record, nothing else."""
+        i0, m = span
+        sl = slice(i0, i0 + m)
         tw = w[sl] > 0
         tw[: max(0, burn - i0)] = True      # the window's fit applies its own burn-in
-        part = fit_hammerstein(x[sl], y[sl], ts_s, train=tw, stiction=stiction, kinds=kinds,
+        return fit_hammerstein(x[sl], y[sl], ts_s, train=tw, stiction=stiction, kinds=kinds,
                                max_delay_s=max_delay_s, n_S=n_S, n_J=n_J, S_max_pct=float(S_grid[-1]),
                                load_order=load_order, burn_frac=burn_frac, refine_rounds=refine_rounds,
                                hp_tau_s="auto" if auto_hp else hp_tau_s, n_starts=n_starts,
@@ -816,10 +840,26 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                                dense_S=dense_S, dense_ratios=dense_ratios,
                                dense_structures=dense_structures, n_refine=n_refine,
                                profile_ratios=profile_ratios)
-        # the rest (polish, surface, result) stays at the starting state the refinement chose
-        best, x0 = refine_from(part)
-    else:
-        best, x0 = search(), None
+
+    long_record = max_samples is not None and n > max_samples and structure is None
+    spans: list[tuple[int, int]] = []
+    if long_record:
+        # search a full-rate window, refine on the whole record: slips happen at the sample level,
+        # and block means smear them (searching block means of 10 000-sample loops got J wrong by
+        # half and the class wrong in a third of the simulated loops, see docs/validation.md)
+        spans.append((_search_window(x, max_samples, None if train is None else w > 0), max_samples))
+    spans += _extra_windows(n, windows, w) if (stiction and structure is None) else []
+    parts = [search_window(sp) for sp in spans]
+    base = prob
+    candidates = [] if long_record else [(search(), None, base)]
+    for part in parts:
+        prob = base             # every window's refinement starts from the same noise model
+        cand, x0c = refine_from(part)
+        candidates.append((cand, x0c, prob))
+    # the rest (polish, surface, result) stays at the noise model and the starting state of the
+    # cheapest whole-record fit
+    best, x0, prob = min(candidates, key=lambda c: c[0].sse)
+    set_start(x0)
 
     prob.smooth = False
     sse0, _ = prob.sse([best.S], [best.J], [best.F], best.cfg)

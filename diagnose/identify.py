@@ -48,6 +48,10 @@ INSAMPLE_THRESHOLD = 0.05
 #: Records longer than this are block-averaged for the held-out test (the verdict), not for S and J.
 DETECT_MAX_SAMPLES = 4000
 DETECT_COARSE_SAMPLES = 2000
+#: Extra search windows of the Hammerstein fit (`diagnose.fit.fit_hammerstein`, ``windows``): the
+#: record's first, middle and last third (at most 2000 samples each) are searched too, and the
+#: cheapest whole-record refinement wins (docs/fitting.md, "Search windows").
+FIT_WINDOWS = 3
 #: Number of interleaved blocks for the held-out test.
 N_BLOCKS = 6
 #: Batches of the held-out losses for the paired t statistic.
@@ -426,7 +430,8 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
         Test the special shapes J = 0 (deadband) and J = S (no offset) against the free (S, J)
         fit and report the restricted fit when the data do not reject it (`_class_test`).
     **fit_opts
-        Passed to `diagnose.fit.fit_hammerstein` (e.g. ``n_S``, ``load_order``, ``hp_tau_s``).
+        Passed to `diagnose.fit.fit_hammerstein` (e.g. ``n_S``, ``load_order``, ``hp_tau_s``;
+        ``windows`` defaults to `FIT_WINDOWS`).
 
     Raises
     ------
@@ -465,8 +470,10 @@ def identify(record: LoopRecord, *, threshold: float = DETECTION_THRESHOLD, n_bl
     # the controller's sign rules out the controller path (a linear block explaining PV through
     # OP = f(PV) always has the gain sign opposite to the plant's)
     ctl = controller_action(op, pv, ts, sp=record.sp)
+    fit_opts = dict(fit_opts)
+    fit_opts.setdefault("windows", FIT_WINDOWS)
     if ctl.sign and "gain_sign" not in fit_opts:
-        fit_opts = dict(fit_opts, gain_sign=ctl.sign)
+        fit_opts["gain_sign"] = ctl.sign
     # the Hammerstein fit on the whole record (process model, PV fit; S and J for op_pv)
     fit = fit_hammerstein(op, pv, ts, **fit_opts)
     linear = fit_hammerstein(op, pv, ts, stiction=False,

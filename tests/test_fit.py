@@ -271,3 +271,31 @@ def test_a_long_record_is_refined_from_its_own_starting_state():
     _, pv_hat = fit.simulate(op)
     res = (pv - pv_hat)[op.shape[0] // 4:]
     assert np.sqrt(np.mean(res ** 2)) < 1.5 * fit.rmse
+
+
+def test_extra_search_windows_are_the_records_thirds_at_most_2000_samples():
+    from diagnose.fit import WINDOW_MAX_SAMPLES, _extra_windows
+    ones = np.ones
+    assert _extra_windows(3000, 3, ones(3000)) == [(0, 1000), (1000, 1000), (2000, 1000)]
+    assert _extra_windows(10000, 3, ones(10000)) == [(0, 2000), (4000, 2000), (8000, 2000)]
+    assert all(m == WINDOW_MAX_SAMPLES for _, m in _extra_windows(50000, 3, ones(50000)))
+    assert _extra_windows(1200, 3, ones(1200)) == []          # windows of 400 samples: too short
+    assert _extra_windows(3000, 0, ones(3000)) == []
+    w = ones(3000)
+    w[1000:2000] = 0.0                                        # the middle third is held out
+    assert _extra_windows(3000, 3, w) == [(0, 1000), (2000, 1000)]
+
+
+def test_search_windows_find_the_valve_the_whole_record_search_misses():
+    # development seed 7, loop SIM072 (undershoot, S 6.78 %, J 2.69 %, SOPTD): the search on the
+    # whole record ends in a deadband valley (J 0.47 %); searching the record's thirds as well and
+    # judging each result on the whole record finds the undershoot valley, which costs less
+    case = _benchmark_case(7, "SIM072", 3000)
+    op, pv = case.record.op, case.record.pv
+    single = fit_hammerstein(op, pv, 1.0, gain_sign=-1.0, surface=False)
+    multi = fit_hammerstein(op, pv, 1.0, gain_sign=-1.0, surface=False, windows=3)
+    assert stiction_class(single.S_pct, single.J_pct) == "deadband"
+    assert multi.cost < 0.95 * single.cost
+    assert stiction_class(multi.S_pct, multi.J_pct) == "undershoot"
+    assert abs(multi.S_pct - case.S_pct) < 0.05 * case.S_pct
+    assert abs(multi.J_pct - case.J_pct) < 0.2 * case.J_pct

@@ -27,7 +27,7 @@ from ..record import LoopRecord
 
 #: Bump when the result layout, the service's own logic or the results it computes change: it is
 #: part of the input hash, so a nightly re-run after an upgrade re-diagnoses every loop.
-PIPELINE_REVISION = "10"
+PIPELINE_REVISION = "11"
 
 SCHEMA = "stiction.loop/1"
 
