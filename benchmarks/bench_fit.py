@@ -4,8 +4,10 @@ Both fits minimise the *same* cost: the prediction-error cost of `diagnose.fit` 
 first-order-plus-dead-time process, gain and load by least squares, the same noise prefilter),
 evaluated by the same compiled kernel. Differential evolution searches (S, J, f0, log tau, dead
 time) directly (scipy defaults: popsize 15, tol 0.01, no polishing); `fit_hammerstein` runs its
-grid + refinement (and also searches SOPTD and integrating structures). Both run in the same
-process on the same loops, so machine load affects both.
+grid + refinement (and also searches SOPTD and integrating structures), once as a single search
+(``windows=0``, the default of `fit_hammerstein`) and once with the extra search windows that
+`identify` uses (``windows=FIT_WINDOWS``). All run in the same process on the same loops, so
+machine load affects them alike.
 
 Also times the whole ``stiction identify FILE --json`` command on a 10 000-sample loop
 (interpreter start and imports included) against a bare ``python -c pass``.
@@ -32,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from diagnose.fit import _op_offset, fit_hammerstein  # noqa: E402
+from diagnose.identify import FIT_WINDOWS  # noqa: E402
 from diagnose.output_error import _burn_in, _make_configs, _Problem, _score_weights  # noqa: E402
 from validate_simulated import make_case  # noqa: E402
 
@@ -107,6 +110,9 @@ def compare(n_loops: int, seed: int, plain_too: bool = True) -> dict:
         ours = fit_hammerstein(rec.op, rec.pv, rec.ts_s)
         t_ours = time.perf_counter() - t0
         t0 = time.perf_counter()
+        ours_w = fit_hammerstein(rec.op, rec.pv, rec.ts_s, windows=FIT_WINDOWS)
+        t_ours_w = time.perf_counter() - t0
+        t0 = time.perf_counter()
         de = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="kernel")
         t_de = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -121,6 +127,7 @@ def compare(n_loops: int, seed: int, plain_too: bool = True) -> dict:
         c_ours = float(prob.sse([ours.S_pct], [ours.J_pct], [ours.f0], cfg)[0][0, 0])
         row = {"loop": rec.name, "class": case.cls, "S_true": case.S_pct, "J_true": case.J_pct,
                "ours_S": ours.S_pct, "ours_J": ours.J_pct, "ours_cost": c_ours, "ours_s": t_ours,
+               "ours_w_S": ours_w.S_pct, "ours_w_J": ours_w.J_pct, "ours_w_s": t_ours_w,
                "de_S": de["S"], "de_J": de["J"], "de_cost": de["cost"], "de_s": t_de, "de_nfev": int(de["nfev"])}
         if plain is not None:
             row.update({"plain_S": plain["S"], "plain_J": plain["J"], "plain_cost": plain["cost"],
@@ -143,10 +150,14 @@ def compare(n_loops: int, seed: int, plain_too: bool = True) -> dict:
            "median_rel_err_S_de": med(rel(r["de_S"], r["S_true"]) for r in rows),
            "median_rel_err_J_ours": med(rel(r["ours_J"], r["J_true"]) for r in rows if r["J_true"] > 0),
            "median_rel_err_J_de": med(rel(r["de_J"], r["J_true"]) for r in rows if r["J_true"] > 0),
+           "median_time_ours_windows_s": med(r["ours_w_s"] for r in rows),
+           "median_rel_err_S_ours_windows": med(rel(r["ours_w_S"], r["S_true"]) for r in rows),
+           "median_rel_err_J_ours_windows": med(rel(r["ours_w_J"], r["J_true"]) for r in rows if r["J_true"] > 0),
            "ours_cost_lower_or_equal_vs_de": int(sum(r["ours_cost"] <= r["de_cost"] * (1 + 1e-9) for r in rows))}
     if rows and "plain_s" in rows[0]:
         out.update({"median_time_plain_de_s": med(r["plain_s"] for r in rows),
                     "median_speedup_vs_plain": med(r["plain_s"] / r["ours_s"] for r in rows),
+                    "median_speedup_windows_vs_plain": med(r["plain_s"] / r["ours_w_s"] for r in rows),
                     "median_rel_err_S_plain": med(rel(r["plain_S"], r["S_true"]) for r in rows),
                     "median_rel_err_J_plain": med(rel(r["plain_J"], r["J_true"]) for r in rows
                                                                 if r["J_true"] > 0),
