@@ -65,7 +65,7 @@ PROFILE_S_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.2)
 #: refinements keep S at or below this multiple of the S grid's end (OP's 0.5-99.5 % range)
 S_CAP_FACTOR = 1.2
 #: Longest and shortest extra search window (``windows`` of `fit_hammerstein`), samples: a window
-#: shorter than this is not searched (records under three times this have no extra windows).
+#: shorter than this is not searched (with three windows, records under 1500 samples have none).
 WINDOW_MAX_SAMPLES = 2000
 WINDOW_MIN_SAMPLES = 500
 
@@ -326,8 +326,8 @@ def _extra_windows(n: int, k: int, w: np.ndarray) -> list[tuple[int, int]]:
     if k <= 0:
         return []
     m = min(n // k, WINDOW_MAX_SAMPLES)
-    if m < WINDOW_MIN_SAMPLES:
-        return []
+    if m < WINDOW_MIN_SAMPLES or m >= n:
+        return []           # too short to search, or the whole record (searched anyway)
     starts = [int(round(i * (n - m) / (k - 1))) if k > 1 else (n - m) // 2 for i in range(k)]
     return [(i0, m) for i0 in starts if np.count_nonzero(w[i0:i0 + m]) >= WINDOW_MIN_SAMPLES // 2]
 

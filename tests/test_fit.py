@@ -281,6 +281,7 @@ def test_extra_search_windows_are_the_records_thirds_at_most_2000_samples():
     assert all(m == WINDOW_MAX_SAMPLES for _, m in _extra_windows(50000, 3, ones(50000)))
     assert _extra_windows(1200, 3, ones(1200)) == []          # windows of 400 samples: too short
     assert _extra_windows(3000, 0, ones(3000)) == []
+    assert _extra_windows(1800, 1, ones(1800)) == []          # one window would be the record
     w = ones(3000)
     w[1000:2000] = 0.0                                        # the middle third is held out
     assert _extra_windows(3000, 3, w) == [(0, 1000), (2000, 1000)]
