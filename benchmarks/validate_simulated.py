@@ -21,6 +21,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -44,6 +45,7 @@ class Case:
     S_pct: float
     J_pct: float
     info: dict
+    redraws: int = 0        # draws of this loop rejected by the "identifiable" definition
 
 
 def make_case(i: int, rng: np.random.Generator, *, n: int = 3000, min_delay_s: int = 0) -> Case:
@@ -148,9 +150,8 @@ def evaluate(rows: list[dict]) -> dict:
     return out
 
 
-def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str = "original",
-        **identify_opts) -> tuple[list[dict], dict]:
-    """Generate and identify ``n_loops`` loops.
+def cases(n_loops: int, seed: int, n: int, definition: str = "original") -> Iterator[Case]:
+    """The benchmark's seeded loops, in order (`run` identifies them; other scripts reuse them).
 
     ``definition="identifiable"`` (docs/validation.md): a sticky loop whose valve moved fewer than
     `MIN_MOVES` times in the record is drawn again (same class, next random numbers) until it
@@ -161,16 +162,26 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str =
         raise ValueError(f"definition must be 'original' or 'identifiable', got {definition!r}")
     redraw_stuck = definition == "identifiable"
     min_delay = 1 if redraw_stuck else 0
-    from diagnose.identify import identify
-
     rng = np.random.default_rng(seed)
-    rows = []
-    n_redrawn = 0
     for i in range(n_loops):
         case = make_case(i, rng, n=n, min_delay_s=min_delay)
+        redraws = 0
         while redraw_stuck and case.cls != "none" and case.info["mv_moves"] < MIN_MOVES:
-            n_redrawn += 1
+            redraws += 1
             case = make_case(i, rng, n=n, min_delay_s=min_delay)
+        case.redraws = redraws
+        yield case
+
+
+def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str = "original",
+        **identify_opts) -> tuple[list[dict], dict]:
+    """Generate (`cases`) and identify ``n_loops`` loops."""
+    from diagnose.identify import identify
+
+    rows = []
+    n_redrawn = 0
+    for case in cases(n_loops, seed, n, definition):
+        n_redrawn += case.redraws
         t0 = time.perf_counter()
         res = identify(case.record, **identify_opts)
         dt = time.perf_counter() - t0

@@ -175,19 +175,8 @@ def test_refinements_keep_S_within_the_OP_range():
     # a healthy loop of the simulated benchmark (blind seed 60601, loop SIM115: PV drifts while OP
     # travels 3 % of span) on which the refinements once ran S up to 34 %: a valve that never
     # reverses, ratcheting after the drift; S is now held near the range OP covers
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    try:
-        import validate_simulated as V
-    finally:
-        sys.path.pop(0)
-    rng = np.random.default_rng(60601)
-    for i in range(116):
-        case = V.make_case(i, rng, min_delay_s=1)
-        while case.cls != "none" and case.info["mv_moves"] < V.MIN_MOVES:
-            case = V.make_case(i, rng, min_delay_s=1)
-    assert case.record.name == "SIM115" and case.cls == "none"
+    case = _benchmark_case(60601, "SIM115", 3000)
+    assert case.cls == "none"
     op, pv = case.record.op, case.record.pv
     fit = fit_hammerstein(op, pv, 1.0, gain_sign=1.0)
     op_range = float(np.percentile(op, 99.5) - np.percentile(op, 0.5))
@@ -248,11 +237,8 @@ def _benchmark_case(seed: int, name: str, n: int):
         import validate_simulated as V
     finally:
         sys.path.pop(0)
-    rng = np.random.default_rng(seed)
-    for i in range(120):
-        case = V.make_case(i, rng, n=n, min_delay_s=1)
-        while case.cls != "none" and case.info["mv_moves"] < V.MIN_MOVES:
-            case = V.make_case(i, rng, n=n, min_delay_s=1)
+    # the loops of `validate_simulated.py --definition identifiable`
+    for case in V.cases(120, seed, n, "identifiable"):
         if case.record.name == name:
             return case
     raise AssertionError(name)
