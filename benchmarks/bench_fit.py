@@ -3,8 +3,9 @@
 Both fits minimise the *same* cost: the prediction-error cost of `diagnose.fit` (valve model ->
 first-order-plus-dead-time process, gain and load by least squares, the same noise prefilter),
 evaluated by the same compiled kernel. Differential evolution searches (S, J, f0, log tau, dead
-time) directly (scipy defaults: popsize 15, tol 0.01, no polishing); `fit_hammerstein` runs its
-grid + refinement (and also searches SOPTD and integrating structures), once as a single search
+time) directly (scipy defaults: popsize 15, tol 0.01, no polishing), handed the FOPTD family, or
+with ``--de-same-model`` also the structure our fit searches (FOPTD, SOPTD, integrating);
+`fit_hammerstein` runs its grid + refinement over all three structures, once as a single search
 (``windows=0``, the default of `fit_hammerstein`) and once with the extra search windows that
 `identify` uses (``windows=FIT_WINDOWS``). All run in the same process on the same loops, so
 machine load affects them alike.
@@ -13,6 +14,7 @@ Also times the whole ``stiction identify FILE --json`` command on a 10 000-sampl
 (interpreter start and imports included) against a bare ``python -c pass``.
 
 Run:  python benchmarks/bench_fit.py [--loops 8] [--cli-runs 5] [--de-budgets [POP:TOL,...]]
+          [--de-same-model]
 """
 
 from __future__ import annotations
@@ -39,9 +41,16 @@ from diagnose.output_error import _burn_in, _make_configs, _Problem, _score_weig
 from validate_simulated import make_case  # noqa: E402
 
 
-def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", popsize=15, tol=0.01):
+#: Process structures of our model, as (kind, tau2 / tau): the fit's grid (`diagnose.fit`) holds
+#: FOPTD, SOPTD with tau2 = tau / 3 and tau2 = tau, and the integrator with a lag.
+SAME_STRUCTURES = (("foptd", 0.0), ("soptd", 1.0 / 3.0), ("soptd", 1.0), ("integrating", 0.0))
+
+
+def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", popsize=15, tol=0.01,
+           structures=(("foptd", 0.0),)):
     """Plain differential evolution over (S, J, f0, log tau, delay) on the same cost (scipy's
-    defaults: ``popsize`` 15, ``tol`` 0.01)."""
+    defaults: ``popsize`` 15, ``tol`` 0.01); with several ``structures`` (kind, tau2 / tau) also
+    over the structure, an integer variable."""
     from scipy.optimize import differential_evolution
 
     x = np.asarray(op, float)
@@ -52,15 +61,17 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
     lo, hi = np.percentile(x, [0.5, 99.5])
     smax = float(hi - lo)
     dmax = int(min(n * ts_s / 10.0, 60 * ts_s) / ts_s)
+    many = len(structures) > 1
 
     def unpack(v):
-        S, J, f, lt, d = v
-        return S, J, (1.0 if f >= 0 else -1.0), math.exp(lt), int(d)
+        S, J, f, lt, d = v[:5]
+        kind, ratio = structures[int(round(v[5]))] if many else structures[0]
+        return S, J, (1.0 if f >= 0 else -1.0), math.exp(lt), int(d), kind, ratio
 
     if engine == "kernel":
         def cost(v):
-            S, J, f, tau, d = unpack(v)
-            cfg = _make_configs([("foptd", tau, 0.0, d)], ts_s)
+            S, J, f, tau, d, kind, ratio = unpack(v)
+            cfg = _make_configs([(kind, tau, tau * ratio, d)], ts_s)
             return float(prob.sse([S], [J], [f], cfg)[0][0, 0])
     else:
         # plain: the reference valve in Python, scipy.signal.lfilter, numpy least squares
@@ -77,12 +88,19 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
         yf = hp(np.asarray(pv, float))
         ynorm = prob.y_std
 
+        def lag(u, tau):
+            al = math.exp(-ts_s / tau)
+            return lfilter([1.0 - al], [1.0, -al], u)
+
         def cost(v):
-            S, J, f, tau, d = unpack(v)
+            S, J, f, tau, d, kind, ratio = unpack(v)
             mv = stiction_reference(x, S, J, int(f))
             u = np.concatenate([np.full(d, mv[0]), mv[: n - d]]) - mv[0]
-            al = math.exp(-ts_s / tau)
-            z = lfilter([1.0 - al], [1.0, -al], u)
+            z = lag(u, tau)
+            if kind == "soptd":
+                z = lag(z, tau * ratio)
+            elif kind == "integrating":
+                z = ts_s * np.cumsum(z)
             A = np.column_stack([hp(z), Bf])
             coef, *_ = np.linalg.lstsq(A[ws], yf[ws], rcond=None)
             r = (yf - A @ coef)[ws]
@@ -90,16 +108,22 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
 
     bounds = [(0.0, smax), (0.0, 1.5 * smax), (-1.0, 1.0), (math.log(0.5 * ts_s), math.log(n * ts_s / 4)),
               (1.0, dmax + 0.999)]
-    res = differential_evolution(cost, bounds, seed=seed, maxiter=maxiter, polish=False, popsize=popsize, tol=tol)
-    S, J, f, tau, d = unpack(res.x)
-    return {"S": S, "J": J, "tau_s": tau, "delay_s": d * ts_s, "cost": res.fun, "nfev": res.nfev}
+    integrality = None
+    if many:
+        bounds.append((0, len(structures) - 1))
+        integrality = [False] * 5 + [True]
+    res = differential_evolution(cost, bounds, seed=seed, maxiter=maxiter, polish=False, popsize=popsize, tol=tol,
+                                 integrality=integrality)
+    S, J, f, tau, d, kind, ratio = unpack(res.x)
+    return {"S": S, "J": J, "tau_s": tau, "delay_s": d * ts_s, "kind": kind, "cost": res.fun, "nfev": res.nfev}
 
 
 #: Larger DE budgets for ``--de-budgets`` as (population, tolerance), beside scipy's default (15, 0.01)
 #: that every run times. On the 12 loops of docs/validation.md ("DE budget sweep") they took a
 #: median 4550, 6975 and 10 800 evaluations, against 1800 at the default.
 DE_BUDGETS = ((20, 1e-3), (30, 1e-3), (40, 1e-4))
-#: DE's parameters: S, J, starting direction, log lag, dead time (a generation is popsize x this)
+#: DE's parameters: S, J, starting direction, log lag, dead time (a generation is popsize x this;
+#: one more with ``--de-same-model``: the structure)
 DE_DIM = 5
 
 
@@ -114,7 +138,8 @@ def _parse_budgets(text: str) -> list[tuple[int, float]]:
     return out
 
 
-def compare(n_loops: int, seed: int, plain_too: bool = True, budgets=()) -> dict:
+def compare(n_loops: int, seed: int, plain_too: bool = True, budgets=(),
+            structures=(("foptd", 0.0),)) -> dict:
     warm = make_case(1, np.random.default_rng(0), n=500).record
     fit_hammerstein(warm.op, warm.pv, warm.ts_s)          # load the compiled kernels first
     rng = np.random.default_rng(seed)
@@ -133,15 +158,17 @@ def compare(n_loops: int, seed: int, plain_too: bool = True, budgets=()) -> dict
         ours_w = fit_hammerstein(rec.op, rec.pv, rec.ts_s, windows=FIT_WINDOWS)
         t_ours_w = time.perf_counter() - t0
         t0 = time.perf_counter()
-        de = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="kernel")
+        de = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="kernel", structures=structures)
         t_de = time.perf_counter() - t0
         t0 = time.perf_counter()
-        plain = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="plain") if plain_too else None
+        plain = (de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="plain", structures=structures)
+                 if plain_too else None)
         t_plain = time.perf_counter() - t0
         swept = {}
         for pop, tol in budgets:
             t0 = time.perf_counter()
-            r_ = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="plain", popsize=pop, tol=tol)
+            r_ = de_fit(rec.op, rec.pv, rec.ts_s, ours.hp_tau_s, engine="plain", popsize=pop, tol=tol,
+                        structures=structures)
             swept[f"de{pop}_{tol:g}"] = (r_, time.perf_counter() - t0)
         # our cost in the same units as DE's (the kernel's scaled SSE)
         x = rec.op + ours.op_offset_pct
@@ -191,6 +218,7 @@ def compare(n_loops: int, seed: int, plain_too: bool = True, budgets=()) -> dict
                     "ours_cost_lower_or_equal_vs_plain": int(sum(r["ours_cost"] <= r["plain_cost"] * (1 + 1e-9)
                                                                  for r in rows))})
     sweep = []
+    dim = DE_DIM + (len(structures) > 1)
     # scipy's default budget is the "plain" columns
     runs = [(15, 0.01, "plain")] if budgets and plain_too else []
     runs += [(p, t, f"de{p}_{t:g}") for p, t in budgets]
@@ -200,7 +228,7 @@ def compare(n_loops: int, seed: int, plain_too: bool = True, budgets=()) -> dict
                       "median_nfev": med(r[f"{key}_nfev"] for r in rows),
                       # a flat cost with narrow valleys looks converged to DE's tolerance test at
                       # once: it stops after its first generation, far off
-                      "loops_stopped_after_first_generation": int(sum(r[f"{key}_nfev"] <= 2 * pop * DE_DIM
+                      "loops_stopped_after_first_generation": int(sum(r[f"{key}_nfev"] <= 2 * pop * dim
                                                                       for r in rows)),
                       "median_rel_err_S": med(rel(r[f"{key}_S"], r["S_true"]) for r in rows),
                       "median_rel_err_J": med(rel(r[f"{key}_J"], r["J_true"]) for r in rows if r["J_true"] > 0),
@@ -252,6 +280,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--cli-runs", type=int, default=5)
     ap.add_argument("--json")
+    ap.add_argument("--de-same-model", action="store_true",
+                    help="DE also searches the process structure, as our fit does (FOPTD, SOPTD with tau2 = "
+                         "tau/3 or tau, integrating), instead of being handed FOPTD")
     ap.add_argument("--de-budgets", nargs="?", const=",".join(f"{p}:{t:g}" for p, t in DE_BUDGETS),
                     help="also run plain DE at these budgets, POP:TOL[,POP:TOL...] "
                          f"(no value: {','.join(f'{p}:{t:g}' for p, t in DE_BUDGETS)})")
@@ -259,7 +290,8 @@ def main(argv=None) -> int:
     budgets = _parse_budgets(args.de_budgets) if args.de_budgets else ()
     res = {"cli": cli_timing(args.cli_runs)}
     print(json.dumps(res["cli"], indent=2), flush=True)
-    res["fit_vs_de"] = compare(args.loops, args.seed, budgets=budgets)
+    structures = SAME_STRUCTURES if args.de_same_model else (("foptd", 0.0),)
+    res["fit_vs_de"] = compare(args.loops, args.seed, budgets=budgets, structures=structures)
     print(json.dumps(res["fit_vs_de"]["summary"], indent=2))
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1, default=float))
