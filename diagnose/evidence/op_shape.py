@@ -1,0 +1,65 @@
+"""Judging from OP alone, for when PV is unusable (flat, dead, bad).
+
+A sticky valve in a self-regulating loop leaves its mark on OP itself: while the valve sticks the
+error is constant and the integral action ramps OP in a straight line; when the valve jumps, the
+error changes sign and OP turns sharply. OP becomes a regular triangle or saw-tooth. The test is
+He et al.'s (2007) triangle-versus-sinusoid fit applied to OP's half-cycles (the same SI and the
+same thresholds, 0.4 and 0.6), and it needs a regular oscillation of OP (Thornhill's r > 1).
+
+What it can tell: that OP oscillates regularly with straight ramps and sharp turns, the shape a
+sticky valve forces on a PI controller. What it cannot: OP takes the same shape whenever the
+control error is square-like, whatever makes it so; an on/off disturbance upstream, a level loop
+whose inflow switches, or any integrating loop whose PI controller ramps OP between sharp
+reversals give triangles with a healthy valve. In an integrating loop a sticky valve gives OP
+parabolic arcs rather than straight ramps, which the fit reads as undetermined more often. Without
+PV the test cannot see the valve stand still, so its word is weaker evidence than the PV-based
+tests, and its note says so.
+"""
+
+from __future__ import annotations
+
+from ._gates import record_gate
+from ._signals import Prepared
+from .curve_fit import HIGH, _decide, fit_shape
+from .result import NO_STICTION, STICTION, Evidence
+
+TEST = "op_shape"
+
+
+def op_shape(op, pv=None, ts_s: float = 1.0, *, sp=None, integrating: bool | None = None) -> Evidence:
+    """OP-only shape judgement: He's triangle-versus-sinusoid index of OP.
+
+    Parameters
+    ----------
+    op : array (n,)
+        Controller output, % of span.
+    pv : array (n,), optional
+        Not used (the test is for when PV is unusable); accepted for a uniform signature.
+    ts_s : float
+        Sample period, seconds.
+    sp, integrating
+        Not used; accepted for a uniform signature.
+    """
+    return _op_shape(Prepared(op, pv, ts_s, sp))
+
+
+def _op_shape(p: Prepared) -> Evidence:
+    gate = record_gate(TEST, p, needs_pv=False, threshold=HIGH)
+    if gate is not None:
+        return gate
+    res = fit_shape(p, "op", TEST, "OP")
+    if isinstance(res, Evidence):
+        return res
+    si, ex = res
+    decision = _decide(si)
+    if decision == STICTION:
+        note = (f"OP alone: a regular saw-tooth with straight ramps (SI {si:.2f} >= {HIGH}), as a sticky valve "
+                "forces on the controller; weaker evidence than PV-based tests, since any square-like error "
+                "gives the same shape.")
+    elif decision == NO_STICTION:
+        note = (f"OP alone: the oscillation is smooth, close to a sinusoid (SI {si:.2f}); not the ramps a sticky "
+                "valve forces; weaker evidence than PV-based tests.")
+    else:
+        note = (f"OP alone: the oscillation is between a triangle and a sinusoid (SI {si:.2f}); without PV this "
+                "cannot be told apart.")
+    return Evidence(TEST, si, HIGH, decision, note, extras=ex)
