@@ -48,16 +48,22 @@ def _edge(f: float) -> float:
     return float(f"{max(f, 1e-4) / 0.5:.3g}")
 
 
+def _too_short(n: int, order: int, bands: int = 1) -> bool:
+    # sosfiltfilt pads 3 (2 sections + 1) samples at each end and needs more samples than that
+    sections = bands * ((order + 1) // 2)
+    return n <= 3 * (2 * sections + 1)
+
+
 def lowpass(x: np.ndarray, fc: float, order: int = 2) -> np.ndarray:
     """Zero-phase Butterworth low-pass; ``fc`` in cycles per sample (Nyquist is 0.5)."""
-    if fc >= 0.45 or x.shape[0] < 8 * (order + 1):
+    if fc >= 0.45 or _too_short(x.shape[0], order):
         return x.copy()
     return sps.sosfiltfilt(_butter(order, (_edge(fc),), "lowpass"), x)
 
 
 def bandpass(x: np.ndarray, f_lo: float, f_hi: float, order: int = 2) -> np.ndarray:
     """Zero-phase Butterworth band-pass, edges in cycles per sample."""
-    if x.shape[0] < 8 * (order + 1):
+    if _too_short(x.shape[0], order, bands=2):
         return x.copy()
     f_hi = min(f_hi, 0.45)
     if f_lo <= 1e-4:
@@ -104,8 +110,8 @@ class Oscillation:
 
     @property
     def regular(self) -> bool:
-        return (self.period is not None and self.intervals >= MIN_INTERVALS
-                and self.regularity > REGULARITY and self.cycles >= MIN_CYCLES)
+        """A regular oscillation of at least two cycles: the oscillation tests judge."""
+        return self.problem("") is None
 
     def problem(self, what: str) -> tuple[str, str] | None:
         """``(reason, sentence)`` when this is no regular oscillation of at least two cycles."""
