@@ -14,9 +14,10 @@ Command line: ``python -m benchmarks.plantsim --out DIR --seed S --n-per-kind N`
 See docs/plantsim.md.
 """
 
+from .concealed import EFFECTS, concealed, concealed_set
 from .export import write_loops
-from .scenarios import (CLASSES, EFFECTS, SCENARIOS, STICKY_SCENARIOS, SimLoop, concealed, concealed_set,
-                        corpus, make_loop, stiction_class)
+from .record import CLASSES, SimLoop, stiction_class
+from .scenarios import SCENARIOS, STICKY_SCENARIOS, corpus, make_loop
 
 __all__ = ["SimLoop", "corpus", "make_loop", "concealed", "concealed_set", "write_loops", "SCENARIOS",
            "STICKY_SCENARIOS", "CLASSES", "EFFECTS", "stiction_class"]

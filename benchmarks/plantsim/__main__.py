@@ -12,7 +12,8 @@ import sys
 import time
 
 from .export import write_loops
-from .scenarios import EFFECTS, SCENARIOS, concealed_set, corpus
+from .concealed import EFFECTS, concealed_set
+from .scenarios import SCENARIOS, corpus
 
 
 def _names(text: str, allowed, what: str) -> list[str]:

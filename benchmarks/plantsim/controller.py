@@ -138,7 +138,10 @@ def imc_pid(K: float, tau_s: float, theta_s: float, lam_s: float) -> tuple[float
 
 
 def integrating_pi(k_rate: float, theta_s: float, tau_c_s: float) -> tuple[float, float]:
-    """SIMC PI for an integrating process ``k e^{-theta s}/s``: ``Kc = 1/(k (tau_c + theta))``, ``Ti = 4 (tau_c + theta)``."""
+    """SIMC PI for an integrating process ``k e^{-theta s}/s``.
+
+    ``Kc = 1/(k (tau_c + theta))``, ``Ti = 4 (tau_c + theta)``.
+    """
     return 1.0 / (k_rate * (tau_c_s + theta_s)), 4.0 * (tau_c_s + theta_s)
 
 
