@@ -385,8 +385,9 @@ def explanation(diag: Any) -> bytes | None:
 
 
 def history(rows: list[Mapping[str, Any]]) -> bytes | None:
-    """S and J run over run (from the history database)."""
-    pts = [(r.get("run_at", ""), r.get("S_pct"), r.get("J_pct")) for r in rows if r.get("S_pct") is not None]
+    """S and J record over record (from the history database), labelled by each record's end."""
+    pts = [(r.get("data_end") or r.get("run_at", ""), r.get("S_pct"), r.get("J_pct"))
+           for r in rows if r.get("S_pct") is not None]
     if len(pts) < 2:
         return None
     fig = _figure(4.6, 2.6)

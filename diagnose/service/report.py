@@ -333,7 +333,7 @@ SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_
 
 def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant stiction summary",
                    generated_at: str | None = None, tool_version: str | None = None,
-                   links: bool = True) -> list[Block]:
+                   links: bool = True, skipped_files: Sequence[Mapping[str, Any]] = ()) -> list[Block]:
     """The plant summary: loops ranked by severity, then the failures."""
     from ..plain import duration
 
@@ -376,6 +376,10 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         blocks.append(("h2", "Failed loops and files"))
         blocks.append(("table", ["Loop", "Source", "Error"],
                        [[fmt(r.get("loop")), fmt(r.get("source")), fmt(r.get("error"))] for r in bad]))
+    if skipped_files:
+        blocks.append(("h2", "Files left alone"))
+        blocks.append(("table", ["File", "Why"], [[fmt(f.get("path")), fmt(f.get("reason"))]
+                                                  for f in skipped_files]))
     return blocks
 
 
