@@ -33,5 +33,10 @@ def run(args: argparse.Namespace) -> int:
                         explain=args.explain, figures=args.figures)
     print(f"{stats.diagnosed} windows diagnosed, {stats.failed} failed, {stats.skipped_short} too short; "
           f"{stats.polls} polls ({stats.polls_failed} failed, {stats.polls_missed} missed) in {stats.wall_s:.0f} s, "
+          f"{stats.outages} outage(s), {stats.reconnects} reconnection(s), "
           f"poller CPU {stats.poll_cpu_s:.1f} s; results in {args.out}", file=sys.stdout)
+    if stats.polls_good == 0:
+        from ..monitor import nothing_read_error
+
+        raise nothing_read_error(args.config, stats)
     return 0
