@@ -55,12 +55,12 @@ def _sig(x: float, digits: int) -> str:
 
 
 def number(value: Any, digits: int = 3, none: str = "-") -> str:
-    """A value to ``digits`` significant figures in fixed notation (``0.0123``, ``3480``,
-    ``1979700``): never an exponent. Values under 1e-4 in size print as ``0``."""
+    """A value to ``digits`` significant figures in fixed notation (``0.0123``, ``0.0000312``,
+    ``3480``, ``1979700``): never an exponent. Values under 1e-9 in size print as ``0``."""
     v = _finite(value)
     if v is None:
         return none
-    if abs(v) < 1e-4:
+    if abs(v) < 1e-9:
         return "0"
     return ("-" if v < 0 else "") + _sig(abs(v), digits)
 

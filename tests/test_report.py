@@ -287,6 +287,8 @@ def test_a_daily_cycle_is_a_slow_cycle_ranked_below_a_sticky_valve():
 
     ranked = rank([{**loop_row(daily, None), "loop": "FIC211"}, {**loop_row(sticky, None), "loop": "FIC20102"}])
     assert [r["loop"] for r in ranked] == ["FIC20102", "FIC211"]
+    md = report.to_markdown(report.summary_blocks(ranked))
+    assert "| slow cycle 24.1 h |" in md
 
 
 def test_classes_and_S_J_are_explained_in_words():
@@ -305,6 +307,10 @@ def test_S_and_J_units_follow_OP_when_OP_is_not_in_percent():
     assert "OP's own units" in rows["S"] and not rows["S"].startswith("0.42 %")
     assert "OP's own units" in res["verdict"] and "% of valve span" not in res["verdict"]
     assert "% of its span" not in res["action"]
+    from diagnose.service.batch import loop_row
+
+    md = report.to_markdown(report.summary_blocks([{**loop_row(res, None), "rank": 1}]))
+    assert "| 0.42 (OP units) |" in md
 
 
 def test_no_narx_model_is_explained_where_there_are_no_warnings():

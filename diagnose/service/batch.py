@@ -186,7 +186,7 @@ def failure_row(loop: str, source: str, error: str) -> dict[str, Any]:
 def loop_row(result: Mapping[str, Any], report: str | None, *, skipped: bool = False,
              degradation: str | None = None) -> dict[str, Any]:
     """The summary row of one diagnosed loop."""
-    from .pipeline import _interval, oscillation_info, stiction_present
+    from .pipeline import _interval, op_in_percent, oscillation_info, stiction_present
 
     def r4(v: Any) -> Any:
         return round(v, 4) if isinstance(v, float) else v
@@ -206,6 +206,8 @@ def loop_row(result: Mapping[str, Any], report: str | None, *, skipped: bool = F
         "J_pct": r4(result.get("J")), "J_lo": jlo, "J_hi": jhi,
         "confidence": r4(result.get("confidence")),
         "oscillation_period_s": r4(osc["period_s"]) if osc["present"] else None,
+        "slow_cycle_period_s": r4(osc["period_s"]) if osc.get("slow_cycle") else None,
+        "sj_in_op_units": not op_in_percent(result),
         "warnings": len(warns),
         "data_quality_warnings": sum(1 for w in warns if str(w.get("code", "")).startswith("data_quality.")),
         "degradation": degradation or result.get("degradation"),

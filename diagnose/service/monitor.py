@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 from ..errors import DataError, StictionError
+from ..plain import duration
 
 #: Shortest window (samples) the monitor accepts. The fit is scored on what is left after the
 #: model's start-up samples: the simulator's 60-sample windows left too few and failed one by one,
@@ -310,7 +311,7 @@ class Monitor:
             for dev in self.devices.values():
                 if not dev.ever_read:
                     self.stats.never_answered.append(dev.name)
-                    print(f"device {dev.name} ({dev.where}) never answered in {self.stats.wall_s:.0f} s: "
+                    print(f"device {dev.name} ({dev.where}) never answered in {duration(self.stats.wall_s)}: "
                           f"{dev.last_error or 'no data'}", file=self.log, flush=True)
                 elif dev.up is False:
                     print(f"device {dev.name} ({dev.where}) still down at the end, since {_utc(dev.since_s)}",
@@ -344,7 +345,7 @@ def run_monitor(config: Any, out_dir: str | os.PathLike, *, duration_s: float | 
 def nothing_read_error(config: Any, stats: MonitorStats) -> StictionError:
     """The one-line error of a run in which no device ever answered."""
     path = getattr(config, "path", None) or str(config)
-    return StictionError(f"{path}: nothing was read in {stats.wall_s:.0f} s: device(s) "
+    return StictionError(f"{path}: nothing was read in {duration(stats.wall_s)}: device(s) "
                          f"{', '.join(stats.never_answered) or '?'} never answered ({stats.polls_failed} failed, "
                          f"{stats.polls_missed} missed polls); check host, port and device_id, and that the "
                          "device is on")

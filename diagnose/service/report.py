@@ -327,7 +327,8 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
 
 
 SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_pct", "S_lo", "S_hi",
-                   "J_pct", "J_lo", "J_hi", "confidence", "oscillation_period_s", "warnings",
+                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "confidence", "oscillation_period_s",
+                   "slow_cycle_period_s", "warnings",
                    "data_quality_warnings", "degradation", "action", "report", "source", "error"]
 
 
@@ -359,9 +360,13 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         name = str(r.get("loop"))
         if links and r.get("report"):
             name = f"[{name}]({r['report']})"
+        op_units = " (OP units)" if r.get("sj_in_op_units") else ""
+        osc = duration(r.get("oscillation_period_s"))
+        if r.get("slow_cycle_period_s"):
+            osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".0f"), fmt(r.get("class")),
-                      fmt(r.get("S_pct")), fmt(r.get("J_pct")), fmt(r.get("confidence"), ".0%"),
-                      duration(r.get("oscillation_period_s")),
+                      fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units, fmt(r.get("confidence"), ".0%"),
+                      osc,
                       fmt(r.get("data_quality_warnings"), "d") + (" (degrading)" if r.get("degradation") else "")])
     blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "Conf.", "Oscillation",
                              "DQ warn."], table))
