@@ -171,3 +171,12 @@ def test_a_version_1_database_is_read_and_migrated_in_place(tmp_path, capsys):
         assert rows[0]["data_end"] == "2026-01-11T00:00:00+00:00"
         assert hist.add(_dated("FIC1", 1.6, "2026-03-10T00:00:00Z", h="03"))
         assert [r["S_pct"] for r in hist.runs("FIC1")] == [1.0, 1.3, 1.6]
+
+
+def test_cli_finds_a_loop_by_its_tag_as_written(tmp_path, capsys):
+    db = tmp_path / "h.sqlite"
+    with H.History(db) as hist:
+        hist.add(_res("FIC 9/A", 1.0))   # filed under the file-safe tag
+    assert H.History(db, readonly=True).loops() == ["FIC_9_A"]
+    assert main(["history", "FIC 9/A", "--db", str(db)]) == 0
+    assert capsys.readouterr().out.startswith("FIC_9_A: 1 run(s)")

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="history database (default: the one `stiction history` reads, "
                                               "$STICTION_HOME/history.sqlite or ~/.local/share/stiction/history.sqlite)")
     p.add_argument("--explain", choices=["off", "auto", "on"], default="off",
-                   help="missing physics: off (default; it takes 0.5-5 min per loop), auto where the fitted "
+                   help="missing physics: off (default; it takes 10 s to 2 min per loop), auto where the fitted "
                         "model leaves a mismatch, on for every loop")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
                                           for r in top))
     print(f"history: {db} (`stiction history LOOP` reads it)")
     if args.explain == "off":
-        print("missing physics was not run (it takes 0.5-5 min per loop): `stiction demo --explain on`, "
+        print("missing physics was not run (it takes 10 s to 2 min per loop): `stiction demo --explain on`, "
               f"or one loop: `stiction explain {src / 'FIC103.csv'}`")
     print(f"open {out / 'summary.md'} (or summary.pdf) to start.")
     return 1 if res.n_failed else 0
