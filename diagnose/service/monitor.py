@@ -114,11 +114,12 @@ def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figu
     return res
 
 
-def _monitor_worker_init() -> None:
-    """Diagnosis workers yield the CPU to the polling process (which must never miss a tick)."""
+def _monitor_worker_init(parent_pid: int | None = None) -> None:
+    """Diagnosis workers yield the CPU to the polling process (which must never miss a tick) and
+    die with it."""
     from .batch import _worker_setup
 
-    _worker_setup()
+    _worker_setup(parent_pid)
     try:
         os.nice(10)
     except OSError:  # pragma: no cover - not permitted
@@ -249,7 +250,7 @@ class Monitor:
                 from concurrent.futures import ProcessPoolExecutor
 
                 self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("forkserver"),
-                                                 initializer=_monitor_worker_init)
+                                                 initializer=_monitor_worker_init, initargs=(os.getpid(),))
                 for _ in range(self.workers):
                     self._pool.submit(_warm_up)
             else:
