@@ -11,6 +11,10 @@
     Values on a coarse grid (few distinct levels over the signal's range).
 ``op_saturation``
     OP at 0 % or 100 % of span for a noticeable share of the record.
+``op_fraction``
+    OP moves but stays within 0..1: logged as a fraction of span, not in %. Read as %, every valve
+    movement looks a hundred times too small, so a sticky valve passes for a healthy one: a
+    ``warning`` telling the user to scale OP to % or to pass the right column.
 ``manual_mode``
     Samples in manual, from ``meta["manual_intervals"]`` set by a connector that read a mode column.
 ``frozen``
@@ -42,6 +46,10 @@ FROZEN_FRAC = 0.25            # one flat run this long (share of the record) is 
 FROZEN_MIN_POINTS = 30
 SATURATION_FRAC = 0.05
 QUANT_MAX_LEVELS = 50
+#: OP within 0..1 that moves by at least this much (1 % of span if it is a fraction) is taken for a
+#: fraction; an OP in % that never leaves 0..1 % (a valve all but shut for the whole record) is
+#: flagged too, and the message says how to tell.
+FRACTION_MIN_MOVE = 0.01
 
 
 def _tolerance(x: np.ndarray) -> float:
@@ -204,6 +212,16 @@ def _saturation(op: np.ndarray) -> Finding | None:
                    {"frac_low": round(lo, 4), "frac_high": round(hi, 4)})
 
 
+def _op_fraction(op: np.ndarray) -> Finding | None:
+    lo, hi = float(np.min(op)), float(np.max(op))
+    if lo < 0.0 or hi > 1.0 or hi - lo < FRACTION_MIN_MOVE:
+        return None
+    return Finding("op_fraction", f"OP stays within 0..1 ({lo:.3g} to {hi:.3g}): it looks logged as a fraction "
+                   "of span, not in %, which makes every valve movement look 100 times too small and hides "
+                   "stiction; scale OP to % (multiply by 100) or pass the right column with --op", "warning",
+                   {"min": lo, "max": hi})
+
+
 def _manual(record: LoopRecord) -> Finding | None:
     iv = record.meta.get("manual_intervals") if record.meta else None
     if not iv:
@@ -231,9 +249,13 @@ def assess(record: LoopRecord) -> tuple[Finding, ...]:
             f = check(role, x)
             if f is not None:
                 out.append(f)
-    f = _saturation(record.op)
+    f = _op_fraction(record.op)
     if f is not None:
         out.append(f)
+    else:
+        f = _saturation(record.op)  # at 0 % or 100 %: meaningless for a fraction
+        if f is not None:
+            out.append(f)
     f = _manual(record)
     if f is not None:
         out.append(f)

@@ -203,3 +203,150 @@ def test_tag_map_names_the_loop_and_is_part_of_the_input_hash(plant, tmp_path):
     tags.write_text('[loops.FIC7]\nop = "FV_7"\npv = "FT_7"\n')  # another map: diagnosed again
     changed = B.run_batch([logs], tmp_path / "o2", tags=str(tags), **kw)
     assert changed.n_skipped == 0 and changed.n_failed == 0
+
+
+def test_two_exports_of_one_tag_keep_both_reports_and_one_history(plant, tmp_path):
+    logs = tmp_path / "logs"
+    (logs / "jan").mkdir(parents=True)
+    (logs / "feb").mkdir()
+    (logs / "jan" / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
+    _write_loops(logs / "feb", [("FIC1", 2.5, 0.5)])
+    kw = dict(explain=False, narx=False, pdf=False, db=tmp_path / "h.sqlite", progress=False)
+    first = B.run_batch([logs], tmp_path / "out", workers=2, **kw)
+    names = {r["source"]: r["loop"] for r in first.rows}
+    assert len(set(names.values())) == 2 and first.n_failed == 0
+    for src, name in names.items():   # each report holds its own input
+        res = json.loads((tmp_path / "out" / "loops" / name / f"{name}.json").read_text())
+        assert res["record"]["source"] == src
+    again = B.run_batch([logs], tmp_path / "out", workers=1, **kw)   # stable: every name found again
+    assert {r["source"]: r["loop"] for r in again.rows} == names and again.n_skipped == 2
+    feb = names[str(logs / "feb" / "FIC1.csv")]
+    (tmp_path / "out" / "loops" / feb / f"{feb}.json").unlink()   # resume after a lost result
+    third = B.run_batch([logs], tmp_path / "out", workers=1, **kw)
+    assert {r["source"]: r["loop"] for r in third.rows} == names and third.n_skipped == 1
+    with History(tmp_path / "h.sqlite") as h:   # one loop, one history: both exports under the tag
+        assert h.loops() == ["FIC1"] and len(h.runs("FIC1")) == 2
+
+
+def test_a_tag_map_applies_where_it_matches_and_the_rest_is_auto_detected(plant, tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    text = (plant / "logs" / "FIC3.csv").read_text().splitlines()
+    text[0] = "time,FV_7,FT_7,FC_7_SETP"
+    (logs / "unit7.csv").write_text("\n".join(text) + "\n")
+    (logs / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
+    (logs / "broken.csv").write_bytes((plant / "logs" / "broken.csv").read_bytes())
+    tags = tmp_path / "tags.toml"
+    tags.write_text('[loops.FIC7]\nop = "FV_7"\npv = "FT_7"\nsp = "FC_7_SETP"\n')
+    res = B.run_batch([logs], tmp_path / "out", tags=str(tags), workers=1, explain=False, narx=False,
+                      pdf=False, history=False, progress=False)
+    ok = {r["loop"] for r in res.rows if r["status"] == "ok"}
+    assert ok == {"FIC7", "FIC1"}
+    bad = [r for r in res.rows if r["status"] != "ok"]
+    assert len(bad) == 1 and bad[0]["source"].endswith("broken.csv")
+    assert "tag map" in bad[0]["error"] and "without the tag map" in bad[0]["error"]
+    fic1 = json.loads((tmp_path / "out" / "loops" / "FIC1" / "FIC1.json").read_text())
+    assert any(f["code"] == "tag_map" for f in fic1["data_quality"])
+    tags.write_text("[loops.FIC7\nop = ")
+    with pytest.raises(Exception) as err:   # a broken map is one error up front
+        B.run_batch([logs], tmp_path / "o2", tags=str(tags), workers=1, history=False, progress=False)
+    assert "tags.toml" in str(err.value)
+
+
+def test_prn_exports_are_read_and_other_files_are_listed_as_left_alone(tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    rec = sticky_loop(4.0, 1.0, n=1500, noise_std=0.03, load_walk_std=0.02, seed=21, name="FIC9")
+    with open(logs / "FIC9.prn", "w") as fh:   # a space-aligned export with date and time
+        fh.write("Date        Time        FIC9.OP    FIC9.PV    FIC9.SP\n")
+        for i in range(rec.n):
+            hh, mm, ss = i // 3600, i // 60 % 60, i % 60
+            fh.write(f"2026-01-05  {hh:02d}:{mm:02d}:{ss:02d}  {rec.op[i]:9.4f}  {rec.pv[i]:9.4f}  {rec.sp[i]:9.4f}\n")
+    (logs / "readme.md").write_text("notes")
+    (logs / "plant.xlsx").write_bytes(b"PK\x03\x04")
+    rc = main(["batch", str(logs), "--out", str(tmp_path / "out"), "--workers", "1", "--no-narx", "--no-pdf",
+               "--no-history", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    doc = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [r["loop"] for r in doc["loops"]] == ["FIC9"] and doc["loops"][0]["S_pct"] == pytest.approx(4.0, abs=0.6)
+    assert sorted(Path(f["path"]).name for f in doc["skipped_files"]) == ["plant.xlsx", "readme.md"]
+    assert "left alone: 2 file(s)" in out and "plant.xlsx" in out
+    assert "Files left alone" in (tmp_path / "out" / "summary.md").read_text()
+
+
+def test_no_pdf_announces_no_pdf(plant, tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "FIC3.csv").write_bytes((plant / "logs" / "FIC3.csv").read_bytes())
+    base = ["batch", str(logs), "--workers", "1", "--no-narx", "--no-history", "--quiet"]
+    assert main(base + ["--out", str(tmp_path / "o1"), "--no-pdf"]) == 0
+    out = capsys.readouterr().out
+    assert ".pdf" not in out and not list((tmp_path / "o1").rglob("*.pdf"))
+    assert main(base + ["--out", str(tmp_path / "o2")]) == 0
+    assert ".pdf" in capsys.readouterr().out and (tmp_path / "o2" / "summary.pdf").exists()
+
+
+def _children(pid: int) -> list[int]:
+    """Every live descendant of a process (from /proc)."""
+    parent: dict[int, int] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rfind(")") + 2:].split()
+            if fields[0] != "Z":
+                parent[int(d.name)] = int(fields[1])
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parent.items() if pp == p]
+        out += kids
+        todo += kids
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to find the worker processes")
+def test_kill_9_of_the_batch_takes_its_workers_with_it(tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for k in range(4):   # files of three loops each: a worker's task lasts several seconds
+        recs = [sticky_loop(3.0, 1.0, n=1500, noise_std=0.03, seed=40 + 3 * k + j, name=f"L{k}{j}")
+                for j in range(3)]
+        cols = [f"{r.name}.{role.upper()}" for r in recs for role in ("op", "pv", "sp")]
+        lines = ["time," + ",".join(cols)]
+        for i in range(1500):
+            lines.append(f"{i}," + ",".join(f"{getattr(r, role)[i]:.4f}" for r in recs for role in ("op", "pv", "sp")))
+        (logs / f"unit{k}.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "diagnose.service.cli", "batch", str(logs), "--out", str(out), "--workers", "2",
+           "--no-narx", "--no-pdf", "--no-history", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not list(out.glob("loops/*/*.png")):
+            time.sleep(0.05)   # workers are diagnosing and writing
+        workers = _children(proc.pid)
+        assert len(workers) >= 2, "no worker processes found"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and [p for p in workers if Path(f"/proc/{p}").exists()
+                                              and "Z" not in Path(f"/proc/{p}/stat").read_text().split(")")[-1][:3]]:
+            time.sleep(0.1)
+        left = [p for p in workers if Path(f"/proc/{p}").exists()
+                and "Z" not in Path(f"/proc/{p}/stat").read_text().split(")")[-1][:3]]
+        assert not left, f"workers {left} outlived the batch"
+        written = sorted(p for p in out.rglob("*") if p.is_file())
+        time.sleep(3.0)
+        assert sorted(p for p in out.rglob("*") if p.is_file()) == written, "files written after the kill"
+    finally:
+        for p in _children(proc.pid):
+            try:
+                os.kill(p, signal.SIGKILL)
+            except OSError:
+                pass
+        if proc.poll() is None:
+            proc.kill()

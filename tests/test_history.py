@@ -107,3 +107,76 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert main(["history", "NOPE", "--db", str(db)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: no runs of loop 'NOPE'") and "FIC9" in err and "Traceback" not in err
+
+
+def _dated(loop: str, S: float, start: str, h: str) -> dict:
+    return {**_res(loop, S, h=h), "record": {"start": start, "n": 1441, "ts_s": 60.0}}
+
+
+def test_backfilled_exports_are_ordered_by_their_records_not_by_the_run(tmp_path):
+    db = tmp_path / "h.sqlite"
+    run_at = "2026-04-01T02:00:00+00:00"   # one night back-fills three months
+    with H.History(db) as hist:
+        for month, S in (("03", 1.7), ("01", 1.0), ("02", 1.3)):
+            hist.add(_dated("FIC1", S, f"2026-{month}-10T00:00:00Z", h=month), run_at=run_at)
+        rows = hist.runs("FIC1")
+    assert [r["S_pct"] for r in rows] == [1.0, 1.3, 1.7]
+    assert [r["data_end"] for r in rows] == ["2026-01-11T00:00:00+00:00", "2026-02-11T00:00:00+00:00",
+                                            "2026-03-11T00:00:00+00:00"]
+    assert {r["run_at"] for r in rows} == {run_at}   # the run time is kept beside
+    warn = H.degradation(rows)
+    assert warn and "2026-01-11 to 2026-03-11" in warn
+    text = H.format_trend("FIC1", rows)
+    assert text.splitlines()[2].startswith("2026-01-11T00:00:00") and run_at[:19] in text
+
+
+def test_record_end_is_the_last_sample_and_none_without_a_start():
+    assert H.record_end({"record": {"start": "2026-01-01T00:00:00Z", "n": 3, "ts_s": 30.0}}) == \
+        "2026-01-01T00:01:00+00:00"
+    assert H.record_end({"record": {"start": "2026-01-01T01:00:00+01:00", "n": 1, "ts_s": 1.0}}) == \
+        "2026-01-01T00:00:00+00:00"
+    assert H.record_end({"record": {"start": None, "n": 100, "ts_s": 1.0}}) is None
+
+
+_V1_DDL = """
+CREATE TABLE runs (id INTEGER PRIMARY KEY, loop TEXT NOT NULL, run_at TEXT NOT NULL, data_start TEXT,
+    source TEXT, input_hash TEXT NOT NULL DEFAULT '', tool_version TEXT NOT NULL DEFAULT '',
+    status TEXT NOT NULL DEFAULT 'ok', class TEXT, S_pct REAL, S_lo REAL, S_hi REAL, J_pct REAL, J_lo REAL,
+    J_hi REAL, confidence REAL, severity REAL, oscillation_period_s REAL, verdict TEXT, result_json TEXT,
+    UNIQUE (loop, input_hash, tool_version));
+CREATE INDEX runs_loop ON runs (loop, run_at);
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT);
+INSERT INTO meta VALUES ('schema_version', '1');
+"""
+
+
+def test_a_version_1_database_is_read_and_migrated_in_place(tmp_path, capsys):
+    import json
+
+    db = tmp_path / "old.sqlite"
+    con = sqlite3.connect(db)
+    con.executescript(_V1_DDL)
+    for month, S in (("02", 1.3), ("01", 1.0)):
+        res = _dated("FIC1", S, f"2026-{month}-10T00:00:00Z", h=month)
+        con.execute("INSERT INTO runs (loop, run_at, input_hash, S_pct, result_json) VALUES (?, ?, ?, ?, ?)",
+                    ("FIC1", "2026-04-01T02:00:00+00:00", month, S, json.dumps(res)))
+    con.commit()
+    con.close()
+    assert main(["history", "FIC1", "--db", str(db)]) == 0   # read-only, before any migration
+    assert "FIC1: 2 run(s)" in capsys.readouterr().out
+    with H.History(db) as hist:
+        assert hist.conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+        rows = hist.runs("FIC1")
+        assert [r["S_pct"] for r in rows] == [1.0, 1.3]   # by the records' ends, filled in
+        assert rows[0]["data_end"] == "2026-01-11T00:00:00+00:00"
+        assert hist.add(_dated("FIC1", 1.6, "2026-03-10T00:00:00Z", h="03"))
+        assert [r["S_pct"] for r in hist.runs("FIC1")] == [1.0, 1.3, 1.6]
+
+
+def test_cli_finds_a_loop_by_its_tag_as_written(tmp_path, capsys):
+    db = tmp_path / "h.sqlite"
+    with H.History(db) as hist:
+        hist.add(_res("FIC 9/A", 1.0))   # filed under the file-safe tag
+    assert H.History(db, readonly=True).loops() == ["FIC_9_A"]
+    assert main(["history", "FIC 9/A", "--db", str(db)]) == 0
+    assert capsys.readouterr().out.startswith("FIC_9_A: 1 run(s)")

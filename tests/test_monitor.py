@@ -76,6 +76,16 @@ def test_monitor_diagnoses_windows_survives_a_device_restart_and_serves_metrics(
     out = capsys.readouterr()
     assert "windows diagnosed" in out.out and "failed" in out.out
     up = state["up_at"]
+    # the outage and the reconnection are logged with their UTC times, in that order
+    log = out.err.splitlines()
+    down = [ln for ln in log if "device sim (" in ln and ": outage:" in ln]
+    back = [ln for ln in log if "device sim (" in ln and "reconnected after" in ln]
+    assert down and back and log.index(down[0]) < log.index(back[0]), out.err
+    t_down = datetime.fromisoformat(down[0].split()[0].replace("Z", "+00:00")).timestamp()
+    t_back = datetime.fromisoformat(back[0].split()[0].replace("Z", "+00:00")).timestamp()
+    assert state["down_at"] - 2.0 <= t_down <= state["up_at"] and state["up_at"] - 1.0 <= t_back <= up + 5.0
+    assert float(back[0].split("reconnected after ")[1].split()[0]) >= 0.5
+    assert "1 outage(s), 1 reconnection(s)" in out.out
     for loop in ("SIM000", "SIM001"):
         files = sorted((tmp_path / "out" / loop).glob("2*.json"))
         assert len(files) >= 2, f"{loop}: {files}"
@@ -106,3 +116,69 @@ def test_bad_config_is_a_one_line_error(tmp_path, capsys):
     assert main(["monitor", str(cfg), "--duration", "1", "--out", str(tmp_path / "o"), "--no-history"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "Traceback" not in err
+
+
+def _silent_device():
+    """A TCP listener that accepts connections and never answers (a hung gateway)."""
+    import socket
+
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    conns = []
+    stop = threading.Event()
+
+    def accept():
+        srv.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                conns.append(srv.accept()[0])
+            except OSError:
+                pass
+
+    th = threading.Thread(target=accept, daemon=True)
+    th.start()
+
+    def close():
+        stop.set()
+        th.join()
+        for c in conns:
+            c.close()
+        srv.close()
+
+    return srv.getsockname()[1], close
+
+
+@pytest.mark.parametrize("kind", ["refused", "silent"])
+def test_a_device_that_never_answers_is_named_and_the_exit_is_non_zero(tmp_path, capsys, kind):
+    if kind == "refused":
+        port, close = free_port(), (lambda: None)
+    else:
+        port, close = _silent_device()
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(port, 1, period_s=0.2, window_samples=150, timeout_s=0.3))
+    try:
+        rc = main(["monitor", str(cfg), "--duration", "2.5", "--out", str(tmp_path / "out"), "--no-history"])
+    finally:
+        close()
+    out = capsys.readouterr()
+    assert rc == 1
+    err = out.err.splitlines()
+    assert any("device sim (127.0.0.1:" in ln and "no answer" in ln for ln in err), out.err
+    assert any("never answered" in ln for ln in err)
+    last = err[-1]
+    assert last.startswith("error: ") and str(cfg) in last and "nothing was read" in last
+    assert "Traceback" not in out.err
+
+
+def test_a_window_too_short_to_identify_is_refused_up_front(tmp_path, capsys):
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(free_port(), 1, period_s=0.2, window_samples=60))
+    assert main(["monitor", str(cfg), "--duration", "5", "--out", str(tmp_path / "o"), "--no-history"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {cfg}: window_samples = 60 is too short") and "at least 100" in err
+    assert len(err.splitlines()) == 1
+    cfg.write_text(default_config_text(free_port(), 1, period_s=0.2, window_samples=600))
+    assert main(["monitor", str(cfg), "--window", "40", "--duration", "5", "--out", str(tmp_path / "o"),
+                 "--no-history"]) == 1
+    assert capsys.readouterr().err.startswith("error: --window = 40 is too short")

@@ -122,3 +122,23 @@ def test_straight_and_flat_numbers():
     sf = straight_and_flat(x)
     assert sf["linear_frac"] == pytest.approx(0.7, abs=0.03)
     assert sf["flat_frac"] == pytest.approx(0.3, abs=0.03)
+
+
+def test_op_logged_as_a_fraction_is_a_warning():
+    rec = sticky_loop(4.0, 1.0, n=2000, seed=7, noise_std=0.03, load_walk_std=0.02)
+    frac = rec.replace(op=rec.op / 100.0, mv=None)
+    found = [f for f in assess(frac) if f.code == "op_fraction"]
+    assert len(found) == 1 and found[0].severity == "warning"
+    assert "scale OP to %" in found[0].message and "--op" in found[0].message
+    assert "op_saturation" not in codes(assess(frac))
+    assert "op_fraction" not in codes(assess(rec))                       # OP in %
+    still = frac.replace(op=np.full(frac.n, 0.5))
+    assert "op_fraction" not in codes(assess(still))                     # a still OP is another finding
+
+
+def test_op_fraction_reaches_the_diagnosis_warnings():
+    from diagnose.service.pipeline import diagnose
+
+    rec = sticky_loop(4.0, 1.0, n=1500, seed=8, noise_std=0.03, load_walk_std=0.02)
+    res = diagnose(rec.replace(op=rec.op / 100.0, mv=None), narx=False).result
+    assert "data_quality.op_fraction" in [w["code"] for w in res["warnings"]]

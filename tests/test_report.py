@@ -105,9 +105,85 @@ def test_envelope_keeps_extremes_of_a_long_series():
     t = np.arange(100_000, dtype=float)
     y = np.sin(2 * np.pi * t / 977.0) + 0.01 * np.random.default_rng(0).standard_normal(t.size)
     tt, yy = figures.envelope(t, y, max_points=500)
-    assert yy.size <= 1000
+    assert yy.size <= 2 * 500 + 2
     assert yy.max() == y.max() and yy.min() == y.min()
     assert np.all(np.diff(tt) >= 0)
+
+
+@pytest.mark.parametrize("n", [3000, 3599, 100_001])
+def test_envelope_covers_the_whole_record(n):
+    t = np.arange(n, dtype=float)
+    y = np.sin(t / 40.0)
+    y[-5] = 9.0   # an event in the newest samples must be drawn
+    tt, yy = figures.envelope(t, y, max_points=1200)
+    assert tt[0] == t[0] and tt[-1] == t[-1]
+    assert yy.max() == 9.0 and yy.min() == y.min()
+    assert np.all(np.diff(tt) >= 0) and yy.size <= 2 * 1200 + 2
+
+
+def _lines(fig_key, axis):
+    return figures._FIGS[fig_key].axes[axis].get_lines()
+
+
+def test_trends_show_the_whole_record_and_the_record_sets_the_scale(sticky_diag):
+    rec = sticky_diag.record.replace(mv=None)
+    n = 3599   # 33 % of the record was lost at this length
+    rec = rec.replace(op=np.resize(rec.op, n), pv=np.resize(rec.pv, n), sp=np.resize(rec.sp, n))
+    diag = pipeline.Diagnosis(record=rec, result=sticky_diag.result)
+    pv_hat = rec.pv.copy()
+    pv_hat[:20] = 1e4   # a model start-up transient
+    figures.trends(diag, mv_hat=rec.op, pv_hat=pv_hat)
+    fig = figures._FIGS[(8.0, 4.6)]
+    t_end = rec.t_s[-1] / 60.0   # the axis is in minutes for this record
+    for ax in fig.axes[:2]:
+        assert max(float(np.max(ln.get_xdata())) for ln in ax.get_lines()) == pytest.approx(t_end)
+    lo, hi = fig.axes[0].get_ylim()
+    assert hi < rec.pv.max() + 0.2 * np.ptp(rec.pv) and lo > rec.pv.min() - 0.2 * np.ptp(rec.pv)
+
+
+def test_no_sticky_valve_path_on_a_no_stiction_verdict(sticky_diag):
+    healthy = {**sticky_diag.result, "stiction": False, "class": "none"}
+    diag = pipeline.Diagnosis(record=sticky_diag.record, result=healthy,
+                              identification=sticky_diag.identification)
+    mv_hat, pv_hat = figures._model_path(diag)
+    assert mv_hat is None and pv_hat is not None
+    figures.phase(diag, mv_hat, pv_hat)
+    labels = [ln.get_label() for ln in _lines((8.0, 3.8), 1)]
+    assert "fitted valve" not in labels and "record" in labels
+    assert figures._model_path(sticky_diag)[0] is not None   # a sticky verdict keeps its valve path
+
+
+def test_recorded_op_mv_is_drawn_over_the_fitted_valve(sticky_diag):
+    mv_hat, pv_hat = figures._model_path(sticky_diag)
+    figures.phase(sticky_diag, mv_hat, pv_hat)
+    for axis in (0, 1):
+        lines = {ln.get_label(): ln for ln in _lines((8.0, 3.8), axis)}
+        model = lines.get("fitted valve", lines.get("fitted model"))
+        assert lines["record"].get_zorder() > model.get_zorder()
+        assert model.get_linestyle() == "--"
+
+
+def test_error_surface_is_the_one_of_the_fit_that_gave_S_and_J(sticky_diag):
+    assert sticky_diag.result["method"] == "op_mv"
+    surf, source = figures._surface_source(sticky_diag)
+    assert surf is sticky_diag.identification.valve_fit.surface and "OP-MV" in source
+    figures.surface(sticky_diag)
+    assert "OP-MV valve fit" in figures._FIGS[(4.6, 3.8)].axes[0].get_title()
+    op_pv = pipeline.Diagnosis(record=sticky_diag.record, result={**sticky_diag.result, "method": "op_pv"},
+                               identification=sticky_diag.identification)
+    assert figures._surface_source(op_pv)[0] is sticky_diag.identification.fit.surface
+
+
+def test_spectrum_marks_only_an_oscillation_the_result_reports(sticky_diag):
+    for osc, marked in (({"oscillating": False, "period_s": 120.0, "regularity": 0.3}, False),
+                        ({"oscillating": True, "period_s": 120.0, "regularity": 2.0}, True),
+                        ({"oscillating": True, "period_s": 86604.0, "regularity": 1.5}, False)):  # daily
+        diag = pipeline.Diagnosis(record=sticky_diag.record, result={**sticky_diag.result, "oscillation": osc})
+        figures.spectrum(diag)
+        ax = figures._FIGS[(4.6, 3.0)].axes[0]
+        assert (len(ax.get_lines()) == 2) is marked, osc
+        labels = [t.get_text() for t in ax.get_xticklabels()]
+        assert labels and not any("e+" in x or "^" in x for x in labels)
 
 
 def test_spectrum_peak_is_at_the_oscillation_period():
@@ -177,3 +253,126 @@ def test_report_says_where_S_and_J_came_from():
             "S_interval": [1.8, 2.2], "J_interval": [0.0, 0.1], "warnings": []}
     assert "stem position" in rows_of({**base, "method": "op_mv"})["S and J from"]
     assert "Hammerstein" in rows_of({**base, "method": "op_pv"})["S and J from"]
+
+
+def _quantity_rows(result):
+    table = next(b for b in report.loop_blocks(result) if b[0] == "table" and b[1] == ["Quantity", "Value"])
+    return {r[0].split(":")[0]: r[1] for r in table[2]}
+
+
+def test_numbers_are_plain_minutes_and_hours():
+    res = _result(process={"kind": "foptd", "gain": -2.33, "tau_s": 60.1, "delay_s": 3480.0},
+                  controller={"action": "reverse", "Kc": 0.21, "Ti_s": 1.9797e6, "r2": 0.8},
+                  oscillation={"oscillating": True, "period_s": 1500.0, "regularity": 1.5},
+                  record={"n": 6585, "ts_s": 60.0, "duration_s": 395100.0})
+    md = report.to_markdown(report.loop_blocks(res))
+    assert "e+0" not in md and "3480" not in md and "1500 s" not in md
+    assert "dead time 58 min" in md and "22.9 days" in md and "25 min" in md and "4.57 days" in md
+    summary = report.to_markdown(report.summary_blocks([{"status": "ok", "loop": "X", "rank": 1, "severity": 20,
+                                                         "oscillation_period_s": 1500.0}]))
+    assert "| 25 min |" in summary
+
+
+def test_a_daily_cycle_is_a_slow_cycle_ranked_below_a_sticky_valve():
+    daily = _result(stiction=False, S=0.0, J=0.0, confidence=0.68, **{"class": "none"},
+                    oscillation={"oscillating": True, "period_s": 86604.0, "regularity": 1.49},
+                    warnings=[{"code": "data_quality.segment", "message": "s"}])
+    sticky = _result(S=2.24, J=0.0, confidence=0.97, **{"class": "deadband"},
+                     oscillation={"oscillating": False})
+    assert sticky["severity"]["score"] > daily["severity"]["score"]
+    rows = _quantity_rows(daily)
+    assert "slow cycle" in rows["Oscillation"] and "24.1 h" in rows["Oscillation"]
+    assert "tuning" not in daily["action"] and "slow cycle" in daily["action"]
+    from diagnose.service.batch import loop_row, rank
+
+    ranked = rank([{**loop_row(daily, None), "loop": "FIC211"}, {**loop_row(sticky, None), "loop": "FIC20102"}])
+    assert [r["loop"] for r in ranked] == ["FIC20102", "FIC211"]
+    md = report.to_markdown(report.summary_blocks(ranked))
+    assert "| slow cycle 24.1 h |" in md
+
+
+def test_classes_and_S_J_are_explained_in_words():
+    md = report.to_markdown(report.loop_blocks(_result()))   # undershoot
+    assert "stops short" in md and "how far OP must travel back" in md and "jumps when it breaks free" in md
+    md = report.to_markdown(report.loop_blocks(_result(**{"class": "overshoot"}, S=2.0, J=4.0)))
+    assert "jumps past" in md
+    md = report.to_markdown(report.loop_blocks(_result(**{"class": "no_offset"}, S=3.0, J=3.0)))
+    assert "exactly to where" in md
+
+
+def test_S_and_J_units_follow_OP_when_OP_is_not_in_percent():
+    warn = {"code": "op_not_percent", "message": "OP spans -3..4, outside 0..100 %"}
+    res = _result(S=0.42, J=0.1, warnings=[warn])
+    rows = _quantity_rows(res)
+    assert "OP's own units" in rows["S"] and not rows["S"].startswith("0.42 %")
+    assert "OP's own units" in res["verdict"] and "% of valve span" not in res["verdict"]
+    assert "% of its span" not in res["action"]
+    from diagnose.service.batch import loop_row
+
+    md = report.to_markdown(report.summary_blocks([{**loop_row(res, None), "rank": 1}]))
+    assert "| 0.42 (OP units) |" in md
+
+
+def test_no_narx_model_is_explained_where_there_are_no_warnings():
+    healthy = _result(stiction=False, S=0.0, J=0.0, **{"class": "none"}, oscillation={"oscillating": False})
+    md = report.to_markdown(report.loop_blocks(healthy))
+    assert "see warnings" not in md.lower() and "shows no stiction" in md
+    broken = _result(warnings=[{"code": "service.narx_unavailable", "message": "no bank"}])
+    assert "see the warnings" in report.to_markdown(report.loop_blocks(broken))
+
+
+def test_explanation_tables_use_words_not_internal_keys():
+    res = _result(explanation={
+        "missing_physics": None, "baseline_rmse": 4.66, "improved_rmse": 4.66, "target": "pv",
+        "baseline_source": "fit_hammerstein", "explanation": "No missing physics named.",
+        "hypotheses": [{"name": "external_disturbance", "heldout_rmse": 4.33, "accepted": False,
+                        "train_rmse": 0.63, "heldout_reduction": 0.05, "stage": "loop",
+                        "params": {"period_s": 84755.6, "amplitude": 1.229}}]})
+    md = report.to_markdown(report.loop_blocks(res, figures=["explanation"]))
+    for raw in ("baseline_source", "train_rmse", "heldout_rmse", "baseline_rmse", "e+0"):
+        assert raw not in md
+    assert "| -5 % |" in md and "period_s 23.5 h" in md   # a 5 % fall is -5 %, as explain prints it
+
+
+def test_explain_summary_prints_a_fall_as_negative():
+    from diagnose.service.commands.explain import summary
+
+    d = {"loop": "X", "missing_physics": None, "baseline_rmse": 1.0, "improved_rmse": 1.0, "target": "pv",
+         "hypotheses": [{"name": "actuator_lag", "params": {"tau_s": 3480.0}, "accepted": False,
+                         "heldout_rmse": 0.95, "heldout_reduction": 0.05, "target": "pv"}],
+         "mismatch": {"windows": [{"start_s": 345660.0, "end_s": 395100.0, "rms": 6.98, "ratio_to_median": 8.1}]},
+         "explanation": "changes the held-out RMSE by -5 % against the refit plain model", "warnings": []}
+    text = summary(d)
+    assert "change -5 %" in text and "+5 %" not in text and "tau_s 58 min" in text
+    assert "e+0" not in text and "4 days to 4.57 days" in text
+
+
+def test_missing_physics_figure_titles_do_not_overlap_and_ticks_are_distinct():
+    from diagnose.physics.figures import _distinct_labels, draw_explanation
+
+    assert _distinct_labels([33.6, 34.1, 34.4, 35.0, 35.6]) == ["33.6", "34.1", "34.4", "35.0", "35.6"]
+    n = 6000
+    t = np.arange(n) * 60.0
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal(n)
+    d = {"t_s": t, "observed": y, "baseline": y, "reference": y, "improved": y, "residual_baseline": y,
+         "residual_improved": y, "train_end_s": t[3900], "train_start_s": 600.0, "windows": [(1e5, 1.5e5)],
+         "window_t_s": t[::100], "window_rms": np.abs(y[::100]), "slip_t_s": t[::500],
+         "profile_lag_s": np.arange(50) * 1000.0, "after_slip_profile": rng.random(50),
+         "op_bin_centres_pct": [33.6, 34.1, 34.4, 35.0, 35.6], "op_bin_rms": rng.random(5),
+         "direction_rms": (5.84, 1.2), "freq_hz": 1.0 / t[1:][::-1], "residual_psd": rng.random(n - 1),
+         "limit_cycle_period_s": 3000.0, "target": "pv", "missing_physics": None, "units": "PV units"}
+    fig = draw_explanation(d, title="FIC211: missing physics: none named", figsize=(8.0, 6.5))
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    bottom = sorted(fig.axes[2:5], key=lambda a: a.get_position().x0)
+    boxes = [a.title.get_window_extent(r) for a in bottom]
+    fig_box = fig.bbox
+    for a, b in zip(boxes, boxes[1:]):
+        assert a.x1 <= b.x0, "titles overlap"
+    for b in boxes:
+        assert b.x0 >= fig_box.x0 and b.x1 <= fig_box.x1, "title cut at the figure's edge"
+    assert fig.axes[0].get_xlim()[1] < 200   # a 100-hour record is drawn in hours, not seconds
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

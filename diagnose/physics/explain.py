@@ -388,9 +388,10 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         dbic_tr = (n_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
                    + fitted.n_extra * math.log(n_tr))
         checks = [
-            (red >= need, f"held-out RMSE {100 * red:.0f} % below the refit plain model's, "
-                          f"{100 * need:.0f} % needed" + (" (a load at the loop's own oscillation period)"
-                                                          if on_lc else "")),
+            # one sign convention in every line: a change is signed, negative = the error falls
+            (red >= need, f"held-out RMSE change {-100 * red:+.0f} % against the refit plain model, "
+                          f"{-100 * need:+.0f} % or less needed" + (" (a load at the loop's own oscillation period)"
+                                                                    if on_lc else "")),
             (r_h <= base_rmse * (1.0 - 0.5 * min_reduction),
              f"held-out RMSE not {50 * min_reduction:.0f} % below the baseline's"),
             (dbic <= STRONG_BIC, f"held-out BIC change {dbic:+.1f}, {STRONG_BIC:+.0f} needed"),
@@ -614,7 +615,9 @@ def _arrays(run: _StageRun, improved_hat: np.ndarray, record: LoopRecord, n_tr: 
 
 
 def _fmt_params(params: Mapping[str, float]) -> str:
-    return ", ".join(f"{k} = {v:.3g}" for k, v in params.items())
+    from ..plain import duration, number
+
+    return ", ".join(f"{k} = {duration(v) if k.endswith('_s') else number(v)}" for k, v in params.items())
 
 
 def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
@@ -631,7 +634,7 @@ def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
         desc = REGISTRY[h.name].description if h.name in REGISTRY else h.name
         parts.append(f"Missing physics: {h.name} ({desc}; {_fmt_params(h.params)}). "
                      f"With it the held-out RMSE falls to {improved_rmse:.4g} "
-                     f"({100 * (1 - improved_rmse / base_rmse) if base_rmse > 0 else 0:.0f} % below the baseline).")
+                     f"({-100 * (1 - improved_rmse / base_rmse) if base_rmse > 0 else 0:+.0f} % against the baseline).")
     else:
         best = min((t[2] for r in runs.values() for t in r.fitted), key=lambda h: h.heldout_rmse,
                    default=None)

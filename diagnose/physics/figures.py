@@ -22,11 +22,39 @@ def _mpl():
     return plt
 
 
+def _time_unit(span_s: float) -> tuple[float, str]:
+    """Divisor and unit name for a time axis of this span (hours, minutes or seconds)."""
+    if span_s > 4 * 3600:
+        return 3600.0, "h"
+    if span_s > 600:
+        return 60.0, "min"
+    return 1.0, "s"
+
+
+def _distinct_labels(values) -> list[str]:
+    """Tick labels with the fewest decimals (up to 2) that tell every value apart."""
+    vals = [float(v) for v in values]
+    for dec in range(3):
+        labels = [f"{v:.{dec}f}" for v in vals]
+        if len(set(labels)) == len(labels):
+            return labels
+    return labels
+
+
 def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0, 9.0)):
     """Draw the figure data onto a new matplotlib figure and return it."""
     plt = _mpl()
-    d = fig_data
-    t = np.asarray(d["t_s"])
+    d = dict(fig_data)
+    # times in the unit the record's length calls for (a week of data is not read in seconds)
+    div, tu = _time_unit(float(np.ptp(np.asarray(d["t_s"]))) if len(d["t_s"]) else 0.0)
+    t = np.asarray(d["t_s"]) / div
+    for key in ("train_end_s", "train_start_s"):
+        if d.get(key) is not None:
+            d[key] = float(d[key]) / div
+    d["windows"] = [(a / div, b / div) for a, b in d.get("windows", [])]
+    d["window_t_s"] = np.asarray(d["window_t_s"]) / div
+    d["slip_t_s"] = np.asarray(d.get("slip_t_s", [])) / div
+    lag_div, lag_u = _time_unit(float(np.max(d["profile_lag_s"])) if len(d["profile_lag_s"]) else 0.0)
     fig = plt.figure(figsize=figsize, constrained_layout=True)
     gs = fig.add_gridspec(3, 3)
     unit = d.get("units", "")
@@ -61,27 +89,27 @@ def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0
         lo = ax.get_ylim()[0]
         ax.plot(slips, np.full(slips.shape, lo), "|", color="tab:green", ms=6, label="simulated slips")
     ax.axvline(d["train_end_s"], color="k", ls="--", lw=0.8)
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel(f"time [{tu}]")
     ax.set_ylabel(f"residual [{unit}]")
     ax.legend(loc="upper left", fontsize=8, ncol=4)
 
     ax = fig.add_subplot(gs[2, 0])
-    ax.plot(d["profile_lag_s"], d["after_slip_profile"], "o-", ms=3)
+    ax.plot(np.asarray(d["profile_lag_s"]) / lag_div, d["after_slip_profile"], "o-", ms=3)
     ax.axhline(float(np.sqrt(np.mean(np.square(d.get("residual_located", d["residual_baseline"]))))), color="0.5", ls=":",
                label="overall RMS")
-    ax.set_xlabel("time after a slip [s]")
+    ax.set_xlabel(f"time after a slip [{lag_u}]")
     ax.set_ylabel("residual RMS")
-    ax.set_title("after slips", fontsize=9)
+    ax.set_title("residual after slips", fontsize=9)
     ax.legend(fontsize=7)
 
     ax = fig.add_subplot(gs[2, 1])
     ax.bar(np.arange(len(d["op_bin_rms"])), d["op_bin_rms"], color="tab:purple", alpha=0.7)
     ax.set_xticks(np.arange(len(d["op_bin_rms"])))
-    ax.set_xticklabels([f"{c:.0f}" for c in d["op_bin_centres_pct"]], fontsize=7)
+    ax.set_xticklabels(_distinct_labels(d["op_bin_centres_pct"]), fontsize=7)
     up, dn = d["direction_rms"]
     ax.set_xlabel("OP bin centre [%]")
     ax.set_ylabel("residual RMS")
-    ax.set_title(f"by operating point; opening {up:.3g} / closing {dn:.3g}", fontsize=9)
+    ax.set_title(f"by operating point\nRMS opening {up:.3g}, closing {dn:.3g}", fontsize=9)
 
     ax = fig.add_subplot(gs[2, 2])
     f = np.asarray(d["freq_hz"])
@@ -94,7 +122,7 @@ def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0
                 ax.axvline(plc / h, color="tab:red", ls=":", lw=0.8)
     ax.set_xlabel("period [s]")
     ax.set_ylabel("residual power")
-    ax.set_title("spectrum (red: limit cycle and harmonics)", fontsize=9)
+    ax.set_title("residual spectrum\n(red: limit cycle, harmonics)", fontsize=9)
     return fig
 
 

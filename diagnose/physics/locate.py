@@ -210,7 +210,9 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
         freq.update({"residual_peak_period_s": peak_p, "peak_at_limit_cycle_harmonic": at_h,
                      "peak_to_median_power": float(P[i] / (np.median(P[ok]) or 1e-300))})
         if not at_h and freq["peak_to_median_power"] > 50:
-            hints.append(f"residual has a spectral peak at {peak_p:.4g} s, not a limit-cycle harmonic "
+            from ..plain import duration
+
+            hints.append(f"residual has a spectral peak at a period of {duration(peak_p)}, not a limit-cycle harmonic "
                          "(external disturbance?)")
 
     # --- drift over the record ---------------------------------------------------------------------

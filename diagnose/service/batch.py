@@ -9,6 +9,18 @@ writes, per loop, into ``OUT/loops/LOOP/``: the figures (PNG), ``LOOP.md``, ``LO
 stderr), stores every result in the history database (one transaction per file), ranks the loops
 and writes ``summary.{md,pdf,csv,json}``.
 
+Report names: a loop's folder is named for its tag (``FIC101``); another input holding the same
+tag gets ``TAG__FILE`` (its file name), and the name is kept in ``OUT/.stiction/names/``, so two
+exports of one tag never overwrite each other and every later run and resume finds the same names.
+The history database files every result under the tag, so exports of one loop make one history.
+
+Files: folders are searched for the historian text exports the connectors read
+(`connectors.FILE_SUFFIXES`); any other file found there is listed as skipped in the summary. A
+tag map applies to the files where it names a loop; the others are read by the naming rule.
+
+Workers die with the batch: a worker process that finds the batch gone (killed, even by
+``kill -9``) stops at once instead of finishing its file.
+
 Resume: a loop is skipped when its ``LOOP.json`` already holds the same input hash (file content +
 read options + loop + pipeline options) and tool version; a whole file is skipped without being
 read when its state file under ``OUT/.stiction/`` says all its loops are done. A killed job re-run
@@ -32,12 +44,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
+from connectors import FILE_SUFFIXES as INPUT_SUFFIXES
 from connectors.historian import atomic_write
 
 from ..errors import DataError, StictionError
 from .report import SUMMARY_COLUMNS
 
-INPUT_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
 STATE_DIR = ".stiction"
 
 
@@ -84,12 +96,14 @@ class BatchConfig:
 # discovery and hashing
 
 
-def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.PathLike] = ()
-             ) -> tuple[list[Path], list[dict[str, Any]]]:
-    """Input files (folders searched recursively for ``*.csv|tsv|txt|dat``) and missing inputs.
+def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.PathLike] = (),
+             skipped: list[dict[str, Any]] | None = None) -> tuple[list[Path], list[dict[str, Any]]]:
+    """Input files (folders searched recursively for `INPUT_SUFFIXES`) and missing inputs.
 
     Hidden files/folders and anything under ``exclude`` (the output folder) are left out. Returns
-    the files in a stable order and one failure row per input path that does not exist.
+    the files in a stable order and one failure row per input path that does not exist. Other
+    files found in the folders are appended to ``skipped`` (``{"path", "reason"}``) when given: a
+    batch reports them rather than passing over them in silence.
     """
     excl = [Path(e).resolve() for e in exclude]
     files: list[Path] = []
@@ -108,9 +122,16 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
         if p.is_dir():
             for root, dirs, names in os.walk(p):
                 dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+                if any(Path(root).resolve() == e or e in Path(root).resolve().parents for e in excl):
+                    continue
                 for name in sorted(names):
-                    if not name.startswith(".") and name.lower().endswith(INPUT_SUFFIXES):
+                    if name.startswith("."):
+                        continue
+                    if name.lower().endswith(INPUT_SUFFIXES):
                         add(Path(root) / name)
+                    elif skipped is not None:
+                        skipped.append({"path": str(Path(root) / name),
+                                        "reason": "not a historian text export (" + ", ".join(INPUT_SUFFIXES) + ")"})
         elif p.is_file():
             add(p)
         else:
@@ -165,7 +186,7 @@ def failure_row(loop: str, source: str, error: str) -> dict[str, Any]:
 def loop_row(result: Mapping[str, Any], report: str | None, *, skipped: bool = False,
              degradation: str | None = None) -> dict[str, Any]:
     """The summary row of one diagnosed loop."""
-    from .pipeline import _interval, oscillation_info, stiction_present
+    from .pipeline import _interval, op_in_percent, oscillation_info, stiction_present
 
     def r4(v: Any) -> Any:
         return round(v, 4) if isinstance(v, float) else v
@@ -185,6 +206,8 @@ def loop_row(result: Mapping[str, Any], report: str | None, *, skipped: bool = F
         "J_pct": r4(result.get("J")), "J_lo": jlo, "J_hi": jhi,
         "confidence": r4(result.get("confidence")),
         "oscillation_period_s": r4(osc["period_s"]) if osc["present"] else None,
+        "slow_cycle_period_s": r4(osc["period_s"]) if osc.get("slow_cycle") else None,
+        "sj_in_op_units": not op_in_percent(result),
         "warnings": len(warns),
         "data_quality_warnings": sum(1 for w in warns if str(w.get("code", "")).startswith("data_quality.")),
         "degradation": degradation or result.get("degradation"),
@@ -210,16 +233,52 @@ def _existing(cfg: BatchConfig, loop_id: str) -> dict[str, Any] | None:
         return None
 
 
+def _tag(record: Any) -> str:
+    """The file-safe name of the loop a record belongs to (its history is filed under it)."""
+    return safe_name(record.name)
+
+
+def _claim(cfg: BatchConfig, name: str, owner: str) -> bool:
+    """Claim a report name for ``owner`` (an input file); True when it is, or already was, ours.
+
+    The claim is a file under ``OUT/.stiction/names/`` created by a hard link, which succeeds for
+    one process only and never shows a half-written owner, so parallel workers never share a name.
+    """
+    d = Path(cfg.out_dir) / STATE_DIR / "names"
+    d.mkdir(parents=True, exist_ok=True)
+    claim = d / f"{name}.owner"
+    try:
+        return claim.read_text(encoding="utf-8") == owner
+    except OSError:
+        pass
+    prev = _existing(cfg, name)  # an output folder written before names were claimed
+    prev_src = (prev or {}).get("record", {}).get("source") if isinstance(prev, Mapping) else None
+    if prev_src and str(Path(prev_src).resolve()) != owner:
+        return False
+    tmp = d / f".{name}.{os.getpid()}.tmp"
+    tmp.write_text(owner, encoding="utf-8")
+    try:
+        os.link(tmp, claim)
+        return True
+    except FileExistsError:
+        return claim.read_text(encoding="utf-8") == owner
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def _choose_loop_id(cfg: BatchConfig, record: Any, path: Path) -> str:
-    base = safe_name(record.name)
+    """The loop's report name: its tag, or ``TAG__FILE`` when another input holds the same tag."""
+    base = _tag(record)
     nseg = record.meta.get("n_segments") or 1
     if nseg > 1:
         base += f"_seg{int(record.meta.get('segment', 0)) + 1}"
-    prev = _existing(cfg, base)
-    src = str(path)
-    if prev is not None and (prev.get("record") or {}).get("source") not in (None, src):
-        return f"{base}__{safe_name(path.stem)}"
-    return base
+    owner = str(path.resolve())
+    stem = safe_name(path.stem)
+    digest = hashlib.sha1(owner.encode("utf-8")).hexdigest()[:8]
+    for name in (base, f"{base}__{stem}", f"{base}__{stem}_{digest}"):
+        if _claim(cfg, name, owner):
+            return name
+    raise StictionError(f"{path}: no free report name for loop {record.name!r}")  # pragma: no cover
 
 
 def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
@@ -235,8 +294,11 @@ def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
     d.mkdir(parents=True, exist_ok=True)
     for stale in d.glob(".*.tmp"):  # left by a killed job
         stale.unlink(missing_ok=True)
-    hist_for_fig = list(history_rows) + ([{"run_at": "this run", "S_pct": diag.result.get("S"),
-                                           "J_pct": diag.result.get("J")}] if history_rows else [])
+    from .history import record_end
+
+    hist_for_fig = list(history_rows) + ([{"run_at": "this run", "data_end": record_end(diag.result),
+                                           "S_pct": diag.result.get("S"), "J_pct": diag.result.get("J")}]
+                                         if history_rows else [])
     pngs = figs.loop_figures(diag, hist_for_fig)
     for name, png in pngs.items():
         atomic_write(d / f"{name}.png", png)
@@ -254,7 +316,7 @@ def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
 
 def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> dict[str, Any]:
     """Diagnose one record and write its outputs; a summary row (``status`` ok or failed)."""
-    from .history import degradation as degrade, previous_runs
+    from .history import degradation as degrade, previous_runs, record_end
     from .pipeline import diagnose
 
     loop_id = _choose_loop_id(cfg, record, path)
@@ -268,8 +330,10 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
         diag = diagnose(record, explain=cfg.explain, narx=cfg.narx)
         diag.result["loop_id"] = loop_id
         diag.result["input_hash"] = ih
-        hist = previous_runs(cfg.db, loop_id, exclude_hash=ih)
-        warn = degrade(hist + [{"run_at": "this run", "S_pct": diag.result.get("S")}]) if hist else None
+        end = record_end(diag.result)
+        hist = [r for r in previous_runs(cfg.db, _tag(record), exclude_hash=ih)
+                if end is None or not r.get("data_end") or r["data_end"] < end]
+        warn = degrade(hist + [{"run_at": "this run", "data_end": end, "S_pct": diag.result.get("S")}]) if hist else None
         if warn:
             diag.result["degradation"] = warn
         report = write_loop_outputs(cfg, diag, loop_id, history_rows=hist, degradation=warn)
@@ -285,13 +349,59 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
         return row
 
 
+_SPACES = (re.compile(r"\s{2,}"), re.compile(r"\s+"))
+
+
+def whitespace_export(path: str | os.PathLike) -> io.StringIO | None:
+    """A space-aligned text export (``.prn``: columns padded with blanks) as tab-separated text,
+    or None when the file is not one (it has tabs, commas or semicolons, or ragged columns).
+
+    Columns are split at runs of two or more blanks when that gives every line the same number of
+    fields (a date and a time separated by one blank stay one cell), else at any blank.
+    """
+    text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
+    lines = text.splitlines()
+    head = [ln.strip() for ln in lines[:50] if ln.strip()]
+    if len(head) < 2 or any(c in ln for ln in head for c in "\t,;"):
+        return None
+    for pat in _SPACES:
+        widths = {len(pat.split(ln)) for ln in head}
+        if len(widths) == 1 and min(widths) >= 2:
+            buf = io.StringIO("\n".join("\t".join(pat.split(ln.strip())) if ln.strip() else "" for ln in lines))
+            buf.name = str(path)  # errors name the file
+            return buf
+    return None
+
+
 def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
+    """The records of one file. A tag map applies where it names a loop in the file; a file where
+    it names none is read by the naming rule, with a finding that says so. A space-aligned
+    ``.prn`` export is read as the table it is."""
     from connectors import read_records
 
+    def read(**extra: Any) -> list[Any]:
+        if path.suffix.lower() == ".prn":
+            table = whitespace_export(path)
+            if table is not None:
+                return read_records(table, **opts, **extra)
+        return read_records(str(path), **opts, **extra)
+
     opts = dict(cfg.read_options)
-    if cfg.tags:
-        opts["tags"] = cfg.tags
-    return read_records(str(path), **opts)
+    if not cfg.tags:
+        return read()
+    try:
+        return read(tags=cfg.tags)
+    except StictionError as exc:
+        tag_error = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    try:
+        records = read()
+    except StictionError as exc:
+        raise DataError(f"{tag_error}; without the tag map: {_one_line(exc)}") from None
+    from ..record import Finding
+
+    note = Finding("tag_map", f"the tag map {Path(cfg.tags).name} names no loop in this file; its loops "
+                   "were found by the naming rule", "info", {"tag_map": str(cfg.tags)})
+    return [r.with_findings(note) for r in records]
 
 
 def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
@@ -319,9 +429,12 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
 _SETUP_DONE = False
 
 
-def _worker_setup() -> None:
-    """Once per process: one thread per worker for BLAS/OpenMP/torch (the pool gives parallelism)."""
+def _worker_setup(parent_pid: int | None = None) -> None:
+    """Once per process: one thread per worker for BLAS/OpenMP/torch (the pool gives parallelism);
+    in a worker process of a pool (``parent_pid`` given), die with the process that started it."""
     global _SETUP_DONE
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
     if _SETUP_DONE:
         return
     _SETUP_DONE = True
@@ -334,6 +447,70 @@ def _worker_setup() -> None:
             torch.set_num_threads(1)
         except Exception:  # pragma: no cover
             pass
+
+
+#: How often (seconds) a worker checks that the process that started it is still there.
+PARENT_POLL_S = 0.5
+_WATCHING: int | None = None
+
+
+def _start_time(pid: int) -> str | None:
+    """The kernel's start time of a live process (guards against a reused pid), None when the
+    process is gone or a zombie (killed, not yet reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat = fh.read().decode("ascii", "replace")
+    except OSError:
+        return None
+    fields = stat[stat.rfind(")") + 2:].split()
+    if not fields or fields[0] in ("Z", "X"):
+        return None
+    return fields[19] if len(fields) > 19 else "?"
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Make this (worker) process exit as soon as ``parent_pid`` dies, even by ``kill -9``.
+
+    Two guards: the kernel's parent-death signal (Linux ``PR_SET_PDEATHSIG``), which fires when
+    this process's own parent exits (a pool's forkserver exits with the batch), and a daemon thread
+    that polls ``parent_pid`` itself every `PARENT_POLL_S` seconds (any Unix; the batch may be a
+    grandparent). Without them a killed batch leaves workers that finish their files for minutes.
+    """
+    global _WATCHING
+    if _WATCHING == parent_pid or parent_pid == os.getpid():
+        return
+    _WATCHING = parent_pid
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+            import signal
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            PR_SET_PDEATHSIG = 1
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no prctl: the thread still watches
+            pass
+    start = _start_time(parent_pid) if os.path.isdir("/proc") else None
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if start is not None:
+                gone = _start_time(parent_pid) != start
+            else:
+                try:
+                    os.kill(parent_pid, 0)
+                    gone = False
+                except ProcessLookupError:
+                    gone = True
+                except PermissionError:
+                    gone = False
+            if gone:
+                os._exit(70)
+
+    import threading
+
+    threading.Thread(target=watch, name="stiction-parent-watch", daemon=True).start()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -451,7 +628,8 @@ class _Pool:
 
         # forkserver: workers start from a clean process, safe when the parent has threads (torch).
         ctx = mp.get_context("forkserver")
-        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_setup)
+        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_setup,
+                                      initargs=(os.getpid(),))
 
     def submit(self, fn: Callable, *args: Any) -> Future:
         return self.ex.submit(fn, *args)
@@ -515,6 +693,10 @@ class BatchResult:
     out_dir: Path
     n_files: int
     elapsed_s: float
+    #: whether PDF reports were written
+    pdf: bool = True
+    #: files found in the input folders and left alone (``{"path", "reason"}``)
+    skipped_files: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def n_failed(self) -> int:
@@ -543,7 +725,8 @@ def rank(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool = True,
-                  meta: Mapping[str, Any] | None = None) -> None:
+                  meta: Mapping[str, Any] | None = None,
+                  skipped_files: Sequence[Mapping[str, Any]] = ()) -> None:
     """``summary.md``, ``summary.pdf``, ``summary.csv`` and ``summary.json`` (atomically)."""
     from .report import summary_blocks, to_markdown
 
@@ -556,9 +739,10 @@ def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool
     atomic_write(out_dir / "summary.csv", buf.getvalue())
     clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     doc = {**meta, "n_loops": len(rows), "n_failed": sum(1 for r in rows if r["status"] != "ok"),
-           "loops": clean}
+           "loops": clean, "skipped_files": [dict(f) for f in skipped_files]}
     atomic_write(out_dir / "summary.json", json.dumps(doc, indent=1, default=str))
-    kw = {"generated_at": meta.get("generated_at"), "tool_version": meta.get("tool_version")}
+    kw = {"generated_at": meta.get("generated_at"), "tool_version": meta.get("tool_version"),
+          "skipped_files": skipped_files}
     atomic_write(out_dir / "summary.md", to_markdown(summary_blocks(rows, **kw)))
     if pdf:
         from .pdf import to_pdf
@@ -600,12 +784,17 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     t0 = time.monotonic()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if tags is not None and not Path(tags).is_file():
-        raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
+    if tags is not None:
+        if not Path(tags).is_file():
+            raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
+        from connectors.tagmap import load_tagmap
+
+        load_tagmap(tags)  # a broken map is one error now, not one per file
     db_path = Path(db) if db is not None else default_db_path()
     cfg = BatchConfig(out_dir=str(out), read_options=dict(read_options or {}), tags=tags, explain=explain,
                       narx=narx, pdf=pdf, db=str(db_path) if history else None)
-    files, missing = discover(inputs, exclude=[out])
+    skipped_files: list[dict[str, Any]] = []
+    files, missing = discover(inputs, exclude=[out], skipped=skipped_files)
     if not files and not missing:
         raise DataError("no input files found (looked for " + ", ".join(INPUT_SUFFIXES) +
                         f" in {', '.join(map(str, inputs))})")
@@ -619,7 +808,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
         frows = outcome["rows"]
         if hist is not None:
             hist.add_rows([row_from_result(r["_result"], run_at=run_at, input_hash=r.get("input_hash"))
-                           for r in frows if r["status"] == "ok" and "_result" in r])
+                           for r in frows if r["status"] == "ok" and "_result" in r])  # filed by tag
         if not skipped_file:
             _save_state(cfg, outcome)
         rows.extend(frows)
@@ -661,7 +850,8 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     ranked = rank(rows)
     meta = {"generated_at": run_at, "tool_version": tool_version(), "inputs": [str(i) for i in inputs],
             "workers": workers, "scheduler": scheduler, "elapsed_s": round(time.monotonic() - t0, 3)}
-    write_summary(out, ranked, pdf=pdf, meta=meta)
+    write_summary(out, ranked, pdf=pdf, meta=meta, skipped_files=skipped_files)
     for r in ranked:
         r.pop("_result", None)
-    return BatchResult(rows=ranked, out_dir=out, n_files=len(files), elapsed_s=time.monotonic() - t0)
+    return BatchResult(rows=ranked, out_dir=out, n_files=len(files), elapsed_s=time.monotonic() - t0,
+                       pdf=pdf, skipped_files=skipped_files)

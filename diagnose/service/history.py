@@ -6,6 +6,11 @@ path is given (``--db``). It runs in WAL mode so readers (``stiction history``, 
 looking up a loop's past) never block the writer, and each write is one transaction: a run killed
 half-way leaves every earlier result intact and nothing half-written. A result already stored (same
 loop, input hash and tool version) is not stored twice, so a resumed batch does not duplicate rows.
+
+Runs are filed under the loop's tag and ordered by the end of the record they diagnosed
+(``data_end``), not by when the diagnosis ran (``run_at``, kept beside it): a month of exports
+back-filled in one night makes a month of history. A database from before ``data_end`` existed is
+migrated in place the first time it is opened for writing.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from ..errors import StictionError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 #: A loop is "degrading" when S rose at each of the last `DEGRADE_RUNS` - 1 steps by at least
 #: `DEGRADE_STEP_PCT` and by at least `DEGRADE_TOTAL_PCT` in all (% of valve span).
@@ -33,6 +38,7 @@ CREATE TABLE IF NOT EXISTS runs (
     loop TEXT NOT NULL,
     run_at TEXT NOT NULL,
     data_start TEXT,
+    data_end TEXT,
     source TEXT,
     input_hash TEXT NOT NULL DEFAULT '',
     tool_version TEXT NOT NULL DEFAULT '',
@@ -51,7 +57,7 @@ CREATE INDEX IF NOT EXISTS runs_loop ON runs (loop, run_at);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 """
 
-_COLS = ("loop", "run_at", "data_start", "source", "input_hash", "tool_version", "status", "class",
+_COLS = ("loop", "run_at", "data_start", "data_end", "source", "input_hash", "tool_version", "status", "class",
          "S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi", "confidence", "severity",
          "oscillation_period_s", "verdict", "result_json")
 
@@ -70,6 +76,44 @@ def utc_now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+def _parse_time(text: Any) -> datetime | None:
+    if not text:
+        return None
+    try:
+        t = datetime.fromisoformat(str(text).strip().replace("Z", "+00:00"))
+    except ValueError:
+        return None
+    return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
+
+
+def record_end(result: Mapping[str, Any]) -> str | None:
+    """UTC time of the last sample of the record a result diagnosed (``...+00:00``), None when the
+    record has no start time (an export of sample indices)."""
+    rec = result.get("record") if isinstance(result.get("record"), Mapping) else {}
+    start = _parse_time(rec.get("start"))
+    if start is None:
+        return None
+    try:
+        n = int(rec.get("n") or result.get("n_samples") or 0)
+        ts = float(rec.get("ts_s") or result.get("ts_s") or 0.0)
+    except (TypeError, ValueError):
+        return None
+    if n <= 0 or not ts > 0:
+        return None
+    from datetime import timedelta
+
+    end = start + timedelta(seconds=(n - 1) * ts)
+    return end.astimezone(timezone.utc).isoformat(timespec="seconds")
+
+
+def history_loop(result: Mapping[str, Any]) -> str:
+    """The name a result is filed under: the loop's tag, file-safe (a batch report may carry a
+    longer name when two inputs hold the same tag; both belong to one history)."""
+    from .batch import safe_name
+
+    return safe_name(str(result.get("loop") or result.get("loop_id")))
+
+
 def row_from_result(result: Mapping[str, Any], *, run_at: str | None = None,
                     input_hash: str | None = None, status: str = "ok", error: str | None = None
                     ) -> dict[str, Any]:
@@ -81,9 +125,10 @@ def row_from_result(result: Mapping[str, Any], *, run_at: str | None = None,
     jlo, jhi = _interval(result.get("J_interval"))
     sev = result.get("severity") or {}
     return {
-        "loop": str(result.get("loop_id") or result.get("loop")),
+        "loop": history_loop(result),
         "run_at": run_at or utc_now(),
         "data_start": rec.get("start"),
+        "data_end": record_end(result),
         "source": rec.get("source") or result.get("source"),
         "input_hash": input_hash or result.get("input_hash") or "",
         "tool_version": result.get("tool_version") or "",
@@ -125,12 +170,32 @@ class History:
                 self.conn.execute("PRAGMA synchronous=NORMAL")
                 with self.conn:
                     self.conn.executescript(_DDL)
+                    self._migrate()
                     self.conn.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)",
                                       (str(SCHEMA_VERSION),))
+            self._columns = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         except sqlite3.DatabaseError as exc:
             raise StictionError(f"{self.path}: not a usable history database ({exc}); give another "
                                 "path with --db") from None
         self.conn.row_factory = sqlite3.Row
+
+    def _migrate(self) -> None:
+        """Bring a database of an earlier schema up to this one, in place (inside the caller's
+        transaction: all of it or nothing). Version 2 added ``data_end``, filled here from each
+        stored result."""
+        cols = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
+        if "data_end" not in cols:
+            self.conn.execute("ALTER TABLE runs ADD COLUMN data_end TEXT")
+            for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
+                                               ).fetchall():
+                try:
+                    end = record_end(json.loads(text))
+                except ValueError:
+                    end = None
+                if end is not None:
+                    self.conn.execute("UPDATE runs SET data_end = ? WHERE id = ?", (end, rid))
+        self.conn.execute("CREATE INDEX IF NOT EXISTS runs_loop_end ON runs (loop, data_end)")
+        self.conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
     # -- context manager -------------------------------------------------------------------
     def __enter__(self) -> "History":
@@ -161,11 +226,13 @@ class History:
     # -- reading ---------------------------------------------------------------------------
     def runs(self, loop: str, *, limit: int | None = None, status: str | None = "ok",
              with_result: bool = False) -> list[dict[str, Any]]:
-        """Runs of one loop, oldest first (the last ``limit`` when given)."""
-        cols = [c for c in _COLS if with_result or c != "result_json"]
+        """Runs of one loop in the order of their records' ends (runs of records without a time in
+        the order they ran), oldest first; the last ``limit`` when given."""
+        cols = [c if c in self._columns else f"NULL AS {c}" for c in _COLS if with_result or c != "result_json"]
         where = "loop = ?" + (" AND status = ?" if status else "")
         args: list[Any] = [loop] + ([status] if status else [])
-        sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY run_at DESC, id DESC"
+        end = "COALESCE(data_end, run_at)" if "data_end" in self._columns else "run_at"
+        sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY {end} DESC, run_at DESC, id DESC"
         if limit:
             sql += f" LIMIT {int(limit)}"
         rows = [dict(r) for r in self.conn.execute(sql, args)]
@@ -194,14 +261,18 @@ def previous_runs(db_path: str | os.PathLike | None, loop: str, *, exclude_hash:
     return [r for r in rows if not exclude_hash or r.get("input_hash") != exclude_hash][-limit:]
 
 
+def _when(row: Mapping[str, Any]) -> str:
+    return str(row.get("data_end") or row.get("run_at") or "")
+
+
 def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
                 step_pct: float = DEGRADE_STEP_PCT, total_pct: float = DEGRADE_TOTAL_PCT) -> str | None:
-    """A warning when S grew run over run (oldest first rows), else None.
+    """A warning when S grew record over record (rows oldest first), else None.
 
     The last ``runs`` runs with an S must each raise S by at least ``step_pct`` and by at least
     ``total_pct`` in all (% of valve span).
     """
-    s = [(r.get("run_at"), r.get("S_pct")) for r in rows if r.get("S_pct") is not None]
+    s = [(_when(r), r.get("S_pct")) for r in rows if r.get("S_pct") is not None]
     if len(s) < runs:
         return None
     last = s[-runs:]
@@ -215,11 +286,12 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
 
 
 def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
-    """The trend table `stiction history LOOP` prints."""
+    """The trend table `stiction history LOOP` prints: one line per run, by the end of its record."""
     if not rows:
         return f"{loop}: no runs in the history\n"
     lines = [f"{loop}: {len(rows)} run(s)",
-             f"{'run (UTC)':<25} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} {'conf':>5} {'sev':>4}"]
+             f"{'record end (UTC)':<20} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} {'conf':>5} "
+             f"{'sev':>4}  {'run (UTC)':<20}"]
     for r in rows:
         iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
               else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
@@ -227,8 +299,9 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
         J = "-" if r.get("J_pct") is None else f"{r['J_pct']:.2f}"
         conf = "-" if r.get("confidence") is None else f"{r['confidence']:.0%}"
         sev = "-" if r.get("severity") is None else f"{r['severity']:.0f}"
-        lines.append(f"{str(r.get('run_at'))[:25]:<25} {S:>6} {iv:>15} {J:>6} "
-                     f"{str(r.get('class') or '-'):<12} {conf:>5} {sev:>4}")
+        end = str(r.get("data_end") or "-")[:19]
+        lines.append(f"{end:<20} {S:>6} {iv:>15} {J:>6} "
+                     f"{str(r.get('class') or '-'):<12} {conf:>5} {sev:>4}  {str(r.get('run_at'))[:19]:<20}")
     warn = degradation(rows)
     if warn:
         lines.append(f"WARNING: {warn}")

@@ -5,8 +5,11 @@ full window on as a `LoopRecord`. The window is diagnosed in a separate worker p
 polling never waits for a diagnosis), which writes ``OUT/LOOP/WINDOW.json`` and ``WINDOW.md`` (and
 ``latest.json``/``latest.md``), atomically. This process stores each result in the history database
 and updates the optional Prometheus metrics. A device that restarts is reconnected by the poller
-(its lost polls become gaps, never invented values); a window that cannot be diagnosed is logged and
-monitoring goes on.
+(its lost polls become gaps, never invented values); each outage and each reconnection is logged
+with its UTC time and the outage's length, and a device that never answers is named at the end. A
+window that cannot be diagnosed is logged and monitoring goes on. The window length is checked
+before polling starts: a window too short to identify stiction is a one-line error naming the
+configuration file and key.
 """
 
 from __future__ import annotations
@@ -21,7 +24,32 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, TextIO
 
-from ..errors import StictionError
+from ..errors import DataError, StictionError
+from ..plain import duration
+
+#: Shortest window (samples) the monitor accepts. The fit is scored on what is left after the
+#: model's start-up samples: the simulator's 60-sample windows left too few and failed one by one,
+#: 100-sample windows identify (with a short-record warning below 250).
+MIN_WINDOW_SAMPLES = 100
+
+
+def _utc(t_s: float) -> str:
+    from datetime import datetime, timezone
+
+    return datetime.fromtimestamp(t_s, timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
+
+
+@dataclass
+class DeviceState:
+    """What the monitor knows of one device's link: whether it answers, since when."""
+
+    name: str
+    where: str
+    up: bool | None = None      # None: no poll yet
+    since_s: float = 0.0        # wall time of the last change
+    ever_read: bool = False
+    outages: int = 0
+    last_error: str | None = None
 
 
 @dataclass
@@ -34,8 +62,12 @@ class MonitorStats:
     polls: int = 0
     polls_failed: int = 0
     polls_missed: int = 0
+    polls_good: int = 0
     poll_cpu_s: float = 0.0
     wall_s: float = 0.0
+    outages: int = 0
+    reconnects: int = 0
+    never_answered: list[str] = field(default_factory=list)
 
 
 def window_id(record: Any) -> str:
@@ -82,11 +114,12 @@ def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figu
     return res
 
 
-def _monitor_worker_init() -> None:
-    """Diagnosis workers yield the CPU to the polling process (which must never miss a tick)."""
+def _monitor_worker_init(parent_pid: int | None = None) -> None:
+    """Diagnosis workers yield the CPU to the polling process (which must never miss a tick) and
+    die with it."""
     from .batch import _worker_setup
 
-    _worker_setup()
+    _worker_setup(parent_pid)
     try:
         os.nice(10)
     except OSError:  # pragma: no cover - not permitted
@@ -144,9 +177,16 @@ class Monitor:
         self.log = log if log is not None else sys.stderr
         self.on_result = on_result
         self.window_samples = int(window_samples or self.config.window_samples)
-        self.min_samples = max(int(min_fraction * self.window_samples), 60)
+        if self.window_samples < MIN_WINDOW_SAMPLES:
+            where = ("--window" if window_samples else
+                     f"{self.config.path or 'the Modbus configuration'}: window_samples")
+            raise DataError(f"{where} = {self.window_samples} is too short to identify stiction; use at "
+                            f"least {MIN_WINDOW_SAMPLES} samples (250 or more give firm S and J)")
+        self.min_samples = max(int(min_fraction * self.window_samples), MIN_WINDOW_SAMPLES)
         self.stats = MonitorStats()
-        self.poller = ModbusPoller(self.config, on_window=self._on_window, window_samples=self.window_samples)
+        self.devices = {name: DeviceState(name, f"{d.host}:{d.port}") for name, d in self.config.devices.items()}
+        self.poller = ModbusPoller(self.config, on_window=self._on_window, window_samples=self.window_samples,
+                                   on_sample=self._on_sample)
         self.history = None
         if history:
             from .history import History
@@ -162,6 +202,42 @@ class Monitor:
         self._pending: set[Any] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
 
+    # ------------------------------------------------------------------------------ links
+    def _on_sample(self, loop: str, t_s: float, values: dict) -> None:
+        """Follow each device's link from its loops' polls; log outages and reconnections."""
+        import math
+
+        dev = self.devices.get(self.config.loops[loop].device)
+        if dev is None:
+            return
+        def finite(v: Any) -> bool:
+            try:
+                return math.isfinite(float(v))
+            except (TypeError, ValueError):
+                return False
+
+        ok = finite(values.get("op")) and finite(values.get("pv"))
+        if ok:
+            if dev.up is False:
+                self.stats.reconnects += 1
+                what = "reconnected" if dev.ever_read else "first answer"
+                print(f"{_utc(t_s)} device {dev.name} ({dev.where}): {what} after {t_s - dev.since_s:.1f} s "
+                      "without data", file=self.log, flush=True)
+            if dev.up is not True:
+                dev.up, dev.since_s = True, t_s
+            dev.ever_read = True
+            return
+        err = self.poller.stats[loop].last_error if loop in self.poller.stats else None
+        if dev.up is not False:
+            if dev.up is True:
+                self.stats.outages += 1
+                dev.outages += 1
+            dev.up, dev.since_s = False, t_s
+            print(f"{_utc(t_s)} device {dev.name} ({dev.where}): "
+                  f"{'outage' if dev.ever_read else 'no answer'}: {err or 'no data'}; retrying",
+                  file=self.log, flush=True)
+        dev.last_error = err or dev.last_error
+
     # ------------------------------------------------------------------------------ windows
     def _submit(self, record: Any) -> Any:
         self._ensure_pool()
@@ -174,7 +250,7 @@ class Monitor:
                 from concurrent.futures import ProcessPoolExecutor
 
                 self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("forkserver"),
-                                                 initializer=_monitor_worker_init)
+                                                 initializer=_monitor_worker_init, initargs=(os.getpid(),))
                 for _ in range(self.workers):
                     self._pool.submit(_warm_up)
             else:
@@ -231,7 +307,16 @@ class Monitor:
                 self.stats.polls += st.polls
                 self.stats.polls_failed += st.failed
                 self.stats.polls_missed += st.missed
+                self.stats.polls_good += st.good
             self.stats.poll_cpu_s = self.poller.cpu_s
+            for dev in self.devices.values():
+                if not dev.ever_read:
+                    self.stats.never_answered.append(dev.name)
+                    print(f"device {dev.name} ({dev.where}) never answered in {duration(self.stats.wall_s)}: "
+                          f"{dev.last_error or 'no data'}", file=self.log, flush=True)
+                elif dev.up is False:
+                    print(f"device {dev.name} ({dev.where}) still down at the end, since {_utc(dev.since_s)}",
+                          file=self.log, flush=True)
             self.close()
         return self.stats
 
@@ -256,3 +341,12 @@ def run_monitor(config: Any, out_dir: str | os.PathLike, *, duration_s: float | 
     except StictionError:
         mon.close()
         raise
+
+
+def nothing_read_error(config: Any, stats: MonitorStats) -> StictionError:
+    """The one-line error of a run in which no device ever answered."""
+    path = getattr(config, "path", None) or str(config)
+    return StictionError(f"{path}: nothing was read in {duration(stats.wall_s)}: device(s) "
+                         f"{', '.join(stats.never_answered) or '?'} never answered ({stats.polls_failed} failed, "
+                         f"{stats.polls_missed} missed polls); check host, port and device_id, and that the "
+                         "device is on")

@@ -87,7 +87,7 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
             # column widths by content (long text columns wrap, short numeric ones stay narrow)
             lens = [max([len(latin1(str(h)))] + [len(latin1(str(r[j]))) for r in rows if j < len(r)])
                     for j, h in enumerate(header)]
-            widths = [min(max(n, 4), 60) + 2 for n in lens]
+            widths = [min(max(n, 8), 60) + 2 for n in lens]  # short headers ("Named") stay on one line
             with pdf.table(headings_style=head, line_height=4.4, text_align="LEFT", padding=0.8,
                            col_widths=tuple(widths)) as table:
                 r = table.row()

@@ -37,6 +37,10 @@ S_SATURATION_PCT = 5.0
 S_MINOR_PCT = 1.0
 #: ``explain="auto"`` runs the missing-physics stage when the fit's free-run r2 on PV is below this.
 EXPLAIN_AUTO_R2 = 0.5
+#: A regular cycle this slow (seconds) is a daily, shift or weather pattern of the plant (ambient
+#: temperature, production schedule), not a loop oscillation: a valve's stick-slip cycle is set by
+#: the loop's own dynamics (seconds to an hour). It is reported as a slow cycle and not ranked.
+SLOW_CYCLE_S = 4 * 3600.0
 
 
 @functools.lru_cache(maxsize=1)
@@ -174,8 +178,22 @@ def oscillation_info(result: Mapping[str, Any]) -> dict[str, Any]:
     present = osc.get("present", osc.get("oscillating", osc.get("detected")))
     if not isinstance(present, bool):
         present = None if period is None else (strength is None or strength >= 0.5)
-    return {"present": present, "period_s": period, "strength": strength,
+    slow = bool(present) and period is not None and period >= SLOW_CYCLE_S
+    if slow:
+        present = False
+    return {"present": present, "period_s": period, "strength": strength, "slow_cycle": slow,
             "amplitude": _num(osc.get("amplitude", osc.get("amplitude_pv")))}
+
+
+def op_in_percent(result: Mapping[str, Any]) -> bool:
+    """False when identification found OP outside 0..100 % (mean-centred or in engineering units):
+    S and J are then in OP's own units, not in % of valve span."""
+    return not any(str(w.get("code", "")) == "op_not_percent" for w in result.get("warnings") or ())
+
+
+def sj_unit(result: Mapping[str, Any]) -> str:
+    """The unit S and J are in, in words."""
+    return "% of valve span" if op_in_percent(result) else "in OP's own units (OP is not in % of span)"
 
 
 def severity(result: Mapping[str, Any]) -> dict[str, Any]:
@@ -220,7 +238,12 @@ def verdict(result: Mapping[str, Any]) -> str:
         return "Inconclusive: the data did not allow a stiction verdict" + sure + "."
     if not sticky:
         return "No stiction found: the valve follows the controller output" + sure + "."
-    size = f"S = {S:.2f} %, J = {J:.2f} % of valve span" if S is not None and J is not None else ""
+    if S is None or J is None:
+        size = ""
+    elif op_in_percent(result):
+        size = f"S = {S:.2f} %, J = {J:.2f} % of valve span"
+    else:
+        size = f"S = {S:.2f}, J = {J:.2f} {sj_unit(result)}"
     word = "Possible stiction" if hedged or (conf is not None and conf < 0.5) else "Stiction"
     minor = " (minor)" if S is not None and S < S_MINOR_PCT else ""
     return f"{word}{minor}: {size}, class {result.get('class', '?')}{sure}."
@@ -234,7 +257,11 @@ def recommended_action(result: Mapping[str, Any]) -> str:
     conf = _num(result.get("confidence"))
     osc = oscillation_info(result)
     codes = {str(w.get("code", "")) for w in result.get("warnings", ())}
-    period = f" of period {osc['period_s']:.0f} s" if osc["period_s"] else ""
+    from ..plain import duration
+
+    period = f" with a period of {duration(osc['period_s'])}" if osc["period_s"] else ""
+    pct = op_in_percent(result)
+    span = " % of its span" if pct else " (in OP's own units: OP is not in % of span)"
     parts: list[str] = []
     if "data_quality.compression" in codes:
         parts.append("The historian data look compressed, which can fake stiction: export the "
@@ -243,15 +270,15 @@ def recommended_action(result: Mapping[str, Any]) -> str:
         parts.append("Collect a longer record in automatic mode with the loop moving (a few "
                      "set-point steps help) and run the diagnosis again.")
     elif sticky and (conf is None or conf >= 0.5) and S >= S_MINOR_PCT:
-        parts.append(f"Have the valve inspected at the next opportunity: it sticks by about {S:.1f} % of "
-                     f"its span{' and jumps by ' + format(J, '.1f') + ' %' if J >= 0.05 else ''}. Check the "
+        parts.append(f"Have the valve inspected at the next opportunity: it sticks by about {S:.1f}{span}"
+                     f"{' and jumps by ' + format(J, '.1f') + (' %' if pct else '') if J >= 0.05 else ''}. Check the "
                      "packing (over-tightened or worn), the actuator and the positioner.")
         if osc["present"]:
             parts.append(f"Until then the stick-slip cycle{period} can be eased by reducing the "
                          "controller's integral action (longer integral time) or by a stiction "
                          "compensator; do not simply raise the gain.")
     elif sticky:
-        parts.append(f"Stiction is small or uncertain (S about {S:.1f} % of span): keep the loop on "
+        parts.append(f"Stiction is small or uncertain (S about {S:.1f}{span}): keep the loop on "
                      "the watch list and compare with the next nightly run before acting.")
     else:
         if osc["present"]:
@@ -259,6 +286,9 @@ def recommended_action(result: Mapping[str, Any]) -> str:
                          "controller tuning and look for an oscillating disturbance upstream.")
         else:
             parts.append("No action needed on the valve.")
+    if osc.get("slow_cycle"):
+        parts.append(f"PV follows a slow cycle{period} (a daily or shift pattern of the plant, not a "
+                     "loop oscillation); it is not counted in the ranking.")
     if any(c.startswith("data_quality.") for c in codes - {"data_quality.compression"}):
         parts.append("See the data-quality warnings: they limit how far this result can be trusted.")
     return " ".join(parts)

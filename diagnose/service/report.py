@@ -20,17 +20,44 @@ from typing import Any, Iterable, Mapping, Sequence
 Block = tuple
 
 FIGURE_CAPTIONS = {
-    "trends": "SP, PV and OP (and MV) over the record, with the fitted model's PV and valve path.",
+    "trends": "SP, PV and OP (and MV) over the whole record, with the fitted model's PV (and, when "
+              "the valve sticks, its valve path) beneath them.",
     "phase": "OP-PV phase plot (and OP-MV where the stem position is recorded) over the last part "
-             "of the record, with the fitted model's path over it.",
-    "surface": "Error surface of the Hammerstein fit over (S, J); the dot is the estimate with its "
-               "intervals, the dashed line J = S separates undershoot from overshoot.",
+             "of the record, with the fitted model's path dashed beneath it.",
+    "surface": "Error surface over (S, J) of the fit that gave S and J (named in the figure's title); "
+               "the dot is the estimate with its intervals, the dashed line J = S separates "
+               "undershoot from overshoot.",
     "narx": "Free run of the NARX-SP model selected for the identified (S, J), against the record.",
-    "spectrum": "PV power spectrum against period, with the detected oscillation period.",
+    "spectrum": "PV power spectrum against period; the dashed line marks the oscillation when the "
+                "loop oscillates.",
     "explanation": "Missing physics: where the fitted model and the plant disagree, and the "
                    "hypothesis that explains it.",
-    "history": "S and J from earlier runs (history database).",
+    "history": "S and J from earlier runs (history database), by the end of each record.",
 }
+
+#: What each stiction class means for the valve, in a maintenance planner's words (docs/model.md).
+CLASS_MEANING = {
+    "none": "no stiction: the valve follows the controller output",
+    "deadband": "J = 0: the valve moves only after the controller output has travelled S back, "
+                "then follows it smoothly (pure deadband or backlash)",
+    "undershoot": "0 < J < S: after sticking the valve jumps, but by less than the band, so it stops "
+                  "short of where the controller output asks it to be",
+    "no_offset": "J = S: after sticking the valve jumps exactly to where the controller output asks",
+    "overshoot": "J > S: after sticking the valve jumps past where the controller output asks it "
+                 "to be",
+}
+
+#: The NARX-SP selection's keys, in words; keys not listed are internal and stay in the JSON.
+NARX_LABELS = (("model", "Model"), ("S", "S of the model (%)"), ("J", "J of the model (%)"),
+               ("distance", "Distance from the identified (S, J)"),
+               ("robust", "Within its robustness margin"),
+               ("free_run_rmse", "Free-run RMSE in training (% of span)"),
+               ("free_run_rmse_record", "Free-run RMSE on this record"),
+               ("free_run_against", "Compared with"))
+
+#: The explanation's keys, in words.
+EXPLAIN_LABELS = (("target", "Judged on"), ("baseline_rmse", "Held-out RMSE of the fitted model"),
+                  ("improved_rmse", "Held-out RMSE with the missing physics"))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -74,39 +101,72 @@ def _scalar_items(d: Mapping[str, Any], skip: Iterable[str] = ()) -> list[list[s
     return rows
 
 
-def _duration(seconds: Any) -> str:
-    s = float(seconds or 0.0)
-    if s >= 7200:
-        return f"{s / 3600:.1f} h"
-    if s >= 120:
-        return f"{s / 60:.0f} min"
-    return f"{s:.0f} s"
-
-
 def _process_text(proc: Any) -> str:
+    from ..plain import duration, number
+
     if not isinstance(proc, Mapping):
         return fmt(proc)
     kind = proc.get("kind", "?")
     bits = [str(kind)]
-    for key, label, spec in (("gain", "K", ".3g"), ("tau_s", "tau", ".3g"), ("tau2_s", "tau2", ".3g"),
-                             ("delay_s", "delay", ".3g")):
+    for key, label in (("gain", "gain"), ("tau_s", "time constant"), ("tau2_s", "second time constant"),
+                       ("delay_s", "dead time")):
         v = proc.get(key)
         if isinstance(v, (int, float)) and (key != "tau2_s" or v):
-            bits.append(f"{label} = {v:{spec}}{' s' if key.endswith('_s') else ''}")
+            bits.append(f"{label} {duration(v) if key.endswith('_s') else number(v)}")
     return ", ".join(bits)
 
 
 def _controller_text(ctl: Any) -> str:
+    from ..plain import duration, number
+
     if not isinstance(ctl, Mapping) or ctl.get("action") in (None, "unknown"):
         return "no PI law found in the records (manual, cascade slave or another algorithm)"
     bits = [f"{ctl['action']} acting"]
     if isinstance(ctl.get("Kc"), (int, float)):
-        bits.append(f"Kc = {ctl['Kc']:.3g} % per PV unit")
+        bits.append(f"gain Kc {number(ctl['Kc'])} % per PV unit")
     if isinstance(ctl.get("Ti_s"), (int, float)):
-        bits.append(f"Ti = {ctl['Ti_s']:.3g} s")
+        bits.append(f"integral time {duration(ctl['Ti_s'])}")
     if isinstance(ctl.get("r2"), (int, float)):
         bits.append(f"R2 {ctl['r2']:.2f}")
     return ", ".join(bits)
+
+
+def _labelled(d: Mapping[str, Any], labels: Sequence[tuple[str, str]]) -> list[list[str]]:
+    """Rows of ``(label, value)`` for the keys in ``labels`` that ``d`` holds, numbers plain."""
+    from ..plain import number
+
+    rows = []
+    for key, label in labels:
+        v = d.get(key)
+        if v is None or isinstance(v, (Mapping, list, tuple)):
+            continue
+        if isinstance(v, str):
+            text = {"mv": "the recorded stem position (MV)", "pv": "PV"}.get(v, v)
+        else:
+            text = fmt(v) if isinstance(v, bool) else number(v)
+        rows.append([label, text])
+    return rows
+
+
+def _params_text(params: Any) -> str:
+    from ..plain import duration, number
+
+    if not isinstance(params, Mapping):
+        return ""
+    return ", ".join(f"{k} {duration(v) if k.endswith('_s') else number(v)}"
+                     for k, v in params.items() if isinstance(v, (int, float)))
+
+
+def _oscillation_text(osc: Mapping[str, Any]) -> str:
+    from ..plain import duration
+
+    reg = f", regularity {osc['strength']:.2f}" if osc.get("strength") is not None else ""
+    if osc.get("slow_cycle"):
+        return (f"slow cycle with a period of {duration(osc['period_s'])}{reg}: a daily or shift "
+                "pattern of the plant, not a loop oscillation")
+    if osc.get("present"):
+        return f"oscillating with a period of {duration(osc['period_s'])}{reg}"
+    return "none detected"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -136,7 +196,8 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     degradation : str, optional
         The degradation warning for this loop, if any.
     """
-    from .pipeline import oscillation_info
+    from ..plain import duration, number
+    from .pipeline import oscillation_info, op_in_percent, stiction_present
 
     figs = set(figures)
     rec = result.get("record") or {}
@@ -146,7 +207,7 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     if rec.get("source"):
         src.append(f"source {rec['source']}")
     if rec.get("n"):
-        src.append(f"{rec['n']} samples at {fmt(rec.get('ts_s'), 'g')} s ({_duration(rec.get('duration_s'))})")
+        src.append(f"{rec['n']} samples every {duration(rec.get('ts_s'))} ({duration(rec.get('duration_s'))})")
     if rec.get("start"):
         src.append(f"from {rec['start']}")
     if rec.get("roles"):
@@ -160,20 +221,23 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     fitd = result.get("fit") or {}
     osc = oscillation_info(result)
     sev = result.get("severity") or {}
+    unit = "% of span" if op_in_percent(result) else "in OP's own units (OP is not in % of span)"
+    cls = str(result.get("class") or "")
+    meaning = CLASS_MEANING.get(cls)
     rows = [
-        ["Class", fmt(result.get("class")) + (
+        ["Class", fmt(result.get("class")) + (f": {meaning}" if meaning else "") + (
             f" (the data also allow: {', '.join(result['class_alternatives'])})"
             if result.get("class_alternatives") else "")],
-        ["S (deadband + stickband)", f"{fmt(result.get('S'))} % of span, interval {fmt_interval(result.get('S_interval'))}"],
-        ["J (slip jump)", f"{fmt(result.get('J'))} % of span, interval {fmt_interval(result.get('J_interval'))}"],
+        ["S: deadband + stickband, how far OP must travel back before the valve moves",
+         f"{fmt(result.get('S'))} {unit}, interval {fmt_interval(result.get('S_interval'))}"],
+        ["J: slip jump, how far the valve jumps when it breaks free",
+         f"{fmt(result.get('J'))} {unit}, interval {fmt_interval(result.get('J_interval'))}"],
         ["Confidence", fmt(result.get("confidence"), ".0%")],
         ["S and J from", _METHOD_TEXT.get(result.get("method"), fmt(result.get("method")))],
         ["Process model", _process_text(result.get("process"))],
         ["Controller (from OP/PV/SP)", _controller_text(result.get("controller"))],
-        ["Fit", f"RMSE {fmt(fitd.get('rmse'), '.3g')}, R2 {fmt(fitd.get('r2'), '.3f')}"],
-        ["Oscillation", ("none detected" if osc["present"] is False else
-                         f"period {fmt(osc['period_s'], '.0f')} s" +
-                         (f", regularity {osc['strength']:.2f}" if osc["strength"] is not None else ""))],
+        ["Fit", f"RMSE {number(fitd.get('rmse'))}, R2 {fmt(fitd.get('r2'), '.3f')}"],
+        ["Oscillation", _oscillation_text(osc)],
         ["Severity (0-100)", fmt(sev.get("score"), ".0f")],
     ]
     blocks.append(("table", ["Quantity", "Value"], rows))
@@ -186,8 +250,9 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     if warns:
         blocks.append(("bullets", [f"[{w.get('code', '?')}] {w.get('message', '')}" for w in warns]))
     else:
-        blocks.append(("p", "None: the data passed every quality check and the model is within its "
-                            "robustness margin."))
+        narx_ok = isinstance(result.get("narx"), Mapping) and result["narx"].get("robust") is True
+        blocks.append(("p", "None: the data passed every quality check" +
+                       (" and the NARX-SP model is within its robustness margin." if narx_ok else ".")))
     drawn = bool(figs)  # a report without any figure (e.g. a monitor window) leaves their sections out
     for name, title in (("trends", "Trends"), ("phase", "Phase plots")):
         if name in figs:
@@ -198,12 +263,18 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
         blocks += [("h2", "Error surface"), ("p", "No error surface (no Hammerstein fit for this loop).")]
     blocks.append(("h2", "NARX-SP free run"))
     narx = result.get("narx")
+    codes = {str(w.get("code", "")) for w in warns}
     if isinstance(narx, Mapping) and narx:
-        blocks.append(("table", ["NARX-SP", "Value"], _scalar_items(narx)))
+        blocks.append(("table", ["NARX-SP", "Value"], _labelled(narx, NARX_LABELS)))
         if "narx" in figs:
             blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
+    elif codes & {"service.narx_unavailable", "service.narx_failed"}:
+        blocks.append(("p", "No NARX-SP model: the bank could not be used (see the warnings above)."))
+    elif stiction_present(result) is False:
+        blocks.append(("p", "No NARX-SP model: the valve shows no stiction, and the bank's models "
+                            "describe sticky valves."))
     else:
-        blocks.append(("p", "No NARX-SP model was selected for this loop (see warnings)."))
+        blocks.append(("p", "No NARX-SP model: the NARX-SP stage was not run for this loop."))
     if "spectrum" in figs:
         blocks += [("h2", "Spectrum"), ("figure", "spectrum", FIGURE_CAPTIONS["spectrum"])]
     expl = result.get("explanation")
@@ -216,13 +287,18 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
                 break
         if "missing_physics" in expl:
             blocks.append(("strong", f"Missing physics named: {expl.get('missing_physics') or 'none'}."))
-        items = _scalar_items(expl, skip=text_keys + ("missing_physics", "loop"))
+        items = _labelled(expl, EXPLAIN_LABELS)
         if items:
             blocks.append(("table", ["Explanation", "Value"], items))
         hyps = expl.get("hypotheses") or expl.get("ranking")
         if isinstance(hyps, list) and hyps and isinstance(hyps[0], Mapping):
-            keys = [k for k in hyps[0] if not isinstance(hyps[0][k], (Mapping, list, tuple))][:6]
-            blocks.append(("table", keys, [[fmt(h.get(k), ".4g") for k in keys] for h in hyps]))
+            from ..plain import percent_change
+
+            # the change is signed, negative for a fall, as in the explanation's own text
+            blocks.append(("table", ["Hypothesis", "Named", "Held-out RMSE", "Change", "Parameters"],
+                           [[fmt(h.get("name")), fmt(bool(h.get("accepted"))), number(h.get("heldout_rmse"), 4),
+                             percent_change(-h["heldout_reduction"]) if h.get("heldout_reduction") is not None
+                             else "-", _params_text(h.get("params"))] for h in hyps]))
         if "explanation" in figs:
             blocks.append(("figure", "explanation", FIGURE_CAPTIONS["explanation"]))
     elif result.get("explain_auto"):
@@ -232,9 +308,10 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
         blocks.append(("h2", "History"))
         if degradation:
             blocks.append(("strong", degradation))
-        blocks.append(("table", ["Run", "S %", "J %", "Class", "Confidence"],
-                       [[str(r.get("run_at", ""))[:19], fmt(r.get("S_pct")), fmt(r.get("J_pct")),
-                         fmt(r.get("class")), fmt(r.get("confidence"), ".0%")] for r in history_rows]))
+        blocks.append(("table", ["Record end", "S %", "J %", "Class", "Confidence", "Run"],
+                       [[str(r.get("data_end") or "-")[:19], fmt(r.get("S_pct")), fmt(r.get("J_pct")),
+                         fmt(r.get("class")), fmt(r.get("confidence"), ".0%"), str(r.get("run_at", ""))[:19]]
+                        for r in history_rows]))
         if "history" in figs:
             blocks.append(("figure", "history", FIGURE_CAPTIONS["history"]))
     dq = result.get("data_quality")
@@ -250,14 +327,17 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
 
 
 SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_pct", "S_lo", "S_hi",
-                   "J_pct", "J_lo", "J_hi", "confidence", "oscillation_period_s", "warnings",
+                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "confidence", "oscillation_period_s",
+                   "slow_cycle_period_s", "warnings",
                    "data_quality_warnings", "degradation", "action", "report", "source", "error"]
 
 
 def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant stiction summary",
                    generated_at: str | None = None, tool_version: str | None = None,
-                   links: bool = True) -> list[Block]:
+                   links: bool = True, skipped_files: Sequence[Mapping[str, Any]] = ()) -> list[Block]:
     """The plant summary: loops ranked by severity, then the failures."""
+    from ..plain import duration
+
     ok = [r for r in rows if r.get("status") == "ok"]
     bad = [r for r in rows if r.get("status") != "ok"]
     sticky = [r for r in ok if r.get("sticky")]
@@ -271,18 +351,24 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         line += "."
     blocks.append(("p", line))
     blocks.append(("p", "Severity (0-100) adds stiction size scaled by confidence (up to 50), "
-                        "oscillation (25), data-quality warnings (15) and NARX-SP robustness (10)."))
+                        "oscillation (25), data-quality warnings (15) and NARX-SP robustness (10). "
+                        "Slow cycles (periods of hours: daily or shift patterns of the plant) are "
+                        "not loop oscillations and add nothing."))
     blocks.append(("h2", "Loops ranked by severity"))
     table = []
     for r in ok:
         name = str(r.get("loop"))
         if links and r.get("report"):
             name = f"[{name}]({r['report']})"
+        op_units = " (OP units)" if r.get("sj_in_op_units") else ""
+        osc = duration(r.get("oscillation_period_s"))
+        if r.get("slow_cycle_period_s"):
+            osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".0f"), fmt(r.get("class")),
-                      fmt(r.get("S_pct")), fmt(r.get("J_pct")), fmt(r.get("confidence"), ".0%"),
-                      fmt(r.get("oscillation_period_s"), ".0f"),
+                      fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units, fmt(r.get("confidence"), ".0%"),
+                      osc,
                       fmt(r.get("data_quality_warnings"), "d") + (" (degrading)" if r.get("degradation") else "")])
-    blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "Conf.", "Period s",
+    blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "Conf.", "Oscillation",
                              "DQ warn."], table))
     if any(r.get("degradation") for r in ok):
         blocks.append(("h2", "Degrading valves"))
@@ -295,6 +381,10 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         blocks.append(("h2", "Failed loops and files"))
         blocks.append(("table", ["Loop", "Source", "Error"],
                        [[fmt(r.get("loop")), fmt(r.get("source")), fmt(r.get("error"))] for r in bad]))
+    if skipped_files:
+        blocks.append(("h2", "Files left alone"))
+        blocks.append(("table", ["File", "Why"], [[fmt(f.get("path")), fmt(f.get("reason"))]
+                                                  for f in skipped_files]))
     return blocks
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,8 +53,15 @@ def report(res, stream=None) -> None:
     print(f"{len(res.rows)} loops from {res.n_files} files: {ok} diagnosed "
           f"({res.n_skipped} unchanged since the last run), {res.n_failed} failed, "
           f"{res.elapsed_s:.1f} s", file=stream)
-    print(f"summary: {res.out_dir / 'summary.md'} (also .pdf, .csv, .json)", file=stream)
-    print(f"per-loop reports: {res.out_dir / 'loops'}/LOOP/LOOP.md (.pdf, .json, figures)", file=stream)
+    pdf = getattr(res, "pdf", True)
+    print(f"summary: {res.out_dir / 'summary.md'} (also {'.pdf, ' if pdf else ''}.csv, .json)", file=stream)
+    print(f"per-loop reports: {res.out_dir / 'loops'}/LOOP/LOOP.md ({'.pdf, ' if pdf else ''}.json, figures)",
+          file=stream)
+    skipped = getattr(res, "skipped_files", None) or []
+    if skipped:
+        names = ", ".join(Path(f["path"]).name for f in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
+        print(f"left alone: {len(skipped)} file(s) that are not historian text exports ({names}); "
+              "listed in the summary", file=stream)
     for r in res.rows:
         if r["status"] != "ok":
             print(f"failed: {r['loop']} ({r.get('source')}): {r.get('error')}", file=sys.stderr)

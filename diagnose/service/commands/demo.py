@@ -23,23 +23,33 @@ def sample_logs() -> Path:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="stiction-demo-out", help="output folder (default ./stiction-demo-out)")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
-    p.add_argument("--db", default=None, help="history database (default OUT/history.sqlite)")
+    p.add_argument("--db", default=None, help="history database (default: the one `stiction history` reads, "
+                                              "$STICTION_HOME/history.sqlite or ~/.local/share/stiction/history.sqlite)")
+    p.add_argument("--explain", choices=["off", "auto", "on"], default="off",
+                   help="missing physics: off (default; it takes 10 s to 2 min per loop), auto where the fitted "
+                        "model leaves a mismatch, on for every loop")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..batch import run_batch
-    from .batch import report
+    from ..history import default_db_path
+    from .batch import explain_mode, report
 
     out = Path(args.out)
     src = sample_logs()
+    db = Path(args.db) if args.db else default_db_path()
     print(f"diagnosing the loops in {src} ...", file=sys.stderr)
-    res = run_batch([src], out, workers=args.workers, db=args.db or out / "history.sqlite",
-                    explain=True, progress=not args.quiet)
+    res = run_batch([src], out, workers=args.workers, db=db, explain=explain_mode(args.explain),
+                    progress=not args.quiet)
     report(res)
     top = [r for r in res.rows if r["status"] == "ok"][:3]
     if top:
         print("worst loops: " + ", ".join(f"{r['loop']} (severity {r['severity']:.0f}, {r['class']})"
                                           for r in top))
+    print(f"history: {db} (`stiction history LOOP` reads it)")
+    if args.explain == "off":
+        print("missing physics was not run (it takes 10 s to 2 min per loop): `stiction demo --explain on`, "
+              f"or one loop: `stiction explain {src / 'FIC103.csv'}`")
     print(f"open {out / 'summary.md'} (or summary.pdf) to start.")
     return 1 if res.n_failed else 0

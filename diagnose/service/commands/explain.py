@@ -28,20 +28,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def summary(d: dict[str, Any]) -> str:
-    """A short human summary of an explanation dict."""
+    """A short human summary of an explanation dict.
+
+    Every change of the held-out error is printed signed, negative for a fall (``-5 %``), as the
+    explanation's own text prints it; times are plain durations.
+    """
+    from ...plain import duration, number, percent_change
+
     unit = "% of span" if d.get("target") == "mv" else "PV units"
     lines = [f"{d.get('loop', '')}: missing physics: {d['missing_physics'] or 'none named'}",
-             f"  held-out RMSE ({d.get('target', 'pv').upper()}, {unit}): baseline {d['baseline_rmse']:.4g}"
-             f" -> {d['improved_rmse']:.4g}"]
+             f"  held-out RMSE ({d.get('target', 'pv').upper()}, {unit}): baseline {number(d['baseline_rmse'], 4)}"
+             f" -> {number(d['improved_rmse'], 4)}"]
     for h in d["hypotheses"]:
-        params = ", ".join(f"{k} {v:.3g}" for k, v in h["params"].items() if v is not None)
+        params = ", ".join(f"{k} {duration(v) if k.endswith('_s') else number(v)}"
+                           for k, v in h["params"].items() if v is not None)
         mark = "*" if h["accepted"] else " "
         red = h.get("heldout_reduction")
-        lines.append(f"  {mark} {h['name']:<22} [{h.get('target', '')}] held-out {h['heldout_rmse']:.4g}"
-                     f" ({'' if red is None else f'{100 * red:+.0f} %'})  {params}")
+        change = "" if red is None else f"change {percent_change(-red)}"
+        lines.append(f"  {mark} {h['name']:<22} [{h.get('target', '')}] held-out {number(h['heldout_rmse'], 4)}"
+                     f" ({change})  {params}")
     m = d.get("mismatch") or {}
     for w in (m.get("windows") or [])[:3]:
-        lines.append(f"  mismatch window {w['start_s']:.0f}-{w['end_s']:.0f} s: RMS {w['rms']:.3g} "
+        lines.append(f"  mismatch window {duration(w['start_s'])} to {duration(w['end_s'])}: RMS {number(w['rms'])} "
                      f"({w['ratio_to_median']:.1f}x median)")
     for hint in m.get("hints") or []:
         lines.append(f"  residual: {hint}")

@@ -30,6 +30,12 @@ def run(args: argparse.Namespace) -> int:
                     print(f"  {name:<30} {s}")
             return 0
         rows = h.runs(args.loop, limit=args.limit)
+        if not rows:  # runs are filed under the file-safe tag ("FIC 101/A" -> "FIC_101_A")
+            from ..batch import safe_name
+
+            if safe_name(args.loop) != args.loop:
+                args.loop = safe_name(args.loop)
+                rows = h.runs(args.loop, limit=args.limit)
         if not rows and args.loop not in h.loops():
             from ...errors import StictionError
 

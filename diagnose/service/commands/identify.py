@@ -42,17 +42,24 @@ def summary(d: dict[str, Any]) -> str:
                      f"[{ji[0]:.2f}, {ji[1]:.2f}]  (% of valve span{src})")
         if d.get("class_alternatives"):
             lines.append(f"  the data also allow class {' or '.join(d['class_alternatives'])}")
+    from ...plain import duration, number
+    from ..pipeline import oscillation_info
+
     p = d.get("process") or {}
     if p:
-        extra = f", tau2 {p['tau2_s']:.3g} s" if "tau2_s" in p else ""
-        lines.append(f"  process: {p['kind']}, gain {p['gain']:.3g}, tau {p['tau_s']:.3g} s{extra}, "
-                     f"dead time {p['delay_s']:.3g} s")
+        extra = f", tau2 {duration(p['tau2_s'])}" if "tau2_s" in p else ""
+        lines.append(f"  process: {p['kind']}, gain {number(p['gain'])}, tau {duration(p['tau_s'])}{extra}, "
+                     f"dead time {duration(p['delay_s'])}")
     fit = d.get("fit") or {}
     if fit.get("rmse") is not None:
-        lines.append(f"  fit: rmse {fit['rmse']:.3g}, r2 {fit['r2']:.3f} (free-run simulation)")
+        lines.append(f"  fit: rmse {number(fit['rmse'])}, r2 {fit['r2']:.3f} (free-run simulation)")
     o = d.get("oscillation") or {}
-    if o.get("oscillating"):
-        lines.append(f"  oscillating: period {o['period_s']:.3g} s, regularity {o['regularity']:.2f}")
+    osc = oscillation_info(d)
+    if osc["slow_cycle"]:
+        lines.append(f"  slow cycle: period {duration(o['period_s'])} (a daily or shift pattern, not a loop "
+                     "oscillation)")
+    elif o.get("oscillating"):
+        lines.append(f"  oscillating: period {duration(o['period_s'])}, regularity {o['regularity']:.2f}")
     else:
         lines.append("  not oscillating regularly")
     for w in d.get("warnings", []):

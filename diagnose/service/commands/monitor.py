@@ -22,6 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ...plain import duration
     from ..monitor import run_monitor
 
     if args.duration is not None and args.duration <= 0:
@@ -32,6 +33,11 @@ def run(args: argparse.Namespace) -> int:
                         metrics_port=args.metrics_port, window_samples=args.window, workers=args.workers,
                         explain=args.explain, figures=args.figures)
     print(f"{stats.diagnosed} windows diagnosed, {stats.failed} failed, {stats.skipped_short} too short; "
-          f"{stats.polls} polls ({stats.polls_failed} failed, {stats.polls_missed} missed) in {stats.wall_s:.0f} s, "
+          f"{stats.polls} polls ({stats.polls_failed} failed, {stats.polls_missed} missed) in {duration(stats.wall_s)}, "
+          f"{stats.outages} outage(s), {stats.reconnects} reconnection(s), "
           f"poller CPU {stats.poll_cpu_s:.1f} s; results in {args.out}", file=sys.stdout)
+    if stats.polls_good == 0:
+        from ..monitor import nothing_read_error
+
+        raise nothing_read_error(args.config, stats)
     return 0

@@ -1,0 +1,74 @@
+"""Plain numbers for reports and command output: durations in s, min, h or days, values without
+exponents. Every report, summary and command summary formats times and values through here, so
+one loop's tau reads the same in its report, the plant summary and the terminal."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+
+def _finite(value: Any) -> float | None:
+    if value is None or isinstance(value, bool):
+        return None
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def duration(seconds: Any, none: str = "-") -> str:
+    """A time span in the unit an engineer would say it in.
+
+    Under 2 min in seconds (``"45 s"``, ``"2.5 s"``), under 2 h in minutes (``"58 min"``), under
+    2 days in hours (``"23.9 h"``), beyond that in days (``"22.9 days"``). Three significant
+    figures at most; never an exponent.
+    """
+    s = _finite(seconds)
+    if s is None:
+        return none
+    sign = "-" if s < 0 else ""
+    a = abs(s)
+    if a < 120:
+        text = f"{_sig(a, 3)} s"
+    elif a < 7200:
+        text = f"{_sig(a / 60.0, 3)} min"
+    elif a < 2 * 86400:
+        text = f"{_sig(a / 3600.0, 3)} h"
+    else:
+        text = f"{_sig(a / 86400.0, 3)} days"
+    return sign + text
+
+
+def _sig(x: float, digits: int) -> str:
+    """``x`` (>= 0) to ``digits`` significant figures in fixed notation, trailing zeros dropped;
+    integers of more digits are written whole (``86604`` stays ``86604``, not ``8.66e+04``)."""
+    if x == 0:
+        return "0"
+    mag = math.floor(math.log10(x))
+    decimals = max(digits - 1 - mag, 0)
+    text = f"{round(x, decimals):.{decimals}f}"
+    if "." in text:
+        text = text.rstrip("0").rstrip(".")
+    return text
+
+
+def number(value: Any, digits: int = 3, none: str = "-") -> str:
+    """A value to ``digits`` significant figures in fixed notation (``0.0123``, ``0.0000312``,
+    ``3480``, ``1979700``): never an exponent. Values under 1e-9 in size print as ``0``."""
+    v = _finite(value)
+    if v is None:
+        return none
+    if abs(v) < 1e-9:
+        return "0"
+    return ("-" if v < 0 else "") + _sig(abs(v), digits)
+
+
+def percent_change(fraction: Any, none: str = "-") -> str:
+    """A relative change as a signed percentage: ``-0.05`` -> ``"-5 %"`` (a fall), ``0.05`` ->
+    ``"+5 %"`` (a rise). The sign is the direction of the change, everywhere it is printed."""
+    v = _finite(fraction)
+    if v is None:
+        return none
+    return f"{100.0 * v:+.0f} %"
