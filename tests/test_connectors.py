@@ -17,7 +17,7 @@ from connectors.columns import role_of, split_tag
 from connectors.historian import format_wide, read_wide, write_wide
 from connectors.layouts import detect_layout
 from connectors.tagmap import load_tagmap
-from connectors.textio import load_text, quality_good
+from connectors.textio import open_source, quality_good
 from connectors.timebase import parse_times
 from diagnose.errors import ConnectorError
 from diagnose.record import LoopRecord
@@ -49,7 +49,7 @@ def wide_text(n=200, sep=",", header=("time", "FIC1.OP", "FIC1.PV"), seed=0, sta
     ("wide_semicolon_comma.csv", "wide"), ("wide_tab_dst_berlin.tsv", "wide"),
 ])
 def test_layout_detection(fname, layout):
-    assert detect_layout(load_text(DATA / fname)) == layout
+    assert detect_layout(open_source(DATA / fname)) == layout
 
 
 def test_dcs_export_mv_is_the_controller_output():
