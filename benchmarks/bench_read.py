@@ -438,7 +438,11 @@ def compare(args) -> int:
 # -------------------------------------------------------------------------------------------- large
 
 def make_export(path: Path, layout: str, rows: int, seed: int = 0, stray: bool = False) -> None:
-    """A seeded historian export of ``rows`` data rows at 1 s (long: OP/PV/SP rows per time)."""
+    """A seeded historian export of ``rows`` data rows (about 50 bytes each) at 1 s, naive times.
+
+    ``wide``: ``Timestamp,UNIT1.FIC101.OP,.PV,.SP,.MODE``; ``long``: ``Tag,Timestamp,Value,Quality``
+    with OP, PV and SP rows for each time. ``stray`` appends one more time a year after the rest.
+    """
     rng = np.random.default_rng(seed)
     n_t = rows // 3 if layout == "long" else rows
     t0 = np.datetime64("2024-05-01T00:00:00")
@@ -446,28 +450,28 @@ def make_export(path: Path, layout: str, rows: int, seed: int = 0, stray: bool =
     op = 50 + 8 * np.sin(2 * np.pi * k / 600) + rng.normal(0, 0.3, n_t)
     pv = 20 + 3 * np.sign(np.sin(2 * np.pi * (k - 40) / 600)) + rng.normal(0, 0.05, n_t)
     sp = np.full(n_t, 20.0)
-    stamps = np.datetime_as_string(t0 + k.astype("timedelta64[s]"), unit="s")
-    stamps = np.char.replace(stamps, "T", " ")
+    stamps = np.char.replace(np.datetime_as_string(t0 + k.astype("timedelta64[s]"), unit="s"), "T", " ")
+    tag = "UNIT1.FIC101"
     with open(path, "w", encoding="utf-8", newline="\n") as fh:
         block = 200_000
         if layout == "wide":
-            fh.write("Timestamp,FIC101.OP,FIC101.PV,FIC101.SP,FIC101.MODE\n")
+            fh.write(f"Timestamp,{tag}.OP,{tag}.PV,{tag}.SP,{tag}.MODE\n")
             for a in range(0, n_t, block):
                 b = min(n_t, a + block)
-                fh.write("".join(f"{s},{o:.4f},{p:.4f},{q:.3f},AUTO\n"
+                fh.write("".join(f"{s},{o:.5f},{p:.5f},{q:.3f},AUTO\n"
                                  for s, o, p, q in zip(stamps[a:b], op[a:b], pv[a:b], sp[a:b])))
         else:
             fh.write("Tag,Timestamp,Value,Quality\n")
             for a in range(0, n_t, block):
                 b = min(n_t, a + block)
-                fh.write("".join(f"FIC101.OP,{s},{o:.4f},192\nFIC101.PV,{s},{p:.4f},192\nFIC101.SP,{s},{q:.3f},192\n"
+                fh.write("".join(f"{tag}.OP,{s},{o:.5f},192\n{tag}.PV,{s},{p:.5f},192\n{tag}.SP,{s},{q:.3f},192\n"
                                  for s, o, p, q in zip(stamps[a:b], op[a:b], pv[a:b], sp[a:b])))
         if stray:
             s = str(t0 + np.timedelta64(n_t + 365 * 86400, "s")).replace("T", " ")
             if layout == "wide":
                 fh.write(f"{s},50.0,20.0,20.0,AUTO\n")
             else:
-                fh.write(f"FIC101.OP,{s},50.0,192\nFIC101.PV,{s},20.0,192\nFIC101.SP,{s},20.0,192\n")
+                fh.write(f"{tag}.OP,{s},50.0,192\n{tag}.PV,{s},20.0,192\n{tag}.SP,{s},20.0,192\n")
 
 
 def large(args) -> int:
@@ -502,8 +506,7 @@ def large(args) -> int:
                                          f"{r.get('max_rss_mib', float('nan')):.0f} | | | | |")
                         continue
                     item = r["results"]["items"][0]
-                    progress = [ln for ln in r["stderr"].splitlines() if ln.startswith("reading ")
-                                or "samples" in ln and ln.startswith(str(f))]
+                    progress = [ln for ln in r["stderr"].splitlines() if ln.startswith(f"{f}: ")]
                     if "error" in item or "crash" in item:
                         out_lines.append(f"| {name} | {size:.0f} | {args.rows} | {impl} | error: "
                                          f"{(item.get('error') or item.get('crash'))[:80]} | "

@@ -168,7 +168,9 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
 
 
 def read_frame(df: Any, **options: Any) -> list[LoopRecord]:
-    """Every loop in a pandas DataFrame, as `read_loops` reads a file (see `connectors.frame`)."""
+    """Every loop in a pandas DataFrame as records, one per loop per contiguous segment, read the
+    way `read_loops` reads a file (options as there, without ``tags``, ``fmt`` and ``progress``;
+    see `connectors.frame`). Raises `diagnose.errors.DataError`."""
     from .frame import records_from_frame
 
     return records_from_frame(df, **options)

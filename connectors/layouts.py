@@ -573,4 +573,5 @@ def parse(src: Source, options: dict) -> Table:
         fmt = detect_layout(src)
     elif fmt not in PARSERS:
         raise ConnectorError(f"unknown format {fmt!r}; choose one of auto, {', '.join(LAYOUTS)}")
+    src.progress.say(f"reading {src.size / 1e6:.0f} MB, {fmt} layout")
     return PARSERS[fmt](src, options)

@@ -245,8 +245,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     if t1 < t0:
         raise ConnectorError("OP and PV do not overlap in time", path=label)
     n_grid = int(np.floor((t1 - t0) / ts_s + 1e-6)) + 1
-    # The grid is uniform from t0 at ts_s, but only its points near data where both OP and PV
-    # have samples are built: a stray row far from the rest costs one point, not the span between.
+    # The grid is uniform from t0 at ts_s, but only its points near OP or PV samples are built:
+    # a stray row far from the rest costs a point, not the span between.
     spans = _grid_spans(cleaned["op"], cleaned["pv"], t0, ts_s, n_grid, max_gap_s)
     n_points = int((spans[:, 1] - spans[:, 0] + 1).sum())
     if n_points > MAX_GRID_SAMPLES:
@@ -370,35 +370,30 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
 
 
 def _grid_spans(op: Cleaned, pv: Cleaned, t0: float, ts_s: float, n_grid: int, max_gap_s: float) -> np.ndarray:
-    """``[lo, hi]`` ranges of grid indices ``k`` (points ``t0 + k ts_s``) within reach of both OP
-    and PV data, shape (m, 2), sorted and disjoint.
+    """``[lo, hi]`` ranges of grid indices ``k`` (points ``t0 + k ts_s``) within reach of OP or PV
+    data, shape (m, 2), sorted and disjoint.
 
     A point is within reach of a signal where `to_grid` can give it a value: inside a stretch of
     samples without a gap longer than ``max_gap_s``, or within the on-sample tolerance of a sample
-    (spare points on each side cover it). Points elsewhere would be NaN, so they are not built.
+    (spare points on each side cover it). Elsewhere both would be NaN, so those points are not
+    built; points that only one signal reaches are, so that its interpolated samples are counted.
     """
     tol = 1e-9 + 1e-6 * max(1.0, (abs(t0) + n_grid * ts_s) * 1e-6)
     margin = 1 + int(np.ceil(tol / ts_s))
 
-    def spans(c: Cleaned) -> np.ndarray:
+    def spans(c: Cleaned) -> tuple[np.ndarray, np.ndarray]:
         t = c.t[np.isfinite(c.x)]
         brk = np.flatnonzero(np.diff(t) > max_gap_s * (1 + 1e-9))
         first = np.concatenate(([0], brk + 1))
         last = np.concatenate((brk, [t.size - 1]))
         lo = np.clip(np.floor((t[first] - t0) / ts_s) - margin, 0, n_grid - 1).astype(np.int64)
         hi = np.clip(np.ceil((t[last] - t0) / ts_s) + margin, 0, n_grid - 1).astype(np.int64)
-        return _merge(lo, hi) if brk.size else np.stack([lo, hi], axis=1)
+        return lo, hi
 
-    a, b = spans(op), spans(pv)
-    if a.shape[0] == 1 and b.shape[0] == 1:
-        lo, hi = max(a[0, 0], b[0, 0]), min(a[0, 1], b[0, 1])
-        return np.array([[lo, hi]], np.int64) if hi >= lo else np.zeros((0, 2), np.int64)
-    if a.shape[0] * b.shape[0] <= 1_000_000:
-        lo = np.maximum(a[:, None, 0], b[None, :, 0])
-        hi = np.minimum(a[:, None, 1], b[None, :, 1])
-        both = np.stack([lo[hi >= lo], hi[hi >= lo]], axis=1)
-        return both[np.argsort(both[:, 0], kind="stable")]
-    return _intersect(a, b)
+    (lo_a, hi_a), (lo_b, hi_b) = spans(op), spans(pv)
+    lo, hi = np.concatenate((lo_a, lo_b)), np.concatenate((hi_a, hi_b))
+    order = np.argsort(lo, kind="stable")
+    return _merge(lo[order], hi[order])
 
 
 def _grid_index(spans: np.ndarray) -> np.ndarray:
@@ -415,20 +410,6 @@ def _merge(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     start = np.concatenate(([True], lo[1:] > np.maximum.accumulate(hi)[:-1]))
     first = np.flatnonzero(start)
     return np.stack([lo[first], np.maximum.reduceat(hi, first)], axis=1)
-
-
-def _intersect(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Intersection of two sorted lists of disjoint ``[lo, hi]`` intervals."""
-    out, i, j = [], 0, 0
-    while i < len(a) and j < len(b):
-        lo, hi = max(a[i, 0], b[j, 0]), min(a[i, 1], b[j, 1])
-        if hi >= lo:
-            out.append((lo, hi))
-        if a[i, 1] < b[j, 1]:
-            i += 1
-        else:
-            j += 1
-    return np.array(out, np.int64).reshape(-1, 2)
 
 
 def _split_at_jumps(segs: list[tuple[int, int]], k: np.ndarray) -> list[tuple[int, int]]:

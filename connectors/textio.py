@@ -63,11 +63,13 @@ class Progress:
             self.sink(f"{self.label}: {message} ({time.perf_counter() - self.t0:.1f} s)")
             self.last = time.perf_counter()
 
-    def bytes_read(self, done: int) -> None:
+    def rows_read(self, rows: int, done: int | None) -> None:
+        """After each chunk pandas parsed: rows so far and, for files, bytes read."""
         if self.sink is None or time.perf_counter() - self.last < self.every_s:
             return
-        pct = 100.0 * done / self.total if self.total else 0.0
-        self.say(f"reading, {done / 1e6:.0f} of {self.total / 1e6:.0f} MB ({pct:.0f} %)")
+        where = f", {done / 1e6:.0f} of {self.total / 1e6:.0f} MB ({100.0 * done / self.total:.0f} %)" \
+            if done is not None and self.total else ""
+        self.say(f"reading, {rows} rows{where}")
 
 
 def _stderr_line(line: str) -> None:
@@ -75,10 +77,10 @@ def _stderr_line(line: str) -> None:
 
 
 class _Counting(io.RawIOBase):
-    """A binary file that tells `Progress` how far pandas has read."""
+    """A binary file that counts the bytes pandas has read from it (``done``)."""
 
-    def __init__(self, fh, progress: Progress) -> None:
-        self.fh, self.progress, self.done = fh, progress, 0
+    def __init__(self, fh) -> None:
+        self.fh, self.done = fh, 0
 
     def readable(self) -> bool:
         return True
@@ -86,7 +88,6 @@ class _Counting(io.RawIOBase):
     def readinto(self, b) -> int:
         n = self.fh.readinto(b)
         self.done += n or 0
-        self.progress.bytes_read(self.done)
         return n
 
     def close(self) -> None:
@@ -136,7 +137,7 @@ class Source:
         if isinstance(self.data, bytes):
             return io.BytesIO(self.data)
         fh = open(self.path, "rb")  # noqa: SIM115 - closed by pandas / the caller
-        return io.BufferedReader(_Counting(fh, self.progress)) if self.progress else fh
+        return io.BufferedReader(_Counting(fh)) if self.progress else fh
 
     def text(self) -> str:
         """The whole decoded text (for the small, irregular layouts)."""
@@ -436,19 +437,38 @@ class _TooWide(Exception):
         self.line, self.saw = line, saw
 
 
+#: Rows pandas parses at a time (progress is reported between chunks).
+CHUNK_ROWS = 500_000
+
+
 def _read_csv(src: Source, sep: str, skiprows: int, names: list[int], decimal: str,
               str_columns: tuple[int, ...]) -> list[np.ndarray]:
+    """The columns of the rows after ``skiprows`` lines: float64 arrays where pandas read numbers
+    in every chunk, else object arrays (text; NaN where empty)."""
     dtype = {j: str for j in str_columns if j < len(names)} or None
     kwargs = dict(sep=sep, header=None, names=names, skiprows=skiprows, skip_blank_lines=False,
                   index_col=False, keep_default_na=False, na_values=[""], decimal=decimal, dtype=dtype,
-                  low_memory=False, engine="c", encoding=src.pandas_encoding, quotechar='"')
+                  engine="c", encoding=src.pandas_encoding, quotechar='"', chunksize=CHUNK_ROWS)
+    parts: list[list[np.ndarray]] = [[] for _ in names]
+    booleans: set[int] = set()
     try:
         with src.buffer() as fh, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", pd.errors.ParserWarning)
-            df = pd.read_csv(fh, **kwargs)
-        if any(issubclass(w.category, pd.errors.ParserWarning) for w in caught):
-            # the first row is wider than the names: pandas would drop its extra fields silently
-            raise _TooWide(skiprows + 1, _first_row_width(src, sep, skiprows, len(names)))
+            rows = 0
+            for chunk in pd.read_csv(fh, **kwargs):
+                if caught and any(issubclass(w.category, pd.errors.ParserWarning) for w in caught):
+                    # the first row is wider than the names: pandas would drop its extra fields silently
+                    raise _TooWide(skiprows + 1, _first_row_width(src, sep, skiprows, len(names)))
+                for j, (_, col) in enumerate(chunk.items()):
+                    if col.dtype == bool:
+                        booleans.add(j)
+                    elif col.dtype.kind in "fiu":
+                        parts[j].append(np.array(col.to_numpy(dtype=float), dtype=float))
+                    else:
+                        parts[j].append(np.array(col.to_numpy(dtype=object, na_value=np.nan), dtype=object))
+                rows += len(chunk)
+                done = getattr(fh, "raw", None)
+                src.progress.rows_read(rows, getattr(done, "done", None))
     except pd.errors.EmptyDataError:
         return [np.zeros(0, object) for _ in names]
     except pd.errors.ParserError as exc:
@@ -463,14 +483,18 @@ def _read_csv(src: Source, sep: str, skiprows: int, names: list[int], decimal: s
         raise ConnectorError(f"malformed CSV ({msg.splitlines()[-1][:120]})", path=src.label) from None
     except (UnicodeDecodeError, ValueError, OverflowError) as exc:
         raise ConnectorError(f"cannot parse: {str(exc).splitlines()[0][:120]}", path=src.label) from None
+    if booleans:   # pandas reads True/False columns as booleans: read them as the text they are
+        return _read_csv(src, sep, skiprows, names, decimal, tuple(set(str_columns) | booleans))
     cols = []
-    for j, (_, col) in enumerate(df.items()):
-        if col.dtype == bool:   # pandas reads True/False columns as booleans: read them as the text they are
-            col = pd.Series(_read_csv(src, sep, skiprows, names, decimal, tuple(set(str_columns) | {j}))[j])
-        if col.dtype.kind in "fiu":
-            cols.append(np.array(col.to_numpy(dtype=float), dtype=float))
+    for p in parts:
+        if not p:
+            cols.append(np.zeros(0, float))
+        elif len(p) == 1:
+            cols.append(p[0])
+        elif all(a.dtype == float for a in p):
+            cols.append(np.concatenate(p))
         else:
-            cols.append(np.array(col.to_numpy(dtype=object, na_value=np.nan), dtype=object))
+            cols.append(np.concatenate([a.astype(object) for a in p]))
     return cols
 
 
@@ -602,9 +626,10 @@ def numbers(col: Any, decimal_comma: bool = False) -> Numbers:
             return _numbers(vals, None, [], None)
         kind = np.where(np.isnan(vals), 1, np.where(fin, 0, 3)).astype(np.int8)   # NaN: an empty cell
         return _numbers(np.where(fin, vals, np.nan), kind, [], None)
-    vals = np.array(pd.to_numeric(col, errors="coerce"), dtype=float)
-    if decimal_comma:
-        vals[:] = np.nan                  # every cell goes through the decimal-comma rule below
+    if decimal_comma or not any(_is_number(c) for c in col[:: max(1, col.size // 50)][:50]):
+        vals = np.full(col.size, np.nan)  # text (or decimal commas): every cell goes through the rules below
+    else:
+        vals = np.array(pd.to_numeric(col, errors="coerce"), dtype=float)
     kind = np.where(np.isfinite(vals), 0, 3).astype(np.int8)
     miss = np.flatnonzero(np.isnan(vals))
     examples: list[str] = []
@@ -613,7 +638,7 @@ def numbers(col: Any, decimal_comma: bool = False) -> Numbers:
         # what pandas did not read, one distinct cell at a time: Python's float (nan, 1_000...),
         # thousands commas, decimal commas, blanks or text states
         codes, uniq = pd.factorize(col[miss], use_na_sentinel=False)
-        looked = [_classify(_decimal(u) if decimal_comma else u) if isinstance(u, str) else (np.nan, 1)
+        looked = [_classify(_decimal(u) if decimal_comma else u) if isinstance(u, str) else _value(u)
                   for u in uniq]
         vals[miss] = np.array([v for v, _ in looked], dtype=float)[codes]
         u_kind = np.array([k for _, k in looked], dtype=np.int8)
@@ -631,6 +656,23 @@ def numbers(col: Any, decimal_comma: bool = False) -> Numbers:
         return _numbers(vals, None, [], None)
     vals = np.where(kind == 0, vals, np.nan)
     return _numbers(vals, kind, examples, textual)
+
+
+def _value(cell: Any) -> tuple[float, int]:
+    """Value and kind of a cell that is not text: empty (NaN, None) or a number pandas read."""
+    try:
+        v = float(cell)
+    except (TypeError, ValueError, OverflowError):
+        return np.nan, 2
+    return (v, 0) if np.isfinite(v) else (np.nan, 1) if v != v else (v, 3)
+
+
+def _is_number(cell: Any) -> bool:
+    try:
+        float(cell)
+        return True
+    except (ValueError, TypeError, OverflowError):
+        return False
 
 
 def _decimal(cell: str) -> str:
