@@ -474,6 +474,25 @@ def make_export(path: Path, layout: str, rows: int, seed: int = 0, stray: bool =
                 fh.write(f"{tag}.OP,{s},50.0,192\n{tag}.PV,{s},20.0,192\n{tag}.SP,{s},20.0,192\n")
 
 
+def _cli_row(f: Path, name: str, size: float, rows: int) -> str:
+    """`stiction identify FILE --json` (current tree) under /usr/bin/time -v: reading and diagnosis."""
+    code = "import sys; from diagnose.service.cli import main; sys.exit(main(sys.argv[1:]))"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    t0 = time.perf_counter()
+    proc = subprocess.run(["/usr/bin/time", "-v", sys.executable, "-c", code, "identify", str(f), "--json"],
+                          env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", proc.stderr)
+    rss = int(m.group(1)) / 1024.0 if m else float("nan")
+    progress = [ln for ln in proc.stderr.splitlines() if ln.startswith(f"{f}: ")]
+    verdict = "?"
+    if proc.returncode == 0:
+        d = json.loads(proc.stdout.strip().splitlines()[-1])
+        verdict = f"{d.get('n_samples', '?')} samples diagnosed, stiction = {d.get('stiction')}"
+    return (f"| {name} | {size:.0f} | {rows} | `stiction identify` (read + diagnose) | {wall:.1f} | {rss:.0f} | "
+            f"exit {proc.returncode} | {verdict} | | {len(progress)} |")
+
+
 def large(args) -> int:
     out_lines = [f"CPU: {cpu_model()}, {os.cpu_count()} cores; load average at start "
                  f"{os.getloadavg()[0]:.1f}; baseline reader: git {args.baseline[:10]}", "",
@@ -521,6 +540,8 @@ def large(args) -> int:
                         f"{'' if ident is None else f'{ident:.1f}'} | {len(progress)} |")
                     if args.show_progress and progress:
                         print("\n".join(progress), file=sys.stderr)
+                if args.cli:
+                    out_lines.append(_cli_row(f, name, size, args.rows))
                 f.unlink()
     text = "\n".join(out_lines)
     print(text)
@@ -551,6 +572,7 @@ def main(argv=None) -> int:
     g.add_argument("--baseline-timeout", type=float, default=600.0)
     g.add_argument("--no-baseline", action="store_true")
     g.add_argument("--show-progress", action="store_true")
+    g.add_argument("--cli", action="store_true", help="also time `stiction identify FILE --json` on each export")
     g.add_argument("--tmp", default=None, help="folder for the generated exports")
     g.add_argument("--md", default=None, help="also write the table to this Markdown file")
     for q in (c, g):

@@ -12,7 +12,6 @@ the start of the file; pandas parses the rows (`connectors.textio.read_frame`).
 from __future__ import annotations
 
 import csv
-import io
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,7 +23,7 @@ from diagnose.errors import ConnectorError
 
 from .columns import TIME_NAMES, role_of
 from .textio import (Source, commonest, delimiter_name, detect_decimal_comma, numbers, quality_good, read_frame,
-                     sniff_delimiter)
+                     split_line)
 from .timebase import parse_times
 
 LAYOUTS = ("wide", "long", "ragged", "influx", "dcs")
@@ -141,15 +140,14 @@ class _Head:
     rows: list[list[str]]            # up to 100 data rows spread over the head, the first one first
 
 
-def _head(src: Source, n_headers: int = 1, skip_comments: bool = True) -> _Head:
+def _head(src: Source, n_headers: int = 1) -> _Head:
     lines = _split_lines(src.head, _HEAD_LINES)
     if not src.complete or len(lines) > _HEAD_LINES:
         lines = lines[:-1]                       # the last piece may be a cut line or the rest
-    d = src.delimiter if skip_comments else sniff_delimiter(lines[:400])
-    comment = "#" if skip_comments else "\x00"
-    content = [k for k, ln in enumerate(lines) if ln and not ln.isspace() and not ln.startswith(comment)]
+    d = src.delimiter
+    content = [k for k, ln in enumerate(lines) if ln and not ln.isspace() and not ln.startswith("#")]
     hl = content[:n_headers]
-    headers = [_fields(lines[k], d) for k in hl]
+    headers = [split_line(lines[k], d) for k in hl]
     body = content[n_headers:]
     sample = [lines[k] for k in body[:: max(1, len(body) // 100)][:100]]
     try:
@@ -170,13 +168,6 @@ def _split_lines(text: str, limit: int) -> list[str]:
     if text.endswith(("\n", "\r")):
         lines.append("")
     return lines if len(lines) <= limit else lines[:limit] + ["\n".join(lines[limit:])]
-
-
-def _fields(line: str, d: str) -> list[str]:
-    try:
-        return next(csv.reader([line], delimiter=d), [])
-    except csv.Error:
-        return line.split(d)
 
 
 def _clean(header: list[str]) -> list[str]:
@@ -448,7 +439,7 @@ def parse_influx(src: Source, options: dict) -> Table:
     and ``_value``); the series name is ``<tag values or _measurement>.<_field>``.
     """
     label = src.label
-    width = max((len(_fields(ln, ",")) for ln in _NEWLINE.split(src.head, maxsplit=400)[:400] if ln.strip()),
+    width = max((len(split_line(ln, ",")) for ln in _NEWLINE.split(src.head, maxsplit=400)[:400] if ln.strip()),
                 default=1)
     frame = read_frame(src, sep=",", skiprows=0, width=width, str_columns=tuple(range(width)),
                        allow_short=True, drop_comments=False)

@@ -139,14 +139,6 @@ class Source:
         fh = open(self.path, "rb")  # noqa: SIM115 - closed by pandas / the caller
         return io.BufferedReader(_Counting(fh)) if self.progress else fh
 
-    def text(self) -> str:
-        """The whole decoded text (for the small, irregular layouts)."""
-        if self.complete:
-            return self.head
-        with self.buffer() as fh:
-            raw = fh.read()
-        return raw if isinstance(raw, str) else _strip_bom(raw.decode(self.encoding))
-
     def contains(self, char: str) -> bool:
         """Whether ``char`` (a double quote or ``#``) occurs anywhere in the source."""
         if self._found is None:
@@ -198,12 +190,11 @@ def open_source(source: Any, progress: Any = None) -> Source:
         except (OSError, UnicodeDecodeError) as exc:
             raise ConnectorError(f"cannot read: {exc}", path=label) from None
         if isinstance(raw, str):
-            bom = raw.startswith("\ufeff")
-            src = Source(label, None, raw, _strip_bom(raw), "str", bom, len(raw), True)
+            src = Source(label, None, raw, _strip_bom(raw), "str", raw.startswith("\ufeff"), len(raw), True)
         else:
             raw = bytes(raw)
-            text, enc, bom = _decode_all(raw, label)
-            src = Source(label, None, raw, text, enc, bom, len(raw), True)
+            enc, bom = _codec(raw[:HEAD_BYTES], lambda: [raw], label)
+            src = Source(label, None, raw, _strip_bom(raw.decode(enc)), enc, bom, len(raw), True)
     else:
         path = os.fspath(source)
         label = path
@@ -215,14 +206,12 @@ def open_source(source: Any, progress: Any = None) -> Source:
             size = os.path.getsize(path)
             with open(path, "rb") as fh:
                 head = fh.read(HEAD_BYTES)
-                if len(head) < HEAD_BYTES:
-                    text, enc, bom = _decode_all(head, label)
-                    src = Source(label, path, head, text, enc, bom, size, True)
-                else:
-                    enc, bom, text = _decode_stream(head, fh, label)
-                    src = Source(label, path, None, text, enc, bom, size, False)
+            complete = len(head) < HEAD_BYTES
+            enc, bom = _codec(head, (lambda: [head]) if complete else (lambda: _chunks(path)), label)
         except OSError as exc:
             raise ConnectorError(f"cannot read: {exc.strerror or exc}", path=label) from None
+        text = codecs.getincrementaldecoder(enc)().decode(head, final=complete)
+        src = Source(label, path, head if complete else None, _strip_bom(text), enc, bom, size, complete)
     sample = src.head[:65536]
     if "\x00" in sample or _mostly_control(sample):
         raise ConnectorError("looks like a binary file, not a text export; export the data as CSV/text",
@@ -231,70 +220,42 @@ def open_source(source: Any, progress: Any = None) -> Source:
     return src
 
 
-def _refuse_binary(head: bytes, label: str) -> None:
+def _chunks(path: str):
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            yield chunk
+
+
+def _codec(head: bytes, chunks, label: str) -> tuple[str, bool]:
+    """(codec, BOM) of a source: by its BOM, else the first of UTF-8 and cp1252 that decodes all
+    of it (``chunks()`` yields its bytes from the start), else latin-1 (which decodes anything)."""
     if head.startswith(b"PK\x03\x04"):
         raise ConnectorError("is a zip/Excel (.xlsx) file, not a text export; save it as CSV", path=label)
     if head.startswith(b"\xd0\xcf\x11\xe0"):
         raise ConnectorError("is an old Excel (.xls) file, not a text export; save it as CSV", path=label)
-
-
-def _decode_all(raw: bytes, label: str) -> tuple[str, str, bool]:
-    """Decode a whole file: (text without BOM, codec, had a BOM)."""
-    _refuse_binary(raw[:8], label)
-    if raw.startswith(b"\xef\xbb\xbf"):
-        try:
-            return raw[3:].decode("utf-8"), "utf-8", True
-        except UnicodeDecodeError as exc:
-            raise ConnectorError(f"has a UTF-8 BOM but invalid UTF-8 at byte {exc.start + 3}", path=label) from None
-    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-        try:
-            return raw.decode("utf-16"), "utf-16", True
-        except UnicodeDecodeError:
-            raise ConnectorError("has a UTF-16 BOM but is not valid UTF-16", path=label) from None
-    if b"\x00" in raw[:65536]:
+    bom = head.startswith((b"\xef\xbb\xbf", b"\xff\xfe", b"\xfe\xff"))
+    if bom:
+        candidates = ["utf-8"] if head.startswith(b"\xef") else ["utf-16"]
+    elif b"\x00" in head[:65536]:
         raise ConnectorError("looks like a binary file, not a text export; export the data as CSV/text",
                              path=label)
-    for enc in ("utf-8", "cp1252"):
-        try:
-            return raw.decode(enc), enc, False
-        except UnicodeDecodeError:
-            continue
-    return raw.decode("latin-1"), "latin-1", False
-
-
-def _decode_stream(head: bytes, fh, label: str) -> tuple[str, bool, str]:
-    """The codec of a large file, checked over all of it in chunks: (codec, BOM, decoded head)."""
-    _refuse_binary(head[:8], label)
-    if head.startswith(b"\xef\xbb\xbf"):
-        candidates, bom = ["utf-8"], True
-    elif head.startswith((b"\xff\xfe", b"\xfe\xff")):
-        candidates, bom = ["utf-16"], True
     else:
-        if b"\x00" in head[:65536]:
-            raise ConnectorError("looks like a binary file, not a text export; export the data as CSV/text",
-                                 path=label)
-        candidates, bom = ["utf-8", "cp1252", "latin-1"], False
+        candidates = ["utf-8", "cp1252"]
     for enc in candidates:
-        dec = codecs.getincrementaldecoder(enc)()
-        fh.seek(0)
-        pos = 0
+        dec, pos = codecs.getincrementaldecoder(enc)(), 0
         try:
-            while True:
-                chunk = fh.read(_CHUNK)
-                dec.decode(chunk, final=not chunk)
-                if not chunk:
-                    break
+            for chunk in chunks():
+                dec.decode(chunk)
                 pos += len(chunk)
+            dec.decode(b"", final=True)
+            return enc, bom
         except UnicodeDecodeError as exc:
+            if enc == "utf-8" and bom:
+                raise ConnectorError(f"has a UTF-8 BOM but invalid UTF-8 at byte {pos + exc.start}",
+                                     path=label) from None
             if bom:
-                what = "UTF-8" if enc == "utf-8" else "UTF-16"
-                where = f" at byte {pos + exc.start}" if enc == "utf-8" else ""
-                raise ConnectorError(f"has a {what} BOM but invalid {what}{where}" if where
-                                     else f"has a {what} BOM but is not valid {what}", path=label) from None
-            continue
-        text = codecs.getincrementaldecoder(enc)().decode(head, final=False)
-        return enc, bom, _strip_bom(text)
-    raise AssertionError("latin-1 decodes every byte")  # pragma: no cover
+                raise ConnectorError("has a UTF-16 BOM but is not valid UTF-16", path=label) from None
+    return "latin-1", False
 
 
 _CONTROL = re.compile("[\x00-\x08\x0e-\x1f\x7f-\x9f]")
