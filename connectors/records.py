@@ -289,7 +289,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                                 {"filled": filled_total, "max_gap_s": max_gap_s}))
     usable = [(a, b) for a, b in segs if b - a >= min_samples]
     dropped = len(segs) - len(usable)
-    far = _isolated(segs, usable, grid)
+    far = _isolated(segs, usable, grid, bool(table and table.absolute))
     if far:
         findings.append(far)
     if not usable:
@@ -419,7 +419,7 @@ def _split_at_jumps(segs: list[tuple[int, int]], k: np.ndarray) -> list[tuple[in
         return segs
     out = []
     for a, b in segs:
-        cuts = jumps[(jumps > a) & (jumps < b)].tolist()
+        cuts = jumps[np.searchsorted(jumps, a, side="right"):np.searchsorted(jumps, b, side="left")].tolist()
         edges = [a] + cuts + [b]
         out.extend(zip(edges[:-1], edges[1:]))
     return out
@@ -429,15 +429,17 @@ def _split_at_jumps(segs: list[tuple[int, int]], k: np.ndarray) -> list[tuple[in
 ISOLATED_GAP_S = 86_400.0
 
 
-def _isolated(segs: list[tuple[int, int]], usable: list[tuple[int, int]], grid: np.ndarray) -> Finding | None:
+def _isolated(segs: list[tuple[int, int]], usable: list[tuple[int, int]], grid: np.ndarray,
+              absolute: bool) -> Finding | None:
     """Short stretches (dropped) lying more than `ISOLATED_GAP_S` from every usable segment."""
     if not usable or len(segs) == len(usable):
         return None
     starts = np.array([grid[a] for a, _ in usable])
     ends = np.array([grid[b - 1] for _, b in usable])
+    kept = set(usable)
     far = []
     for a, b in segs:
-        if (a, b) in usable:
+        if (a, b) in kept:
             continue
         dist = float(np.min(np.maximum(starts - grid[b - 1], grid[a] - ends)))
         if dist > ISOLATED_GAP_S:
@@ -446,15 +448,12 @@ def _isolated(segs: list[tuple[int, int]], usable: list[tuple[int, int]], grid: 
         return None
     n = sum(b - a for a, b, _ in far)
     worst = max(d for _, _, d in far)
-    where = ", ".join(f"{b - a} at {_when(grid[a])}" for a, b, _ in far[:3]) + (" ..." if len(far) > 3 else "")
+    when = (lambda t: iso_utc(t)) if absolute else (lambda t: f"t = {t:g} s")
+    where = ", ".join(f"{b - a} at {when(grid[a])}" for a, b, _ in far[:3]) + (" ..." if len(far) > 3 else "")
     return Finding("isolated", f"{n} sample(s) far from the rest of the record ({where}; up to "
                    f"{_duration(worst)} away) were left out: too few to diagnose on their own",
                    "warning", {"stretches": len(far), "samples": n, "max_distance_s": round(worst, 3),
                                "starts_s": [round(float(grid[a]), 3) for a, _, _ in far[:50]]})
-
-
-def _when(t: float) -> str:
-    return iso_utc(t) if t > 1e8 else f"t = {t:g} s"
 
 
 def _duration(seconds: float) -> str:
