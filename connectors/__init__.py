@@ -1,9 +1,11 @@
-"""Connectors: historian exports and Modbus/TCP devices into `diagnose.record.LoopRecord`s.
+"""Connectors: historian exports, DataFrames and Modbus/TCP devices into `diagnose.record.LoopRecord`s.
 
-`read_records` is the one entry point for files: it detects the layout (see
-`connectors.layouts`), finds the loops (naming rule in `connectors.columns`, or a tag map, or
-explicit column names), puts every loop on a uniform time grid (`connectors.timebase`), splits it
-at long gaps and attaches data-quality findings (`diagnose.quality.assess`). Modbus polling lives
+`read_loops` (also reachable as `read_records`, which takes the same options as a mapping) is the
+one entry point for files: it detects the layout (see `connectors.layouts`; pandas parses the
+rows), finds the loops (naming rule in `connectors.columns`, or a tag map, or explicit column
+names), puts every loop on a uniform time grid (`connectors.timebase`), splits it at long gaps,
+keeps the newest ``max_samples`` samples and attaches data-quality findings
+(`diagnose.quality.assess`). `read_frame` does the same for a pandas DataFrame. Modbus polling lives
 in `connectors.modbus` (imported on demand: it pulls in pymodbus).
 """
 
@@ -17,7 +19,7 @@ from diagnose.record import LoopRecord
 
 FILE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".prn")
 OPTIONS = ("op", "pv", "sp", "mv", "mode", "ts", "ts_s", "name", "fmt", "format", "tags", "tz", "dst",
-           "loop", "max_gap_s", "min_samples")
+           "loop", "max_gap_s", "min_samples", "max_samples", "progress")
 
 
 def list_sources(path: str | os.PathLike) -> list[str]:
@@ -35,12 +37,23 @@ def list_sources(path: str | os.PathLike) -> list[str]:
     return out
 
 
-def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[LoopRecord]:
+def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str | None = None,
+               dst: str | None = None, op: str | None = None, pv: str | None = None, sp: str | None = None,
+               mv: str | None = None, mode: str | None = None, ts: str | None = None,
+               ts_s: float | None = None, name: str | None = None, fmt: str | None = None,
+               loop: str | None = None, max_gap_s: float | None = None, min_samples: int | None = None,
+               max_samples: int | None = None, progress: Any = None) -> list[LoopRecord]:
     """Read every loop in a historian export (file, folder of files, or file object) into records.
 
     Parameters
     ----------
     source : path, folder or file object (text or binary)
+    tags : path, parsed TOML dict or `connectors.tagmap.TagMap`, optional
+        Tag map (TOML): loops, roles, ranges for scaling OP/MV to % of span.
+    tz : str, optional
+        Time zone of naive timestamps (IANA name or ``+hh:mm``; default UTC).
+    dst : {"infer", "earliest", "latest", "raise"}
+        Policy for ambiguous/missing local times at DST changes (default ``infer``).
     op, pv, sp, mv, mode : str, optional
         Column (tag) names that override the naming rule; OP/PV given -> one loop.
     ts : str, optional
@@ -51,12 +64,6 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         Loop name when the file holds one loop.
     fmt : {"auto", "wide", "long", "ragged", "influx", "dcs"}, optional
         Layout override (default auto-detect).
-    tags : path, parsed TOML dict or `connectors.tagmap.TagMap`, optional
-        Tag map (TOML): loops, roles, ranges for scaling OP/MV to % of span.
-    tz : str, optional
-        Time zone of naive timestamps (IANA name or ``+hh:mm``; default UTC).
-    dst : {"infer", "earliest", "latest", "raise"}
-        Policy for ambiguous/missing local times at DST changes (default ``infer``).
     loop : str, optional
         Keep only this loop (by name).
     max_gap_s : float, optional
@@ -64,6 +71,12 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         the record into segments.
     min_samples : int, optional
         Shortest usable segment (default 20 samples).
+    max_samples : int, optional
+        Samples kept per loop for diagnosis: the newest ``max_samples`` (default 100 000; 0 keeps
+        all). A loop cut to them carries a ``window`` finding.
+    progress : bool or callable, optional
+        Progress lines while reading: a callable taking one line of text, True (stderr), False
+        (none). Default: on stderr for files of 32 MB or more.
 
     Returns
     -------
@@ -76,15 +89,29 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
     diagnose.errors.ConnectorError
         One line naming the file (line, column) and the problem.
     """
+    options = {k: v for k, v in dict(tags=tags, tz=tz, dst=dst, op=op, pv=pv, sp=sp, mv=mv, mode=mode, ts=ts,
+                                     ts_s=ts_s, name=name, fmt=fmt, loop=loop, max_gap_s=max_gap_s,
+                                     min_samples=min_samples, max_samples=max_samples,
+                                     progress=progress).items() if v is not None}
+    return read_records(source, **options)
+
+
+def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[LoopRecord]:
+    """`read_loops` with its options as keyword arguments from a mapping (``**options``).
+
+    Unknown option names are a `ConnectorError` (the command line and the batch pass their
+    options through here).
+    """
     from .layouts import parse
     from .records import build_records, merge_specs, specs_from_table
     from .tagmap import TagMap, load_tagmap, parse_tagmap
-    from .textio import load_text
+    from .textio import open_source
 
     unknown = set(options) - set(OPTIONS)
     if unknown:
         raise ConnectorError(f"unknown read options {sorted(unknown)}; allowed: {', '.join(OPTIONS)}")
     options = {k: v for k, v in options.items() if v is not None}
+    progress = options.pop("progress", None)
     tags = options.pop("tags", None)
     tagmap = None
     if tags is not None:
@@ -110,8 +137,11 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         if folder and not sources:
             raise ConnectorError(f"folder has no export files ({', '.join(FILE_SUFFIXES)})", path=path)
     specs = []
+    reporters = {}
     for src in sources:
-        table = parse(load_text(src), options)
+        opened = open_source(src, progress)
+        table = parse(opened, options)
+        reporters[table.label] = opened.progress
         found = specs_from_table(table, options, tagmap)
         if not found and tagmap is not None and not folder:
             wanted = ", ".join(f"{lm.roles['op'].tag}/{lm.roles['pv'].tag}" for lm in list(tagmap.loops.values())[:5])
@@ -132,5 +162,15 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         specs = sel
     records: list[LoopRecord] = []
     for spec in specs:
-        records.extend(build_records(spec, options))
+        reporter = reporters.get(spec.table.label) if spec.table else None
+        records.extend(build_records(spec, dict(options, _progress=reporter)))
     return records
+
+
+def read_frame(df: Any, **options: Any) -> list[LoopRecord]:
+    """Every loop in a pandas DataFrame as records, one per loop per contiguous segment, read the
+    way `read_loops` reads a file (options as there, without ``tags``, ``fmt`` and ``progress``;
+    see `connectors.frame`). Raises `diagnose.errors.DataError`."""
+    from .frame import records_from_frame
+
+    return records_from_frame(df, **options)

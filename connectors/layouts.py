@@ -1,25 +1,29 @@
-"""Historian export layouts: each parser turns text into named time series (`Table`).
+"""Historian export layouts: each parser turns a source into named time series (`Table`).
 
 Layouts (``fmt=`` names): ``wide``, ``long``, ``ragged`` (PI DataLink, a timestamp column per
 tag), ``influx`` (InfluxDB annotated CSV), ``dcs`` (the DCS text export starting with
 ``PROCESSDATA``). Exports with a BOM, separate date and time columns, newest row first, ``t,OP,PV``
 files in seconds, comma/semicolon/tab separators and decimal commas are variants of these that
-`detect_layout` and the parsers handle without options.
+`detect_layout` and the parsers handle without options. What a layout looks like (which header
+names mean time, tag, value and quality, where the DCS export's rows start) is decided here from
+the start of the file; pandas parses the rows (`connectors.textio.read_frame`).
 """
 
 from __future__ import annotations
 
+import csv
 import re
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from diagnose.errors import ConnectorError
 
 from .columns import TIME_NAMES, role_of
-from .textio import (Rows, Text, delimiter_name, detect_decimal_comma, quality_good, sniff_delimiter,
-                     split_rows, to_numbers)
+from .textio import (Source, commonest, delimiter_name, detect_decimal_comma, numbers, quality_good, read_frame,
+                     split_line)
 from .timebase import parse_times
 
 LAYOUTS = ("wide", "long", "ragged", "influx", "dcs")
@@ -32,6 +36,8 @@ QUALITY_HEADERS = {"quality", "q", "status", "confidence", "qualitycode", "quali
                    "opc_quality", "qualitat", "qualität"}
 PI_FLAG_HEADERS = {"questionable", "substituted", "isquestionable", "issubstituted"}
 SKIP_HEADERS = {"id", "index", "row", "#", "no", "nr", "unnamed: 0", ""}
+_NEWLINE = re.compile(r"\r\n|\r|\n")
+_HEAD_LINES = 5000          # lines of the file's start looked at for headers and number formats
 
 
 @dataclass
@@ -39,7 +45,8 @@ class Series:
     """One signal read from a file.
 
     ``t`` is seconds (UTC epoch when ``Table.absolute``) per row, NaN where a row has no time;
-    ``x`` is the value, NaN where bad. Counts say what was turned into NaN.
+    ``x`` is the value, NaN where bad. Counts say what was turned into NaN; ``cells`` keeps the
+    column's text when some cells were text (mode states are read from it).
     """
 
     name: str
@@ -52,7 +59,7 @@ class Series:
     examples: list[str] = field(default_factory=list)
     first_line: int | None = None
     column: str | None = None
-    cells: list[str] | None = None
+    cells: pd.Series | None = None
 
 
 @dataclass
@@ -86,15 +93,15 @@ def _is_time_header(h: str) -> bool:
 
 # ----------------------------------------------------------------------------------------- detection
 
-def detect_layout(text: Text) -> str:
-    """The layout name of a decoded export (see `LAYOUTS`)."""
-    head = text.text[:20000].splitlines()
+def detect_layout(src: Source) -> str:
+    """The layout name of an opened export (see `LAYOUTS`), from the start of its text."""
+    head = src.head[:20000].splitlines()
     first = next((ln for ln in head if ln.strip()), "")
     if first.lstrip().upper().startswith("PROCESSDATA"):
         return "dcs"
     if any(ln.startswith(("#datatype", "#group", "#default")) for ln in head[:20]):
         return "influx"
-    d = sniff_delimiter([ln for ln in head if not ln.startswith("#")])
+    d = src.delimiter
     rows = [r for r in (ln.split(d) for ln in head[:40] if ln.strip() and not ln.startswith("#"))]
     if not rows:
         return "wide"
@@ -123,93 +130,108 @@ def _pairs(header: list[str]) -> bool:
 
 # ------------------------------------------------------------------------------------------- helpers
 
-def _prepare(text: Text, skip_comments: bool = True) -> tuple[Rows, str]:
-    head = text.text[:20000].splitlines()
-    d = sniff_delimiter([ln for ln in head if not (skip_comments and ln.startswith("#"))])
-    src = text.text
-    if skip_comments and (src.startswith("#") or "\n#" in src):
-        src = "\n".join("" if ln.startswith("#") else ln for ln in src.splitlines())
-    return split_rows(src, d, text.label), d
+@dataclass
+class _Head:
+    """The header row(s) of a delimited export and the first rows after them, from the file's start."""
+
+    delimiter: str
+    header_lines: list[int]          # 0-based line index of each header row
+    headers: list[list[str]]         # the header rows' fields
+    rows: list[list[str]]            # up to 100 data rows spread over the head, the first one first
 
 
-def _check_rect(rows: Rows, width: int, label: str, *, allow_short: bool = False) -> None:
-    """Ragged/unterminated rows are errors: every data row must have the header's field count."""
-    for row, line in zip(rows.rows, rows.lines):
-        n = len(row)
-        if n == width:
-            continue
-        if n > width and not any(c.strip() for c in row[width:]):
-            continue  # trailing empty fields
-        if n < width and allow_short:
-            continue
-        raise ConnectorError(f"row has {n} fields but the header has {width}; a ragged or cut-off row "
-                             "(fix or delete it)", path=label, line=line)
+def _head(src: Source, n_headers: int = 1) -> _Head:
+    lines = _split_lines(src.head, _HEAD_LINES)
+    if not src.complete or len(lines) > _HEAD_LINES:
+        lines = lines[:-1]                       # the last piece may be a cut line or the rest
+    d = src.delimiter
+    content = [k for k, ln in enumerate(lines) if ln and not ln.isspace() and not ln.startswith("#")]
+    hl = content[:n_headers]
+    headers = [split_line(lines[k], d) for k in hl]
+    body = content[n_headers:]
+    sample = [lines[k] for k in body[:: max(1, len(body) // 100)][:100]]
+    try:
+        rows = [r for r in csv.reader(sample, delimiter=d) if r]
+    except csv.Error:
+        rows = [ln.split(d) for ln in sample]
+    return _Head(d, hl, headers, rows)
 
 
-def _column(rows: list[list[str]], j: int) -> list[str]:
-    return [r[j] if j < len(r) else "" for r in rows]
+_OTHER_BREAKS = "\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"     # str.splitlines() breaks there, pandas not
 
 
-class _Columns:
-    """Column access to rows, transposed once when every row is long enough."""
+def _split_lines(text: str, limit: int) -> list[str]:
+    """Lines as pandas counts them (``\\r\\n``, ``\\r``, ``\\n``), the first ``limit`` and the rest."""
+    if any(c in text for c in _OTHER_BREAKS):
+        return _NEWLINE.split(text, maxsplit=limit)
+    lines = text.splitlines()
+    if text.endswith(("\n", "\r")):
+        lines.append("")
+    return lines if len(lines) <= limit else lines[:limit] + ["\n".join(lines[limit:])]
 
-    def __init__(self, rows: list[list[str]], width: int) -> None:
-        self.rows = rows
-        self.cols = list(zip(*rows)) if rows and min(map(len, rows)) >= width else None
 
-    def __call__(self, j: int) -> list[str]:
-        if self.cols is not None and j < len(self.cols):
-            return list(self.cols[j])
-        return _column(self.rows, j)
+def _clean(header: list[str]) -> list[str]:
+    return [h.strip().strip('"').strip() for h in header]
 
 
 def _decimal_comma(rows: list[list[str]], cols: list[int], delimiter: str) -> bool:
+    """Decimal commas in the value cells of up to 100 rows spread over ``rows``."""
     sample = rows[:: max(1, len(rows) // 100)][:100]
     cells = [r[j] for r in sample for j in cols if j < len(r)]
-    return detect_decimal_comma(cells) if (delimiter != "," or any("," in c for c in cells)) else False
+    return any("," in c for c in cells) and detect_decimal_comma(cells)
 
 
-def _times(cells: list[str], lines: list[int], label: str, column: str, options: dict) -> tuple[np.ndarray, bool, str]:
+def _times(cells: Any, lines: np.ndarray, label: str, column: str, options: dict) -> tuple[np.ndarray, bool, str]:
     pt = parse_times(cells, tz=options.get("tz"), dst=options.get("dst", "infer"), label=label,
                      column=column, lines=lines)
     return pt.seconds, pt.absolute, pt.fmt
 
 
-def _series_from_column(name: str, t: np.ndarray | None, cells: list[str], decimal_comma: bool,
-                        first_line: int | None) -> Series:
-    num = to_numbers(cells, decimal_comma)
+def _text(col: np.ndarray) -> list[str]:
+    """A parsed column as text, empty where the cell was empty."""
+    return [v if isinstance(v, str) else "" if v is None or v != v else str(v) for v in col]
+
+
+def _series(name: str, t: np.ndarray | None, col: np.ndarray, decimal_comma: bool, first_line: int | None) -> Series:
+    num = numbers(col, decimal_comma)
     return Series(name=name, t=t, x=num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                   n_blank=num.n_blank, examples=num.examples, first_line=first_line, column=name,
-                  cells=cells if num.n_text else None)
+                  cells=num.text)
 
 
 # ---------------------------------------------------------------------------------------------- wide
 
-def parse_wide(text: Text, options: dict, *, rows: Rows | None = None, delimiter: str | None = None,
-               fmt: str = "wide", extra_meta: dict | None = None) -> Table:
+def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, header_line: int | None = None,
+               skiprows: int | None = None, delimiter: str | None = None, first_row: list[str] | None = None,
+               sample_rows: list[list[str]] | None = None, fmt: str = "wide",
+               extra_meta: dict | None = None) -> Table:
     """A header row, one or two time columns (date + time), one column per signal."""
-    label = text.label
-    if rows is None:
-        rows, delimiter = _prepare(text)
-    if not rows.rows:
-        raise ConnectorError("file is empty", path=label)
-    header = [h.strip().strip('"').strip() for h in rows.rows[0]]
-    body, lines = rows.rows[1:], rows.lines[1:]
-    if not body:
-        raise ConnectorError("header only, no data rows", path=label, line=rows.lines[0])
+    label = src.label
+    if header is None:
+        head = _head(src)
+        if not head.headers:
+            raise ConnectorError("file is empty", path=label)
+        header = head.headers[0]
+        header_line = head.header_lines[0] + 1
+        skiprows = head.header_lines[0] + 1
+        delimiter = head.delimiter
+        sample_rows = head.rows
+    d = delimiter or ","
+    rows = sample_rows or []
+    first_row = first_row if first_row is not None else (rows[0] if rows else None)
+    header = _clean(header)
+    if first_row is None and src.complete:
+        raise ConnectorError("header only, no data rows", path=label, line=header_line)
     if len(header) < 2:
-        raise ConnectorError(f"only one column ({header[0]!r}) with separator "
-                             f"{delimiter_name(delimiter or ',')}; need a time/OP/PV column each",
-                             path=label, line=rows.lines[0])
-    _check_rect(Rows(body, lines), len(header), label)
-    col = _Columns(body, len(header))
+        raise ConnectorError(f"only one column ({header[0]!r}) with separator {delimiter_name(d)}; "
+                             "need a time/OP/PV column each", path=label, line=header_line)
     lower = [h.lower() for h in header]
     ts_col = options.get("ts")
     time_idx: list[int] = []
     if ts_col:
         if ts_col not in header:
             raise ConnectorError(f"no column named {ts_col!r} for the time (columns: {', '.join(header)})",
-                                 path=label, line=rows.lines[0])
+                                 path=label, line=header_line)
         time_idx = [header.index(ts_col)]
     elif _date_time_pair(lower):
         time_idx = _date_time_pair(lower)
@@ -220,30 +242,37 @@ def parse_wide(text: Text, options: dict, *, rows: Rows | None = None, delimiter
             rel = {"t", "ts", "t_s", "time_s"}
             named.sort(key=lambda j: lower[j] in rel)  # a calendar column beats a seconds column
             time_idx = [named[0]]
-        elif role_of(header[0]) is None and body[0][0].strip():
+        elif role_of(header[0]) is None and first_row and first_row[0].strip():
             try:
-                parse_times([body[0][0]])
-                if not re.fullmatch(r"[+-]?[\d.eE+-]+", body[0][0].strip()):
+                parse_times([first_row[0]])
+                if not re.fullmatch(r"[+-]?[\d.eE+-]+", first_row[0].strip()):
                     time_idx = [0]
             except ConnectorError:
                 pass
+    value_idx = [j for j in range(len(header)) if j not in time_idx and lower[j] not in SKIP_HEADERS
+                 and not (lower[j] in TIME_HEADERS and role_of(header[j]) in (None, "time"))]
+    dec = _decimal_comma(rows, value_idx, d)
+    frame = read_frame(src, sep=d, skiprows=skiprows or 0, width=len(header), decimal="," if dec else ".",
+                       str_columns=tuple(time_idx) if dec or len(time_idx) == 2 else ())
+    cols, lines = frame.columns, frame.lines
+    if not len(frame):
+        raise ConnectorError("header only, no data rows", path=label, line=header_line)
+    src.progress.say(f"{len(frame)} rows parsed; reading the times")
     t = None
     absolute = False
     tfmt = None
     if time_idx:
         if len(time_idx) == 2:
-            cells = [f"{a.strip()} {b.strip()}".strip() for a, b in zip(col(time_idx[0]), col(time_idx[1]))]
+            cells = [f"{a.strip()} {b.strip()}".strip()
+                     for a, b in zip(_text(cols[time_idx[0]]), _text(cols[time_idx[1]]))]
             tname = f"{header[time_idx[0]]}+{header[time_idx[1]]}"
         else:
-            cells = col(time_idx[0])
+            cells = cols[time_idx[0]]
             tname = header[time_idx[0]]
         t, absolute, tfmt = _times(cells, lines, label, tname, options)
-    value_idx = [j for j in range(len(header)) if j not in time_idx and lower[j] not in SKIP_HEADERS
-                 and not (lower[j] in TIME_HEADERS and role_of(header[j]) in (None, "time"))]
-    dec = _decimal_comma(body, value_idx, delimiter or ",")
-    series = [_series_from_column(header[j], t, col(j), dec, lines[0]) for j in value_idx]
-    meta = {"format": fmt, "delimiter": delimiter_name(delimiter or ","), "decimal": "," if dec else ".",
-            "encoding": text.encoding, "bom": text.bom, "time_format": tfmt,
+    series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
+    meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
+            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt,
             "time_columns": [header[j] for j in time_idx]}
     if extra_meta:
         meta.update(extra_meta)
@@ -252,24 +281,27 @@ def parse_wide(text: Text, options: dict, *, rows: Rows | None = None, delimiter
 
 # ---------------------------------------------------------------------------------------------- long
 
-def parse_long(text: Text, options: dict) -> Table:
+def _tags(col: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Tag codes per row and the tags (stripped; an empty cell is tag ""), in order of appearance."""
+    codes, uniq = pd.factorize(col, use_na_sentinel=False)
+    stripped = [u.strip() if isinstance(u, str) else "" if u is None or u != u else str(u).strip() for u in uniq]
+    remap, names = pd.factorize(np.array(stripped, dtype=object))
+    return remap[codes], [str(n) for n in names]
+
+
+def parse_long(src: Source, options: dict) -> Table:
     """``tag, time, value[, quality]`` rows: one row per tag per time."""
-    label = text.label
-    rows, d = _prepare(text)
-    if not rows.rows:
+    label = src.label
+    head = _head(src)
+    if not head.headers:
         raise ConnectorError("file is empty", path=label)
-    header = [h.strip().strip('"').strip() for h in rows.rows[0]]
+    header = _clean(head.headers[0])
+    header_line = head.header_lines[0] + 1
     lower = [h.lower() for h in header]
-    body, lines = rows.rows[1:], rows.lines[1:]
-    if not body:
-        raise ConnectorError("header only, no data rows", path=label, line=rows.lines[0])
-    _check_rect(Rows(body, lines), len(header), label)
-    col = _Columns(body, len(header))
+    if not head.rows and src.complete:
+        raise ConnectorError("header only, no data rows", path=label, line=header_line)
     tag_j = next((j for j, h in enumerate(lower) if h in TAG_HEADERS), None)
     val_j = next((j for j, h in enumerate(lower) if h in VALUE_HEADERS), None)
-    if tag_j is None or val_j is None:
-        raise ConnectorError(f"long layout needs a tag column and a value column (columns: {', '.join(header)})",
-                             path=label, line=rows.lines[0])
     ts_col = options.get("ts")
     if ts_col and ts_col in header:
         time_j = [header.index(ts_col)]
@@ -277,84 +309,91 @@ def parse_long(text: Text, options: dict) -> Table:
         time_j = _date_time_pair(lower)
     else:
         time_j = [j for j, h in enumerate(header) if _is_time_header(h) and j not in (tag_j, val_j)][:1]
+    q_j = next((j for j, h in enumerate(lower) if h in QUALITY_HEADERS), None)
+    flags = [j for j, h in enumerate(lower) if h in PI_FLAG_HEADERS]
+    dec = _decimal_comma(head.rows, [val_j], head.delimiter) if val_j is not None else False
+    text_cols = tuple(j for j in [tag_j, *time_j, *flags] if j is not None)
+    frame = read_frame(src, sep=head.delimiter, skiprows=head.header_lines[0] + 1, width=len(header),
+                       decimal="," if dec else ".", str_columns=text_cols)
+    cols, lines = frame.columns, frame.lines
+    if not len(frame):
+        raise ConnectorError("header only, no data rows", path=label, line=header_line)
+    if tag_j is None or val_j is None:
+        raise ConnectorError(f"long layout needs a tag column and a value column (columns: {', '.join(header)})",
+                             path=label, line=header_line)
     if not time_j:
         raise ConnectorError(f"long layout without a time column (columns: {', '.join(header)}); "
-                             "name it with --ts", path=label, line=rows.lines[0])
-    q_j = next((j for j, h in enumerate(lower) if h in QUALITY_HEADERS), None)
+                             "name it with --ts", path=label, line=header_line)
+    src.progress.say(f"{len(frame)} rows parsed; reading the times")
     if len(time_j) == 2:
-        tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(col(time_j[0]), col(time_j[1]))]
+        tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(_text(cols[time_j[0]]), _text(cols[time_j[1]]))]
     else:
-        tcells = col(time_j[0])
+        tcells = cols[time_j[0]]
     t, absolute, tfmt = _times(tcells, lines, label, header[time_j[0]], options)
-    dec = _decimal_comma(body, [val_j], d)
-    num = to_numbers(col(val_j), dec)
-    bad_q = np.zeros(len(body), bool)
+    num = numbers(cols[val_j], dec)
+    finite = np.isfinite(num.values)
+    bad_q = np.zeros(len(frame), bool)
     scheme = None
     if q_j is not None:
-        good, scheme = quality_good(col(q_j), header[q_j])
-        bad_q = ~good & np.isfinite(num.values)
-    for j, h in enumerate(lower):  # PI flag columns: Questionable / Substituted = True -> bad
-        if h in PI_FLAG_HEADERS:
-            flag = np.array([c.strip().lower() in ("true", "1", "yes", "y") for c in col(j)])
-            bad_q |= flag & np.isfinite(num.values)
-            if "pi_flags" not in (scheme or ""):
-                scheme = (scheme + "+" if scheme else "") + "pi_flags"
-    codes: dict[str, int] = {}
-    inverse = np.fromiter((codes.setdefault(c.strip(), len(codes)) for c in col(tag_j)), dtype=np.int64,
-                          count=len(body))
-    names = list(codes)                                   # in order of first appearance
+        good, scheme = quality_good(cols[q_j], header[q_j])
+        bad_q = ~good & finite
+    for j in flags:   # PI flag columns: Questionable / Substituted = True -> bad
+        codes, uniq = pd.factorize(cols[j])
+        true = np.array([isinstance(u, str) and u.strip().lower() in ("true", "1", "yes", "y") for u in uniq] + [False])
+        bad_q = bad_q | (true[codes] & finite)
+        if "pi_flags" not in (scheme or ""):
+            scheme = (scheme + "+" if scheme else "") + "pi_flags"
+    inverse, names = _tags(cols[tag_j])
     order = np.argsort(inverse, kind="stable")
     bounds = np.searchsorted(inverse[order], np.arange(len(names) + 1))
-    first_row = {names[g]: int(order[bounds[g]]) for g in range(len(names))}
-    vcells = col(val_j)
+    kind = num.kind
+    text = num.text
     series: list[Series] = []
-    for g in range(len(names)):
-        tag = names[g]
+    for g, tag in enumerate(names):
         if not tag:
             continue
         idx = order[bounds[g]:bounds[g + 1]]
         x = num.values[idx].copy()
         bq = bad_q[idx]
         x[bq] = np.nan
-        kind = num.kind[idx] if num.kind is not None else None
-        n_text = int(np.count_nonzero(kind == 2)) if kind is not None else 0
+        k = kind[idx] if kind is not None else None
+        n_text = int(np.count_nonzero(k == 2)) if k is not None else 0
         examples: list[str] = []
+        cells = None
         if n_text:
-            seen: dict[str, int] = {}
-            for k in idx[kind == 2][:1000]:
-                c = vcells[k].strip()[:30]
-                seen[c] = seen.get(c, 0) + 1
-            examples = [k for k, _ in sorted(seen.items(), key=lambda kv: -kv[1])[:4]]
+            examples = commonest(text[idx[k == 2][:1000]])
+            cells = text[idx]
         series.append(Series(str(tag), t[idx], x, n_text=n_text,
-                             n_nonfinite=int(np.count_nonzero(kind == 3)) if kind is not None else 0,
+                             n_nonfinite=int(np.count_nonzero(k == 3)) if k is not None else 0,
                              n_bad_quality=int(np.count_nonzero(bq)),
-                             n_blank=int(np.count_nonzero(kind == 1)) if kind is not None else 0,
-                             examples=examples, first_line=lines[first_row[tag]], column=header[val_j],
-                             cells=[vcells[k] for k in idx] if n_text else None))
-    meta = {"format": "long", "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
-            "encoding": text.encoding, "bom": text.bom, "time_format": tfmt, "quality_scheme": scheme}
+                             n_blank=int(np.count_nonzero(k == 1)) if k is not None else 0,
+                             examples=examples, first_line=int(lines[idx[0]]), column=header[val_j],
+                             cells=cells))
+    meta = {"format": "long", "delimiter": delimiter_name(head.delimiter), "decimal": "," if dec else ".",
+            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "quality_scheme": scheme}
     return Table(series, label, absolute, meta, raw_columns=header)
 
 
 # -------------------------------------------------------------------------------------------- ragged
 
-def parse_ragged(text: Text, options: dict) -> Table:
+def parse_ragged(src: Source, options: dict) -> Table:
     """PI DataLink compressed data: ``time, value`` column pairs, one pair per tag.
 
     The tag name is the value column's header, or (two header rows) the cell above the pair.
     """
-    label = text.label
-    rows, d = _prepare(text)
-    if len(rows.rows) < 2:
+    label = src.label
+    head = _head(src, n_headers=2)
+    if len(head.headers) < 2:
         raise ConnectorError("header only, no data rows", path=label)
-    h0 = [h.strip().strip('"').strip() for h in rows.rows[0]]
-    h1 = [h.strip().strip('"').strip() for h in rows.rows[1]]
+    h0, h1 = _clean(head.headers[0]), _clean(head.headers[1])
     two_rows = _pairs([h.lower() for h in h1]) and not _pairs([h.lower() for h in h0])
     header = h1 if two_rows else h0
-    body, lines = (rows.rows[2:], rows.lines[2:]) if two_rows else (rows.rows[1:], rows.lines[1:])
-    if not body:
-        raise ConnectorError("header only, no data rows", path=label, line=rows.lines[0])
-    _check_rect(Rows(body, lines), len(header), label, allow_short=True)
+    header_line = head.header_lines[1 if two_rows else 0] + 1
+    frame = read_frame(src, sep=head.delimiter, skiprows=header_line, width=len(header),
+                       str_columns=tuple(range(len(header))), allow_short=True)
+    cols, lines = frame.columns, frame.lines
+    if not len(frame):
+        raise ConnectorError("header only, no data rows", path=label, line=head.header_lines[0] + 1)
     series: list[Series] = []
     absolute = False
     tfmt = None
@@ -371,78 +410,117 @@ def parse_ragged(text: Text, options: dict) -> Table:
                 j += 1
                 continue
         name = name.strip() or f"column{j + 2}"
-        tcells = _column(body, j)
-        vcells = _column(body, j + 1)
-        keep = [k for k, c in enumerate(tcells) if c.strip()]
-        if keep:
-            tc = [tcells[k] for k in keep]
-            tl = [lines[k] for k in keep]
-            tt, absolute, tfmt = _times(tc, tl, label, header[j], options)
-            dec = _decimal_comma([[vcells[k]] for k in keep], [0], d)
-            num = to_numbers([vcells[k] for k in keep], dec)
+        tcells = _text(cols[j])
+        keep = np.array([k for k, c in enumerate(tcells) if c.strip()], dtype=np.int64)
+        if keep.size:
+            tl = lines[keep]
+            tt, absolute, tfmt = _times([tcells[k] for k in keep], tl, label, header[j], options)
+            vcells = np.array(_text(cols[j + 1]), dtype=object)[keep]
+            dec = _decimal_comma([[c] for c in vcells[:: max(1, keep.size // 100)][:100]], [0], head.delimiter)
+            num = numbers(vcells, dec)
             series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
-                                 n_blank=num.n_blank, examples=num.examples, first_line=tl[0],
-                                 column=name, cells=[vcells[k] for k in keep] if num.n_text else None))
+                                 n_blank=num.n_blank, examples=num.examples, first_line=int(tl[0]),
+                                 column=name, cells=num.text))
         j += 2
     if not series:
         raise ConnectorError("no timestamp/value column pairs found for the ragged layout", path=label,
-                             line=rows.lines[0])
-    meta = {"format": "ragged", "delimiter": delimiter_name(d), "encoding": text.encoding,
-            "bom": text.bom, "time_format": tfmt}
+                             line=head.header_lines[0] + 1)
+    meta = {"format": "ragged", "delimiter": delimiter_name(head.delimiter), "encoding": src.encoding,
+            "bom": src.bom, "time_format": tfmt}
     return Table(series, label, absolute, meta, raw_columns=[s.name for s in series])
 
 
 # -------------------------------------------------------------------------------------------- influx
 
-def parse_influx(text: Text, options: dict) -> Table:
-    """InfluxDB annotated CSV (``#datatype``/``#group``/``#default`` rows, ``_time``, ``_value``)."""
-    label = text.label
-    rows = split_rows(text.text, ",", label)
-    header: list[str] | None = None
-    groups: dict[str, tuple[list[str], list[str], list[int]]] = {}
-    for row, line in zip(rows.rows, rows.lines):
-        if row[0].startswith("#"):
-            header = None
+def parse_influx(src: Source, options: dict) -> Table:
+    """InfluxDB annotated CSV (``#datatype``/``#group``/``#default`` rows, ``_time``, ``_value``).
+
+    Each table starts after its annotation rows with a header row (or at a row naming ``_time``
+    and ``_value``); the series name is ``<tag values or _measurement>.<_field>``.
+    """
+    label = src.label
+    width = max((len(split_line(ln, ",")) for ln in _NEWLINE.split(src.head, maxsplit=400)[:400] if ln.strip()),
+                default=1)
+    frame = read_frame(src, sep=",", skiprows=0, width=width, str_columns=tuple(range(width)),
+                       allow_short=True, drop_comments=False)
+    cols = [np.array([c.strip() for c in _text(col)], dtype=object) for col in frame.columns]
+    line = frame.lines
+    if not len(frame):
+        raise ConnectorError("InfluxDB CSV without data rows", path=label)
+    annot = np.array([c.startswith("#") for c in cols[0]], dtype=bool)
+    named = np.logical_or.reduce([c == "_time" for c in cols]) & np.logical_or.reduce([c == "_value" for c in cols])
+    after = np.concatenate([[True], annot[:-1]])
+    is_header = ~annot & (after | named)
+    table = np.cumsum(is_header)
+    groups: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for h in np.flatnonzero(is_header):
+        hdr = _trim([c[h] for c in cols])
+        if "_time" not in hdr or "_value" not in hdr:
+            raise ConnectorError("InfluxDB CSV table without _time and _value columns", path=label,
+                                 line=int(line[h]))
+        rows = np.flatnonzero((table == table[h]) & ~is_header & ~annot)
+        if not rows.size:
             continue
-        cells = [c.strip() for c in row]
-        if header is None or ("_time" in cells and "_value" in cells):
-            header = cells
-            if "_time" not in header or "_value" not in header:
-                raise ConnectorError("InfluxDB CSV table without _time and _value columns", path=label,
-                                     line=line)
-            continue
-        if len(cells) != len(header):
-            raise ConnectorError(f"row has {len(cells)} fields but the table header has {len(header)}",
-                                 path=label, line=line)
-        rec = dict(zip(header, cells))
-        tagcols = [h for h in header if h and not h.startswith("_") and h not in ("result", "table")]
-        base = ".".join(rec[h] for h in tagcols if rec[h]) or rec.get("_measurement", "")
-        name = f"{base}.{rec['_field']}" if base and rec.get("_field") else (rec.get("_field") or base or "value")
-        g = groups.setdefault(name, ([], [], []))
-        g[0].append(rec["_time"])
-        g[1].append(rec["_value"])
-        g[2].append(line)
+        sub = [c[rows] for c in cols]
+        filled = np.stack([c != "" for c in sub], axis=1)
+        used = np.where(filled.any(axis=1), filled.shape[1] - np.argmax(filled[:, ::-1], axis=1), 0)
+        if (used > len(hdr)).any():
+            k = int(np.argmax(used > len(hdr)))
+            raise ConnectorError(f"row has {int(used[k])} fields but the table header has {len(hdr)}",
+                                 path=label, line=int(line[rows[k]]))
+        pos = {name: j for j, name in enumerate(hdr)}       # a repeated header name: the last one wins
+        empty = np.full(rows.size, "", dtype=object)
+
+        def col(name: str) -> np.ndarray:
+            return sub[pos[name]] if name in pos else empty
+
+        base = empty
+        for name in (c for c in hdr if c and not c.startswith("_") and c not in ("result", "table")):
+            v = col(name)
+            base = np.where(v == "", base, np.where(base == "", v, base + "." + v))
+        base = np.where(base != "", base, col("_measurement"))
+        fld = col("_field")
+        full = np.where((base != "") & (fld != ""), base + "." + fld,
+                        np.where(fld != "", fld, np.where(base != "", base, "value")))
+        codes, uniques = pd.factorize(full, sort=False)
+        for g, name in enumerate(uniques):
+            idx = np.flatnonzero(codes == g)
+            groups.setdefault(str(name), []).append((col("_time")[idx], col("_value")[idx], rows[idx]))
     if not groups:
         raise ConnectorError("InfluxDB CSV without data rows", path=label)
     series = []
     absolute, tfmt = True, None
-    for name, (tc, vc, ln) in groups.items():
-        tt, absolute, tfmt = _times(tc, ln, label, "_time", options)
-        num = to_numbers(vc)
+    for name, parts in groups.items():
+        tc = np.concatenate([p[0] for p in parts])
+        vc = np.concatenate([p[1] for p in parts])
+        rows = np.concatenate([p[2] for p in parts])
+        tt, absolute, tfmt = _times(tc, line[rows], label, "_time", options)
+        num = numbers(vc)
         series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
-                             n_blank=num.n_blank, examples=num.examples, first_line=ln[0], column=name))
-    meta = {"format": "influx", "delimiter": "comma", "encoding": text.encoding, "bom": text.bom,
+                             n_blank=num.n_blank, examples=num.examples, first_line=int(line[rows[0]]),
+                             column=name))
+    meta = {"format": "influx", "delimiter": "comma", "encoding": src.encoding, "bom": src.bom,
             "time_format": tfmt}
     return Table(series, label, absolute, meta, raw_columns=list(groups))
 
 
+def _trim(cells: list[str]) -> list[str]:
+    """A header row without the empty cells after its last name."""
+    out = list(cells)
+    while len(out) > 1 and out[-1] == "":
+        out.pop()
+    return out
+
+
 # ----------------------------------------------------------------------------------------------- dcs
 
-def parse_dcs(text: Text, options: dict) -> Table:
+def parse_dcs(src: Source, options: dict) -> Table:
     """The DCS text export: ``PROCESSDATA`` line, ``<cols> <Ts> <start> <N>``, tag names,
     descriptions, a parameter line, then tab-separated rows (``<tag>.MV`` is the controller output)."""
-    label = text.label
-    lines = text.text.splitlines()
+    label = src.label
+    lines = src.head.splitlines()                 # as the DCS writes it: the text's own line breaks
+    if not src.complete:
+        lines = lines[:-1]
     if len(lines) < 3:
         raise ConnectorError("DCS export without a tag-name line (line 3)", path=label, line=len(lines))
     ts_s = None
@@ -464,9 +542,10 @@ def parse_dcs(text: Text, options: dict) -> Table:
         start += 1
     if start >= len(lines):
         raise ConnectorError("header only, no data rows", path=label, line=len(lines))
-    body = split_rows("\n".join(lines[start:]), "\t", label, start_line=start + 1)
-    rows = Rows([names] + body.rows, [tag_line + 1] + body.lines)
-    table = parse_wide(text, options, rows=rows, delimiter="\t", fmt="dcs",
+    data = [ln for ln in lines[start:] if ln.strip()]
+    rows = [ln.split("\t") for ln in data[:: max(1, len(data) // 100)][:100]]
+    table = parse_wide(src, options, header=names, header_line=tag_line + 1, skiprows=start, delimiter="\t",
+                       first_row=rows[0] if rows else None, sample_rows=rows, fmt="dcs",
                        extra_meta={"dcs_header": lines[0].strip()[:80]})
     table.ts_s = ts_s if ts_s and ts_s > 0 else None
     return table
@@ -476,13 +555,14 @@ PARSERS = {"wide": parse_wide, "long": parse_long, "ragged": parse_ragged, "infl
            "dcs": parse_dcs}
 
 
-def parse(text: Text, options: dict) -> Table:
+def parse(src: Source, options: dict) -> Table:
     """Detect (or take ``options['fmt']``) and run the layout parser."""
-    if not text.text.strip():
-        raise ConnectorError("file is empty", path=text.label)
+    if src.complete and not src.head.strip():
+        raise ConnectorError("file is empty", path=src.label)
     fmt = options.get("fmt") or options.get("format")
     if fmt in (None, "auto"):
-        fmt = detect_layout(text)
+        fmt = detect_layout(src)
     elif fmt not in PARSERS:
         raise ConnectorError(f"unknown format {fmt!r}; choose one of auto, {', '.join(LAYOUTS)}")
-    return PARSERS[fmt](text, options)
+    src.progress.say(f"reading {src.size / 1e6:.0f} MB, {fmt} layout")
+    return PARSERS[fmt](src, options)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from diagnose.errors import ConnectorError, DataError
 from diagnose.record import Finding, LoopRecord
@@ -16,13 +17,18 @@ from diagnose.record import Finding, LoopRecord
 from .columns import role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
-from .timebase import clean_series, estimate_period, irregularity, iso_utc, runs, to_grid
+from .timebase import Cleaned, clean_series, estimate_period, irregularity, iso_utc, runs, to_grid
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
 DEFAULT_MIN_SAMPLES = 20
 DEFAULT_MAX_GAP_SAMPLES = 10
+#: Records are cut to their newest this many samples for diagnosis (``max_samples``; 0: no limit).
+DEFAULT_MAX_SAMPLES = 100_000
+#: Largest grid a loop may need (points where OP and PV have data), about 160 MB per signal.
+MAX_GRID_SAMPLES = 20_000_000
 _MANUAL_TEXT = {"man", "manual", "m", "oos", "iman", "lo", "local", "hand", "h", "off"}
 _AUTO_TEXT = {"auto", "a", "cas", "cascade", "rcas", "rout", "aut", "automatic", "remote", "on"}
+_MODE_TEXT = {**{t: 0.0 for t in _MANUAL_TEXT}, **{t: 1.0 for t in _AUTO_TEXT}}
 
 
 @dataclass
@@ -162,12 +168,11 @@ def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
     else:
         out[fin] = (x[fin] != 0).astype(float)
     if s.n_text and s.cells is not None:
-        for k, c in enumerate(s.cells):
-            c = c.strip().lower()
-            if c in _MANUAL_TEXT:
-                out[k] = 0.0
-            elif c in _AUTO_TEXT:
-                out[k] = 1.0
+        codes, uniq = pd.factorize(s.cells)
+        state = np.array([_MODE_TEXT.get(u.strip().lower(), np.nan) if isinstance(u, str) else np.nan
+                          for u in uniq] + [np.nan])
+        known = np.isfinite(state[codes])
+        out[known] = state[codes][known]
     return out
 
 
@@ -240,9 +245,16 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     if t1 < t0:
         raise ConnectorError("OP and PV do not overlap in time", path=label)
     n_grid = int(np.floor((t1 - t0) / ts_s + 1e-6)) + 1
-    if n_grid > 50_000_000:
-        raise ConnectorError(f"{n_grid} samples at {ts_s:g} s is too many; give a larger --ts-s", path=label)
-    grid = t0 + np.arange(n_grid) * ts_s
+    # The grid is uniform from t0 at ts_s, but only its points near OP or PV samples are built:
+    # a stray row far from the rest costs a point, not the span between.
+    spans = _grid_spans(cleaned["op"], cleaned["pv"], t0, ts_s, n_grid, max_gap_s)
+    n_points = int((spans[:, 1] - spans[:, 0] + 1).sum())
+    if n_points > MAX_GRID_SAMPLES:
+        raise ConnectorError(f"{n_points} samples at {ts_s:g} s is too many (the limit is {MAX_GRID_SAMPLES}); "
+                             "give a larger --ts-s", path=label)
+    gk = _grid_index(spans)
+    grid = t0 + gk * ts_s
+    step = float((t0 + ts_s) - t0) if n_grid > 1 else max_gap_s
     irr = irregularity(cleaned["op"].t, ts_s, max_gap_s)
     if irr > 0.05:
         findings.append(Finding("irregular_sampling", f"{100 * irr:.0f} % of sample intervals differ from "
@@ -251,7 +263,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     gridded: dict[str, np.ndarray] = {}
     filled_total = 0
     for role, c in cleaned.items():
-        g, filled = to_grid(c.t, c.x, grid, max_gap_s)
+        g, filled = to_grid(c.t, c.x, grid, max_gap_s, step=step)
         gridded[role] = g
         own = estimate_period([c.t])
         if role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
@@ -266,8 +278,10 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
             lo, hi = spec.ranges[role]
             gridded[role] = 100.0 * (gridded[role] - lo) / (hi - lo)
     ok = np.isfinite(gridded["op"]) & np.isfinite(gridded["pv"])
-    segs = runs(ok)
-    long_gaps = max(0, len(segs) - 1) + int(not ok[0]) + int(not ok[-1]) if segs else 0
+    segs = _split_at_jumps(runs(ok), gk)
+    first_ok = gk.size > 0 and gk[0] == 0 and ok[0]
+    last_ok = gk.size > 0 and gk[-1] == n_grid - 1 and ok[-1]
+    long_gaps = max(0, len(segs) - 1) + int(not first_ok) + int(not last_ok) if segs else 0
     if filled_total:
         findings.append(Finding("gap", f"{filled_total} missing or bad samples inside gaps up to "
                                 f"{max_gap_s:g} s were filled by linear interpolation",
@@ -275,6 +289,9 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                                 {"filled": filled_total, "max_gap_s": max_gap_s}))
     usable = [(a, b) for a, b in segs if b - a >= min_samples]
     dropped = len(segs) - len(usable)
+    far = _isolated(segs, usable, grid, bool(table and table.absolute))
+    if far:
+        findings.append(far)
     if not usable:
         best = max((b - a for a, b in segs), default=0)
         raise ConnectorError(f"too few samples: the longest stretch without a gap has {best} samples "
@@ -293,6 +310,14 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(Finding("op_range", f"OP ranges from {np.min(op_all):.4g} to {np.max(op_all):.4g}, "
                                 "outside 0-100 %; if it is in engineering units give its range in a tag map",
                                 "warning", {"min": float(np.min(op_all)), "max": float(np.max(op_all))}))
+    window = _window(usable, int(options.get("max_samples", DEFAULT_MAX_SAMPLES) or 0), min_samples, ts_s)
+    progress = options.get("_progress")
+    if progress:
+        total = sum(b - a for a, b in usable)
+        progress.say(f"{spec.name}: {total} samples at {ts_s:g} s in {len(usable)} segment(s)"
+                     + (f"; {window.message}" if window else ""))
+    if window is not None:
+        usable = window.segments
     from diagnose.quality import assess
 
     meta_base: dict[str, Any] = dict(table.meta if table else {})
@@ -306,11 +331,11 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     units.update({k: v for k, v in spec.units.items() if k in ("pv", "sp")})
     mode = None
     if "mode" in spec.roles:
-        mode, _ = to_grid(cleaned["mode"].t, cleaned["mode"].x, grid, max_gap_s)
+        mode, _ = to_grid(cleaned["mode"].t, cleaned["mode"].x, grid, max_gap_s, step=step)
     records = []
     for i, (a, b) in enumerate(usable):
         roles = {}
-        extra: list[Finding] = []
+        extra: list[Finding] = [window.finding] if window else []
         for role in ("sp", "mv"):
             if role not in gridded:
                 continue
@@ -326,7 +351,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                                      "segment and was left out", "info", {"role": role}))
         meta = dict(meta_base)
         meta["segment"] = i
-        meta["segment_samples"] = [int(a), int(b)]
+        meta["segment_samples"] = [int(gk[a]), int(gk[b - 1]) + 1]
         if mode is not None:
             m = mode[a:b]
             manual = np.isfinite(m) & (m < 0.5)
@@ -342,6 +367,133 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
             raise ConnectorError(str(exc), path=label) from None
         records.append(rec.with_findings(*assess(rec)))
     return records
+
+
+def _grid_spans(op: Cleaned, pv: Cleaned, t0: float, ts_s: float, n_grid: int, max_gap_s: float) -> np.ndarray:
+    """``[lo, hi]`` ranges of grid indices ``k`` (points ``t0 + k ts_s``) within reach of OP or PV
+    data, shape (m, 2), sorted and disjoint.
+
+    A point is within reach of a signal where `to_grid` can give it a value: inside a stretch of
+    samples without a gap longer than ``max_gap_s``, or within the on-sample tolerance of a sample
+    (spare points on each side cover it). Elsewhere both would be NaN, so those points are not
+    built; points that only one signal reaches are, so that its interpolated samples are counted.
+    """
+    tol = 1e-9 + 1e-6 * max(1.0, (abs(t0) + n_grid * ts_s) * 1e-6)
+    margin = 1 + int(np.ceil(tol / ts_s))
+
+    def spans(c: Cleaned) -> tuple[np.ndarray, np.ndarray]:
+        t = c.t[np.isfinite(c.x)]
+        brk = np.flatnonzero(np.diff(t) > max_gap_s * (1 + 1e-9))
+        first = np.concatenate(([0], brk + 1))
+        last = np.concatenate((brk, [t.size - 1]))
+        lo = np.clip(np.floor((t[first] - t0) / ts_s) - margin, 0, n_grid - 1).astype(np.int64)
+        hi = np.clip(np.ceil((t[last] - t0) / ts_s) + margin, 0, n_grid - 1).astype(np.int64)
+        return lo, hi
+
+    (lo_a, hi_a), (lo_b, hi_b) = spans(op), spans(pv)
+    lo, hi = np.concatenate((lo_a, lo_b)), np.concatenate((hi_a, hi_b))
+    order = np.argsort(lo, kind="stable")
+    return _merge(lo[order], hi[order])
+
+
+def _grid_index(spans: np.ndarray) -> np.ndarray:
+    """All indices of ``[lo, hi]`` ranges, in order."""
+    counts = spans[:, 1] - spans[:, 0] + 1
+    offsets = np.cumsum(counts) - counts
+    return np.arange(int(counts.sum()), dtype=np.int64) + np.repeat(spans[:, 0] - offsets, counts)
+
+
+def _merge(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Sorted, possibly overlapping ``[lo, hi]`` ranges joined into disjoint ones, shape (m, 2)."""
+    if not lo.size:
+        return np.zeros((0, 2), np.int64)
+    start = np.concatenate(([True], lo[1:] > np.maximum.accumulate(hi)[:-1]))
+    first = np.flatnonzero(start)
+    return np.stack([lo[first], np.maximum.reduceat(hi, first)], axis=1)
+
+
+def _split_at_jumps(segs: list[tuple[int, int]], k: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of a sparse grid split where the grid skips points (a run never spans skipped points)."""
+    jumps = np.flatnonzero(np.diff(k) != 1) + 1
+    if not jumps.size:
+        return segs
+    out = []
+    for a, b in segs:
+        cuts = jumps[np.searchsorted(jumps, a, side="right"):np.searchsorted(jumps, b, side="left")].tolist()
+        edges = [a] + cuts + [b]
+        out.extend(zip(edges[:-1], edges[1:]))
+    return out
+
+
+#: A stretch this far (seconds) from the rest of a loop's data is reported as isolated.
+ISOLATED_GAP_S = 86_400.0
+
+
+def _isolated(segs: list[tuple[int, int]], usable: list[tuple[int, int]], grid: np.ndarray,
+              absolute: bool) -> Finding | None:
+    """Short stretches (dropped) lying more than `ISOLATED_GAP_S` from every usable segment."""
+    if not usable or len(segs) == len(usable):
+        return None
+    starts = np.array([grid[a] for a, _ in usable])
+    ends = np.array([grid[b - 1] for _, b in usable])
+    kept = set(usable)
+    far = []
+    for a, b in segs:
+        if (a, b) in kept:
+            continue
+        dist = float(np.min(np.maximum(starts - grid[b - 1], grid[a] - ends)))
+        if dist > ISOLATED_GAP_S:
+            far.append((a, b, dist))
+    if not far:
+        return None
+    n = sum(b - a for a, b, _ in far)
+    worst = max(d for _, _, d in far)
+    when = (lambda t: iso_utc(t)) if absolute else (lambda t: f"t = {t:g} s")
+    where = ", ".join(f"{b - a} at {when(grid[a])}" for a, b, _ in far[:3]) + (" ..." if len(far) > 3 else "")
+    return Finding("isolated", f"{n} sample(s) far from the rest of the record ({where}; up to "
+                   f"{_duration(worst)} away) were left out: too few to diagnose on their own",
+                   "warning", {"stretches": len(far), "samples": n, "max_distance_s": round(worst, 3),
+                               "starts_s": [round(float(grid[a]), 3) for a, _, _ in far[:50]]})
+
+
+def _duration(seconds: float) -> str:
+    """A duration in the unit an engineer would say it in."""
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
+@dataclass(frozen=True)
+class _Window:
+    """The newest ``max_samples`` samples of a loop: the segments kept and the finding that says so."""
+
+    segments: list[tuple[int, int]]
+    finding: Finding
+    message: str
+
+
+def _window(usable: list[tuple[int, int]], max_samples: int, min_samples: int, ts_s: float) -> _Window | None:
+    total = sum(b - a for a, b in usable)
+    if max_samples <= 0 or total <= max_samples:
+        return None
+    kept: list[tuple[int, int]] = []
+    left = max_samples
+    for a, b in reversed(usable):
+        if left < min_samples:
+            break
+        start = max(a, b - left)
+        kept.append((start, b))
+        left -= b - start
+    kept.reverse()
+    n = sum(b - a for a, b in kept)
+    message = (f"diagnosing the newest {n} ({_duration(n * ts_s)}) of {total} samples "
+               f"({_duration(total * ts_s)}): the max_samples limit")
+    finding = Finding("window", f"the record has {total} usable samples ({_duration(total * ts_s)}); only the "
+                      f"newest {n} ({_duration(n * ts_s)}) are diagnosed (max_samples = {max_samples}; a larger "
+                      "limit costs time and memory)", "info",
+                      {"samples": total, "kept": n, "max_samples": max_samples})
+    return _Window(kept, finding, message)
 
 
 def merge_specs(specs: list[LoopSpec]) -> list[LoopSpec]:

@@ -1,13 +1,15 @@
 """Timestamps and the uniform time grid.
 
-* `parse_times` turns a column of timestamp strings into seconds (UTC epoch for calendar times,
-  plain seconds for numeric ``t`` columns). It recognises ISO 8601 and the common vendor formats
-  (PI ``27-Nov-2024 23:59:00``, US ``11/27/2024 11:59:00 PM``, European ``27.11.2024 23:59``,
-  ``2024/11/27 23:59:00``, compact ``20241127 235900``, epoch seconds/milliseconds). The format is
-  chosen once from the column (day-first vs month-first decided by any field above 12) and then
-  applied to every row.
-* Naive calendar times are local times in ``tz`` (an IANA name; default UTC). The DST policy for
-  the repeated autumn hour and the missing spring hour is ``dst``:
+* `parse_times` turns a column of timestamps into seconds (UTC epoch for calendar times, plain
+  seconds for numeric ``t`` columns). pandas (`pandas.to_datetime`) does the parsing; what is ours
+  is which format a column is in: ISO 8601 or one of the vendor formats (PI
+  ``27-Nov-2024 23:59:00``, US ``11/27/2024 11:59:00 PM``, European ``27.11.2024 23:59``,
+  ``2024/11/27 23:59:00``, compact ``20241127 235900``), epoch seconds or milliseconds, Excel
+  serial days. The format is chosen once from a sample of the column (day-first vs month-first
+  decided by any field above 12) and applied to every row.
+* Naive calendar times are local times in ``tz`` (an IANA name; default UTC), localised with
+  `pandas.Series.dt.tz_localize`. The DST policy for the repeated autumn hour and the missing
+  spring hour is ``dst``:
 
   - ``"infer"`` (default): in the repeated hour the first pass is read as summer time and, once the
     wall clock steps back, the second pass as winter time (in file order, newest-first files
@@ -15,8 +17,9 @@
   - ``"earliest"`` / ``"latest"``: always the first / second reading of an ambiguous time.
   - ``"raise"``: an ambiguous or missing local time is an error naming the line.
 
-* `to_grid` puts irregular, reversed or duplicated samples on a uniform grid: linear interpolation
-  only inside gaps up to ``max_gap_s``; longer gaps stay NaN so that the caller splits the record.
+* `clean_series` sorts and de-duplicates a series (pandas ``groupby().first()``); `to_grid` puts it
+  on a uniform grid with our gap policy: linear interpolation only inside gaps up to ``max_gap_s``;
+  longer gaps stay NaN so that the caller splits the record.
 """
 
 from __future__ import annotations
@@ -24,17 +27,19 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
+import pandas as pd
 
 from diagnose.errors import ConnectorError
 
 DST_POLICIES = ("infer", "earliest", "latest", "raise")
 _SECONDS_NAMES = {"t", "ts", "t_s", "time_s", "seconds", "sec", "s", "elapsed", "elapsed_s"}
 _EPOCH = datetime(1970, 1, 1)
+_EXCEL_EPOCH_US = int((datetime(1899, 12, 30) - _EPOCH) / timedelta(microseconds=1))
 
-# (regex that a sample must match, strptime formats to try, day-first flag or None)
+# (regex that a sample must match, strptime formats to try)
 _VENDOR_FORMATS: list[tuple[str, list[str]]] = [
     (r"^\d{1,2}-[A-Za-z]{3}-\d{2,4}[ T]", ["%d-%b-%Y %H:%M:%S.%f", "%d-%b-%Y %H:%M:%S", "%d-%b-%Y %H:%M",
                                          "%d-%b-%y %H:%M:%S.%f", "%d-%b-%y %H:%M:%S", "%d-%b-%y %H:%M"]),
@@ -44,6 +49,10 @@ _VENDOR_FORMATS: list[tuple[str, list[str]]] = [
 ]
 _SLASH = re.compile(r"^(\d{1,2})[/.](\d{1,2})[/.](\d{2,4})")
 _TIME_PARTS = ["%H:%M:%S.%f", "%H:%M:%S", "%H:%M", "%I:%M:%S %p", "%I:%M:%S.%f %p", "%I:%M %p"]
+# an ISO time with a UTC offset after it (a date alone ends in "-27" and is no offset)
+_NAT = np.iinfo(np.int64).min
+_OFFSET = re.compile(r"[T\s]\S*[+-]\d{2}(?::?\d{2}(?::?\d{2}(?:\.\d+)?)?)?$")
+_FRACTION_COMMA = re.compile(r"(\d{2}:\d{2}:\d{2}),(\d+)")
 
 
 @dataclass(frozen=True)
@@ -58,14 +67,6 @@ class ParsedTimes:
 
 def _fail(msg: str, label: str | None, line: int | None, column: str | None) -> ConnectorError:
     return ConnectorError(msg, path=label, line=line, column=column)
-
-
-def _numeric_times(texts: Sequence[str]) -> np.ndarray | None:
-    try:
-        arr = np.array([t if t else "nan" for t in texts], dtype=float)
-    except ValueError:
-        return None
-    return arr
 
 
 def _choose_format(samples: list[str]) -> str:
@@ -126,14 +127,21 @@ def _tzinfo(tz: str | None):
                              f"or an offset such as '+01:00'") from None
 
 
-def parse_times(texts: Sequence[str], *, tz: str | None = None, dst: str = "infer",
-                label: str | None = None, column: str | None = None,
-                lines: Sequence[int] | None = None) -> ParsedTimes:
+def _cells(col: Any) -> list[str]:
+    """Stripped text of each cell ("" where empty)."""
+    try:
+        return [v.strip() for v in col]
+    except AttributeError:
+        return [v.strip() if isinstance(v, str) else "" if v is None or v != v else str(v).strip() for v in col]
+
+
+def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label: str | None = None,
+                column: str | None = None, lines: Sequence[int] | None = None) -> ParsedTimes:
     """Read a column of timestamps.
 
     Parameters
     ----------
-    texts : sequence of str
+    texts : sequence of str, or a pandas Series (text or numbers)
         One cell per row (blank cells give NaN).
     tz : str, optional
         Time zone of naive calendar times (IANA name or ``+hh:mm``); default UTC.
@@ -149,137 +157,209 @@ def parse_times(texts: Sequence[str], *, tz: str | None = None, dst: str = "infe
     """
     if dst not in DST_POLICIES:
         raise ConnectorError(f"dst policy must be one of {', '.join(DST_POLICIES)}, not {dst!r}")
-    n = len(texts)
-    texts = [t.strip() for t in texts]
-    line_of = (lambda k: lines[k]) if lines is not None else (lambda k: None)
-    num = _numeric_times(texts)
-    if num is not None:
-        fin = num[np.isfinite(num)]
-        if fin.size and np.all(np.abs(fin) > 1e11) and np.all(np.abs(fin) < 1e14):
-            return ParsedTimes(num / 1000.0, True, "epoch_ms", "UTC")
-        if fin.size and np.all(fin > 9e8) and np.all(fin < 5e9) and np.all(fin == np.round(fin)):
-            return ParsedTimes(num, True, "epoch_s", "UTC")
-        name = (column or "").strip().lower()
-        if (fin.size > 1 and np.all(fin > 20000) and np.all(fin < 80000) and name not in _SECONDS_NAMES
-                and np.median(np.abs(np.diff(fin))) < 1.0):
-            # Excel serial days (1899-12-30 epoch), naive local time: read via calendar strings
-            base = datetime(1899, 12, 30)
-            iso = ["" if not np.isfinite(v) else (base + timedelta(days=float(v))).isoformat(timespec="milliseconds")
-                   for v in num]
-            pt = parse_times(iso, tz=tz, dst=dst, label=label, column=column, lines=lines)
-            return ParsedTimes(pt.seconds, True, "excel_serial", pt.tz)
-        return ParsedTimes(num, False, "seconds", None)
-    nonblank = [k for k, t in enumerate(texts) if t]
-    if not nonblank:
+    if isinstance(texts, pd.Series):
+        texts = texts.to_numpy()
+    if isinstance(texts, np.ndarray) and texts.dtype.kind in "fiu":
+        return _numeric(np.array(texts, dtype=float), tz, dst, label, column, lines)
+
+    def line_of(k: int) -> int | None:
+        return int(lines[k]) if lines is not None else None
+
+    cells = np.asarray(texts, dtype=object) if not isinstance(texts, np.ndarray) else texts.astype(object, copy=False)
+    nonblank = np.flatnonzero(~pd.isna(cells))       # cells of white space only are found below
+    if not nonblank.size:
         raise _fail("timestamp column is empty", label, None, column)
-    norm = [t.replace("Z", "+00:00") if t.endswith("Z") else t for t in texts]
-    norm = [re.sub(r"(\d{2}:\d{2}:\d{2}),(\d+)", r"\1.\2", t) if "," in t else t for t in norm]
-    sample_idx = nonblank[:: max(1, len(nonblank) // 200)][:200]
+    if not all(isinstance(c, str) for c in cells[nonblank[:100]]):
+        cells = np.array(_cells(cells), dtype=object)
+        nonblank = nonblank[cells[nonblank] != ""]
+        if not nonblank.size:
+            raise _fail("timestamp column is empty", label, None, column)
+    if _is_float(cells[nonblank[0]]):
+        num = _float_cells(_cells(cells))
+        if num is not None:
+            return _numeric(num, tz, dst, label, column, lines)
+    norm = cells
+    if "," in "\x00".join(cells[nonblank]):       # 23:59:00,000: the fraction after a comma
+        norm = np.array([_FRACTION_COMMA.sub(r"\1.\2", c.strip()) if isinstance(c, str) and "," in c else c
+                         for c in cells], dtype=object)
+    sample_idx = [k for k in nonblank[:: max(1, nonblank.size // 200)][:200] if norm[k].strip()]
+    if not sample_idx:
+        raise _fail("timestamp column is empty", label, None, column)
+    samples = [_norm(norm[k]) for k in sample_idx]
     try:
-        fmt = _choose_format([norm[k] for k in sample_idx])
+        fmt = _choose_format(samples)
     except ValueError as exc:
-        k = next(k for k in sample_idx if norm[k] == str(exc)) if str(exc) in norm else sample_idx[0]
-        raise _fail(f"cannot read timestamp {texts[k][:40]!r}: not ISO 8601 or a known vendor format; "
+        k = next((k for k, c in zip(sample_idx, samples) if c == str(exc)), sample_idx[0])
+        raise _fail(f"cannot read timestamp {cells[k].strip()[:40]!r}: not ISO 8601 or a known vendor format; "
                     "give the time as ISO 8601 (2024-11-27 23:59:00)", label, line_of(k), column) from None
     zone = _tzinfo(tz)
-    if fmt == "iso":
-        fast = _iso_fast(texts, nonblank, zone)
-        if fast is not None:
-            return ParsedTimes(fast, True, fmt, tz or "UTC")
-    dts: list[datetime | None] = [None] * n
-    parse = datetime.fromisoformat if fmt == "iso" else (lambda s, f=fmt: datetime.strptime(s, f))
-    for k in nonblank:
-        try:
-            dts[k] = parse(norm[k])
-        except ValueError:
-            raise _fail(f"cannot read timestamp {texts[k][:40]!r} (other rows are {fmt!r})",
-                        label, line_of(k), column) from None
-    out = np.full(n, np.nan)
-    aware = [dts[k].tzinfo is not None for k in nonblank]  # type: ignore[union-attr]
-    if any(aware) and not all(aware):
-        k = nonblank[aware.index(not aware[0])]
-        raise _fail("timestamps mix times with and without a UTC offset", label, line_of(k), column)
-    if aware[0]:
-        for k in nonblank:
-            out[k] = dts[k].timestamp()  # type: ignore[union-attr]
-        return ParsedTimes(out, True, fmt, "offset")
-    if zone is timezone.utc or isinstance(zone, timezone):
-        off = zone.utcoffset(None).total_seconds()
-        for k in nonblank:
-            out[k] = (dts[k] - _EPOCH).total_seconds() - off  # type: ignore[operator]
-        return ParsedTimes(out, True, fmt, tz or "UTC")
-    _localise(dts, nonblank, zone, dst, out, label, column, line_of)
-    return ParsedTimes(out, True, fmt, tz)
-
-
-_TZ_SUFFIX_ML = re.compile(r"[+-]\d{2}:?\d{2}$", re.M)
-_ISO_SHAPE = re.compile(r"^\d{4}-\d{2}-\d{2}([T ]\d{2}:\d{2}(:\d{2}(\.\d{1,6})?)?)?$")
-
-
-def _iso_fast(texts: list[str], nonblank: list[int], zone) -> np.ndarray | None:
-    """Vectorised ISO 8601 for the common cases: all naive (UTC or a fixed offset) or all ``Z``."""
-    if not isinstance(zone, timezone):
-        return None
-    joined = "\n".join(texts[k] for k in nonblank)
-    n_z = joined.count("Z")
-    all_z = n_z == len(nonblank) and all(texts[k].endswith("Z") for k in nonblank) if n_z else False
-    if n_z and not all_z:
-        return None
-    if not all_z and _TZ_SUFFIX_ML.search(joined):
-        return None
-    cells = [t[:-1] if all_z and t else t for t in texts]
-    step = max(1, len(nonblank) // 50)
-    if not all(_ISO_SHAPE.match(cells[k]) for k in nonblank[::step] + [nonblank[-1]]):
-        return None
+    sub = norm[nonblank]
+    us = np.full(len(norm), _NAT, dtype=np.int64)        # UTC (aware) or wall-clock (naive) µs
+    aware = np.zeros(len(norm), bool)
     try:
-        arr = np.array([c if c else "NaT" for c in cells], dtype="datetime64[us]")
-    except ValueError:
-        return None
-    sec = arr.astype("int64").astype(float) / 1e6
-    sec[np.isnat(arr)] = np.nan
-    if not all_z:
-        sec -= zone.utcoffset(None).total_seconds()
-    return sec
+        dt = pd.to_datetime(sub, format="ISO8601" if fmt == "iso" else fmt, errors="coerce")
+    except (ValueError, OverflowError, TypeError):   # mixed UTC offsets, or with and without one
+        aware[nonblank] = [bool(_OFFSET.search(c.strip())) for c in sub]
+        for part, utc in ((aware, True), (~aware, False)):
+            idx = nonblank[part[nonblank]]
+            if idx.size:
+                us[idx] = _to_us(norm[idx], fmt, utc)
+    else:
+        if dt.tz is not None:
+            aware[nonblank] = True
+            dt = dt.tz_convert("UTC").tz_localize(None)
+        us[nonblank] = dt.as_unit("us").asi8
+    bad = nonblank[us[nonblank] == _NAT]
+    if bad.size:
+        blank = _python_fallback(norm, bad, us, aware, fmt, cells, label, column, line_of)
+        if blank.size:
+            nonblank = np.setdiff1d(nonblank, blank)
+            if not nonblank.size:
+                raise _fail("timestamp column is empty", label, None, column)
+    if aware[nonblank].any() and not aware[nonblank].all():
+        first = aware[nonblank[0]]
+        k = int(nonblank[np.flatnonzero(aware[nonblank] != first)[0]])
+        raise _fail("timestamps mix times with and without a UTC offset", label, line_of(k), column)
+    out = np.full(len(norm), np.nan)
+    if aware[nonblank[0]]:
+        out[nonblank] = us[nonblank] / 1e6
+        return ParsedTimes(out, True, fmt, "offset")
+    out[nonblank] = _localise(us, nonblank, zone, dst, label, column, line_of)
+    return ParsedTimes(out, True, fmt, tz or "UTC")
 
 
-def _localise(dts, nonblank, zone, dst, out, label, column, line_of) -> None:
-    """Naive local times -> UTC seconds under the DST policy (in place into ``out``)."""
-    first = [dts[k].replace(tzinfo=zone, fold=0).timestamp() for k in nonblank]
-    second = [dts[k].replace(tzinfo=zone, fold=1).timestamp() for k in nonblank]
-    walls = [(dts[k] - _EPOCH).total_seconds() for k in nonblank]
-    descending = len(walls) > 1 and walls[-1] < walls[0]
-    order = range(len(nonblank) - 1, -1, -1) if descending else range(len(nonblank))
-    in_second_pass = False
-    last_wall = None
-    for i in order:
-        k = nonblank[i]
-        a, b = first[i], second[i]
-        if a == b:
-            out[k] = a
-            in_second_pass = False
-            last_wall = None
+def _float_cells(cells: list[str]) -> np.ndarray | None:
+    """Every non-empty cell as a float (NaN where empty), or None if one is not a number."""
+    num = np.array(pd.to_numeric(np.array([c or "nan" for c in cells], dtype=object), errors="coerce"),
+                   dtype=float)
+    for k in np.flatnonzero(np.isnan(num)):
+        if cells[k]:
+            try:
+                num[k] = float(cells[k])
+            except (ValueError, OverflowError):
+                return None
+    return num
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except (ValueError, OverflowError):
+        return False
+
+
+def _numeric(num: np.ndarray, tz, dst, label, column, lines) -> ParsedTimes:
+    """Epoch milliseconds or seconds, Excel serial days, or plain seconds."""
+    fin = num[np.isfinite(num)]
+    if fin.size and np.all(np.abs(fin) > 1e11) and np.all(np.abs(fin) < 1e14):
+        return ParsedTimes(num / 1000.0, True, "epoch_ms", "UTC")
+    if fin.size and np.all(fin > 9e8) and np.all(fin < 5e9) and np.all(fin == np.round(fin)):
+        return ParsedTimes(num, True, "epoch_s", "UTC")
+    name = (column or "").strip().lower()
+    if (fin.size > 1 and np.all(fin > 20000) and np.all(fin < 80000) and name not in _SECONDS_NAMES
+            and np.median(np.abs(np.diff(fin))) < 1.0):
+        # Excel serial days (1899-12-30 epoch), naive local time, to the millisecond
+        ok = np.flatnonzero(np.isfinite(num))
+        wall = np.full(num.size, _NAT, dtype=np.int64)
+        wall[ok] = _EXCEL_EPOCH_US + np.round(num[ok] * 86_400e6).astype(np.int64) // 1000 * 1000
+        out = np.full(num.size, np.nan)
+        line_of = (lambda k: int(lines[k])) if lines is not None else (lambda k: None)
+        out[ok] = _localise(wall, ok, _tzinfo(tz), dst, label, column, line_of)
+        return ParsedTimes(out, True, "excel_serial", tz or "UTC")
+    return ParsedTimes(num, False, "seconds", None)
+
+
+def _to_us(cells: np.ndarray, fmt: str, utc: bool) -> np.ndarray:
+    """Microseconds since the epoch per cell (`_NAT` where pandas could not read it)."""
+    try:
+        dt = pd.to_datetime(cells, format="ISO8601" if fmt == "iso" else fmt, errors="coerce", utc=utc)
+    except (ValueError, OverflowError, TypeError):
+        return np.full(len(cells), _NAT, dtype=np.int64)
+    if utc:
+        dt = dt.tz_localize(None)
+    return np.array(dt.as_unit("us").asi8)
+
+
+def _norm(cell: str) -> str:
+    """A cell as Python's parsers take it: stripped, ``Z`` as ``+00:00``."""
+    cell = cell.strip()
+    return cell.replace("Z", "+00:00") if cell.endswith("Z") else cell
+
+
+def _python_fallback(norm, bad, us, aware, fmt, cells, label, column, line_of) -> np.ndarray:
+    """Cells pandas did not read, by Python's own parser; the first that fails is an error.
+
+    Returns the rows that were only white space (blank)."""
+    blank = []
+    for k in bad:
+        s = _norm(norm[k])
+        if not s:
+            blank.append(k)
             continue
-        exists = datetime.fromtimestamp(a, zone).replace(tzinfo=None) == dts[k]
-        if not exists:  # spring-forward hole: shift forward by the offset change
+        try:
+            dt = datetime.fromisoformat(s) if fmt == "iso" else datetime.strptime(s, fmt)
+        except ValueError:
+            raise _fail(f"cannot read timestamp {cells[k].strip()[:40]!r} (other rows are {fmt!r})",
+                        label, line_of(k), column) from None
+        aware[k] = dt.tzinfo is not None
+        if aware[k]:
+            us[k] = int((dt - datetime(1970, 1, 1, tzinfo=timezone.utc)) / timedelta(microseconds=1))
+        else:
+            us[k] = int((dt - _EPOCH) / timedelta(microseconds=1))
+    return np.array(blank, dtype=np.int64)
+
+
+def _localise(wall_us: np.ndarray, rows: np.ndarray, zone, dst: str, label, column, line_of) -> np.ndarray:
+    """UTC seconds of naive local times ``wall_us[rows]`` in ``zone`` under the DST policy."""
+    wall = wall_us[rows]
+    if isinstance(zone, timezone):
+        return wall / 1e6 - zone.utcoffset(None).total_seconds()
+    local = pd.DatetimeIndex(wall.astype("datetime64[us]"))
+    utc = local.tz_localize(zone, ambiguous="NaT", nonexistent="NaT")
+    sec = np.full(wall.size, np.nan)
+    ok = ~utc.isna()
+    sec[ok] = utc[ok].as_unit("us").asi8 / 1e6
+    if ok.all():
+        return sec
+    # the repeated and the missing hour: our policy, in file order (reversed for newest-first files)
+    descending = wall.size > 1 and wall[-1] < wall[0]
+    order = np.arange(wall.size)[::-1] if descending else np.arange(wall.size)
+    normal_seen = np.cumsum(ok[order])
+    in_second_pass, last_wall, last_seen = False, None, None
+    for i in np.flatnonzero(~ok[order]):
+        k = int(order[i])
+        if last_seen is not None and normal_seen[i] != last_seen:
+            in_second_pass, last_wall = False, None      # an unambiguous time came between
+        last_seen = normal_seen[i]
+        dt = _EPOCH + timedelta(microseconds=int(wall[k]))
+        a = dt.replace(tzinfo=zone, fold=0).timestamp()
+        b = dt.replace(tzinfo=zone, fold=1).timestamp()
+        if a == b:
+            sec[k] = a
+            continue
+        line = line_of(int(rows[k]))
+        if datetime.fromtimestamp(a, zone).replace(tzinfo=None) != dt:  # spring-forward hole
             if dst == "raise":
-                raise ConnectorError(f"local time {dts[k]} does not exist in {zone} (DST change); "
+                raise ConnectorError(f"local time {dt} does not exist in {zone} (DST change); "
                                      "choose --dst earliest/latest or give UTC times",
-                                     path=label, line=line_of(k), column=column)
-            out[k] = max(a, b)
+                                     path=label, line=line, column=column)
+            sec[k] = max(a, b)
             continue
         if dst == "raise":
-            raise ConnectorError(f"local time {dts[k]} is ambiguous in {zone} (DST change); "
+            raise ConnectorError(f"local time {dt} is ambiguous in {zone} (DST change); "
                                  "choose --dst earliest/latest/infer or give UTC times",
-                                 path=label, line=line_of(k), column=column)
+                                 path=label, line=line, column=column)
         if dst == "earliest":
-            out[k] = min(a, b)
+            sec[k] = min(a, b)
         elif dst == "latest":
-            out[k] = max(a, b)
+            sec[k] = max(a, b)
         else:
-            if last_wall is not None and walls[i] < last_wall:
+            if last_wall is not None and wall[k] < last_wall:
                 in_second_pass = True
-            out[k] = max(a, b) if in_second_pass else min(a, b)
-            last_wall = walls[i]
+            sec[k] = max(a, b) if in_second_pass else min(a, b)
+            last_wall = wall[k]
+    return sec
 
 
 def iso_utc(seconds: float) -> str:
@@ -300,30 +380,21 @@ class Cleaned:
 
 
 def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
-    """Drop rows without a time, sort by time, keep the first of duplicated times."""
+    """Drop rows without a time, sort by time, keep the first finite value of duplicated times."""
     keep = np.isfinite(t)
     t, x = t[keep], x[keep]
-    reversed_ = bool(t.size > 1 and np.count_nonzero(np.diff(t) < 0) > 0.5 * (t.size - 1))
-    if t.size > 1 and np.any(np.diff(t) <= 0):
-        order = np.argsort(t, kind="stable")  # duplicates keep file order
+    d = np.diff(t)
+    reversed_ = bool(t.size > 1 and np.count_nonzero(d < 0) > 0.5 * (t.size - 1))
+    if t.size > 1 and np.any(d <= 0):
+        order = np.argsort(t, kind="stable")                     # duplicates keep file order
         t, x = t[order], x[order]
-        dup = np.concatenate([[False], np.diff(t) == 0])
-        # a duplicated time keeps the first finite value given for it
-        n_dup = int(np.count_nonzero(dup))
-        if n_dup:
-            grp = np.cumsum(~dup) - 1
-            best = np.full(grp[-1] + 1, np.nan)
-            fin = np.isfinite(x)
-            # first finite value of each group
-            idx = np.flatnonzero(fin)
-            g = grp[idx]
-            first_fin = np.unique(g, return_index=True)
-            best[first_fin[0]] = x[idx[first_fin[1]]]
-            t = t[~dup]
-            x = best
-    else:
-        n_dup = 0
-    return Cleaned(t, x, n_dup, reversed_)
+        if np.all(np.diff(t) > 0):
+            return Cleaned(t, x, 0, reversed_)
+        s = pd.Series(x, index=t)
+        first = s.groupby(level=0, sort=False).first()           # first non-NaN of each time
+        return Cleaned(np.array(first.index, dtype=float), np.array(first, dtype=float),
+                       len(s) - len(first), reversed_)
+    return Cleaned(t, x, 0, reversed_)
 
 
 def estimate_period(times: Sequence[np.ndarray]) -> float:
@@ -345,14 +416,18 @@ def irregularity(t: np.ndarray, ts_s: float, max_gap_s: float) -> float:
     return float(np.count_nonzero(np.abs(d - ts_s) > 0.1 * ts_s) / d.size)
 
 
-def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, int]:
+def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
+            step: float | None = None) -> tuple[np.ndarray, int]:
     """Values of a sorted series on ``grid``: linear inside gaps up to ``max_gap_s``, NaN beyond.
 
-    Returns the gridded values and how many grid points were filled by interpolation across a
-    missing or bad sample.
+    ``grid`` is increasing in steps of ``step`` (default ``grid[1] - grid[0]``); it may skip
+    stretches where there is no data. Returns the gridded values and how many grid points were filled by interpolation
+    across a missing or bad sample.
     """
     ok = np.isfinite(x)
-    tv, xv = t[ok], x[ok]
+    tv, xv = (t, x) if ok.all() else (t[ok], x[ok])
+    if tv.size == grid.size and tv.size > 1 and np.array_equal(tv, grid):
+        return xv.copy(), 0                      # every grid point is a sample: nothing to interpolate
     out = np.full(grid.shape, np.nan)
     if tv.size == 0:
         return out, 0
@@ -372,7 +447,8 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float) ->
     good = inside & (span <= max_gap_s * (1 + 1e-9))
     out[good] = vals[good]
     out[exact_end] = xv[-1]
-    step = float(grid[1] - grid[0]) if grid.size > 1 else max_gap_s
+    if step is None:
+        step = float(grid[1] - grid[0]) if grid.size > 1 else max_gap_s
     on_sample = (j > 0) & (np.abs(grid - t0) <= 1e-6 * step)
     out[on_sample] = xv[jj - 1][on_sample]   # a grid point on a sample keeps it, even beside a long gap
     # interpolation across a missing/bad sample: interval longer than 1.5 grid steps

@@ -153,3 +153,55 @@ class LoopRecord:
     def roles(self) -> dict[str, np.ndarray]:
         """The present series by role name."""
         return {r: getattr(self, r) for r in ROLES if getattr(self, r) is not None}
+
+    @classmethod
+    def from_frame(cls, df: Any, *, op: str | None = None, pv: str | None = None, sp: str | None = None,
+                   mv: str | None = None, ts_s: float | None = None, name: str | None = None,
+                   tz: str | None = None) -> "LoopRecord":
+        """One loop's record from a pandas DataFrame.
+
+        The time is the frame's `DatetimeIndex`, or its time column (``time``, ``timestamp``...),
+        or, for evenly spaced rows, the row number times ``ts_s``. Which column is OP, PV, SP and MV
+        is guessed from the names as for files (``OP``, ``FIC101.PV``, ``SP``, ``MV``/``.POS``...;
+        see docs/connectors.md) unless given. Rows are sorted, duplicated times keep their first
+        value, short gaps are interpolated and the result is on a uniform grid (``ts_s``, default
+        the median spacing), with the same data-quality findings as a file.
+
+        Parameters
+        ----------
+        df : pandas.DataFrame
+        op, pv, sp, mv : str, optional
+            Column names of controller output (% of span), process variable, setpoint and valve
+            stem position (% of span).
+        ts_s : float, optional
+            Sample period in seconds (required for frames without a time).
+        name : str, optional
+            Loop name (default: the columns' tag, ``df.attrs["name"]``, else ``"LOOP"``).
+        tz : str, optional
+            Time zone of naive times (IANA name or ``+hh:mm``; default UTC).
+
+        Raises
+        ------
+        DataError
+            The frame has no OP or PV column, several loops, a gap longer than ten sample periods
+            (``connectors.read_frame`` gives one record per segment), or too few samples.
+        """
+        from connectors.frame import record_from_frame
+
+        return record_from_frame(df, op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, name=name, tz=tz)
+
+    def to_frame(self) -> Any:
+        """The record as a pandas DataFrame: columns OP, PV[, SP][, MV] on a UTC `DatetimeIndex`.
+
+        The index starts at `start` (at 1970-01-01 UTC when the start is unknown) and steps by
+        ``ts_s``; ``attrs`` holds ``name``, ``ts_s``, ``units`` and ``source``.
+        """
+        import pandas as pd
+
+        start = pd.Timestamp(self.start) if self.start else pd.Timestamp(0)
+        start = start.tz_localize("UTC") if start.tz is None else start.tz_convert("UTC")
+        index = pd.DatetimeIndex(start + pd.to_timedelta(self.t_s, unit="s"), name="time")
+        data = {role.upper(): series for role, series in self.roles().items()}
+        df = pd.DataFrame(data, index=index)
+        df.attrs.update({"name": self.name, "ts_s": self.ts_s, "units": dict(self.units), "source": self.source})
+        return df

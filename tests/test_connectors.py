@@ -17,7 +17,7 @@ from connectors.columns import role_of, split_tag
 from connectors.historian import format_wide, read_wide, write_wide
 from connectors.layouts import detect_layout
 from connectors.tagmap import load_tagmap
-from connectors.textio import load_text, quality_good
+from connectors.textio import open_source, quality_good
 from connectors.timebase import parse_times
 from diagnose.errors import ConnectorError
 from diagnose.record import LoopRecord
@@ -49,7 +49,7 @@ def wide_text(n=200, sep=",", header=("time", "FIC1.OP", "FIC1.PV"), seed=0, sta
     ("wide_semicolon_comma.csv", "wide"), ("wide_tab_dst_berlin.tsv", "wide"),
 ])
 def test_layout_detection(fname, layout):
-    assert detect_layout(load_text(DATA / fname)) == layout
+    assert detect_layout(open_source(DATA / fname)) == layout
 
 
 def test_dcs_export_mv_is_the_controller_output():
@@ -418,3 +418,225 @@ def test_to_grid_interpolates_short_gaps_only():
     np.testing.assert_allclose(g[:7], np.arange(7.0))           # 3 s gap filled
     assert np.all(np.isnan(g[7:20])) and g[20] == 20 and g[21] == 21
     assert filled == 2
+
+
+def test_first_row_wider_than_the_header_is_an_error_not_dropped_data():
+    # pandas would take the extra field of a first row for an index and drop it without a word
+    text = "time,OP,PV\n1,2,3,4\n" + "".join(f"{k},{k % 7},{k % 5}\n" for k in range(2, 40))
+    with pytest.raises(ConnectorError, match=r"<stream>:2: row has 4 fields but the header has 3"):
+        read_records(io.StringIO(text))
+    text = "time,OP,PV\n1,2,3,\n" + "".join(f"{k},{k % 7},{k % 5},\n" for k in range(2, 40))
+    (rec,) = read_records(io.StringIO(text))                 # trailing separators are fine
+    assert rec.n == 39
+
+
+def test_line_numbers_count_line_breaks_inside_quoted_cells():
+    text = 'time,OP,PV\n1,2,3\n2,"a\nb",4\n3,4\n' + "".join(f"{k},{k},{k}\n" for k in range(4, 30))
+    with pytest.raises(ConnectorError, match=r"<stream>:5: row has 2 fields"):
+        read_records(io.StringIO(text))
+
+
+def test_empty_quality_cell_flags_nothing():
+    good, scheme = quality_good(["192", "", "0", "216"], "Quality")
+    assert scheme == "opc" and good.tolist() == [True, True, False, True]
+
+
+def test_stray_row_a_year_later_builds_no_giant_grid(monkeypatch):
+    import connectors.records as records
+
+    # a grid over the whole year at 1 s would be 31.5 M points; only the points near data are built
+    monkeypatch.setattr(records, "MAX_GRID_SAMPLES", 100_000)
+    rows = wide_text(2000).splitlines()
+    rows.append("2025-05-01T00:00:00Z,50.0,20.0")
+    (rec,) = read_records(io.StringIO("\n".join(rows)))
+    assert rec.n == 2000 and rec.start == "2024-05-01T00:00:00Z"
+    far = next(f for f in rec.findings if f.code == "isolated")
+    assert far.severity == "warning" and far.data["samples"] == 1 and far.data["max_distance_s"] > 364 * 86400
+    assert "2025-05-01T00:00:00Z" in far.message
+    seg = next(f for f in rec.findings if f.code == "segment")
+    assert seg.data["dropped"] == 1
+
+
+def test_grid_too_large_is_a_one_line_error(monkeypatch):
+    import connectors.records as records
+
+    monkeypatch.setattr(records, "MAX_GRID_SAMPLES", 100_000)
+    with pytest.raises(ConnectorError, match=r"<stream>: \d+ samples at 0.01 s is too many .*--ts-s"):
+        read_records(io.StringIO(wide_text(2000)), ts_s=0.01, max_gap_s=10.0)
+
+
+def wide_text_long(n, seed=0):
+    rng = np.random.default_rng(seed)
+    t0 = np.datetime64("2024-05-01T00:00:00")
+    stamps = np.datetime_as_string(t0 + np.arange(n).astype("timedelta64[s]"), unit="s")
+    op = 50 + 5 * np.sin(np.arange(n) / 30) + rng.normal(0, 0.1, n)
+    pv = 20 + np.cos(np.arange(n) / 30) + rng.normal(0, 0.01, n)
+    return "time,FIC1.OP,FIC1.PV\n" + "".join(f"{s},{a:.4f},{b:.4f}\n" for s, a, b in zip(stamps, op, pv))
+
+
+def test_long_records_keep_their_newest_max_samples():
+    text = wide_text_long(5000)
+    (full,) = read_records(io.StringIO(text), max_samples=0)
+    assert full.n == 5000 and "window" not in codes(full)
+    lines: list[str] = []
+    (rec,) = read_records(io.StringIO(text), max_samples=1200, progress=lines.append)
+    assert rec.n == 1200
+    np.testing.assert_array_equal(rec.op, full.op[-1200:])
+    assert rec.start == "2024-05-01T01:03:20Z"                     # 5000 - 1200 s after the first
+    win = next(f for f in rec.findings if f.code == "window")
+    assert win.data == {"samples": 5000, "kept": 1200, "max_samples": 1200} and "max_samples" in win.message
+    assert any("newest 1200" in ln and "max_samples" in ln for ln in lines)
+    assert all(ln.startswith("<stream>: ") for ln in lines)
+    (dflt,) = read_records(io.StringIO(text))
+    assert dflt.n == 5000                                          # under the default limit
+
+
+def test_window_takes_the_newest_segments_first():
+    t = np.concatenate([np.arange(600), 1000 + np.arange(600)])
+    text = "time_s,OP,PV\n" + "".join(f"{a},{50 + np.sin(a / 9):.4f},{np.cos(a / 9):.4f}\n" for a in t)
+    recs = read_records(io.StringIO(text), ts_s=1.0, max_samples=900)
+    assert [r.n for r in recs] == [300, 600] and all("window" in codes(r) for r in recs)
+    assert recs[-1].meta["segment_samples"] == [1000, 1600]
+
+
+def test_progress_is_silent_for_small_files_unless_asked(capsys):
+    read_records(DATA / "long_opc_quality.csv")
+    assert capsys.readouterr().err == ""
+    read_records(DATA / "long_opc_quality.csv", progress=True)
+    err = capsys.readouterr().err.splitlines()
+    assert err and all(ln.startswith(str(DATA / "long_opc_quality.csv")) for ln in err)
+    assert any("rows parsed" in ln for ln in err)
+
+
+def test_progress_default_is_on_for_large_sources_only():
+    from connectors.textio import PROGRESS_MIN_BYTES, Progress
+
+    assert Progress("x.csv", PROGRESS_MIN_BYTES) and not Progress("x.csv", PROGRESS_MIN_BYTES - 1)
+    assert not Progress("x.csv", 10 * PROGRESS_MIN_BYTES, False)
+    got: list[str] = []
+    p = Progress("x.csv", 100, got.append, every_s=0.0)
+    p.rows_read(500_000, 50)
+    assert got and got[0].startswith("x.csv: reading, 500000 rows, 0 of 0 MB (50 %)")
+
+
+def test_read_loops_is_read_records_with_named_options():
+    from connectors import read_loops
+
+    (a,) = read_loops(DATA / "historian_FIC211_trim.csv", tags=TAGMAP, tz="Europe/Berlin")
+    (b,) = read_records(DATA / "historian_FIC211_trim.csv", tags=TAGMAP, tz="Europe/Berlin")
+    np.testing.assert_array_equal(a.op, b.op)
+    assert a.start == b.start == "2024-11-27T18:00:00Z"
+    with pytest.raises(TypeError):
+        read_loops(DATA / "isdb_PAP2_trim.csv", colour="red")
+
+
+# ---------------------------------------------------------------------------------------- DataFrames
+
+def frame_loop(n=600, seed=0, freq="1s"):
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    k = np.arange(n)
+    return pd.DataFrame({"OP": 50 + 5 * np.sin(k / 40) + rng.normal(0, 0.1, n),
+                         "PV": 20 + np.cos(k / 40) + rng.normal(0, 0.01, n),
+                         "SP": np.full(n, 20.0)},
+                        index=pd.date_range("2024-05-01 00:00", periods=n, freq=freq, name="time"))
+
+
+def test_from_frame_datetime_index_and_to_frame_round_trip():
+    import pandas as pd
+
+    df = frame_loop()
+    rec = LoopRecord.from_frame(df, name="FIC9")
+    assert rec.name == "FIC9" and rec.n == 600 and rec.ts_s == 1.0 and rec.start == "2024-05-01T00:00:00Z"
+    np.testing.assert_array_equal(rec.op, df["OP"].to_numpy())
+    np.testing.assert_array_equal(rec.sp, df["SP"].to_numpy())
+    assert rec.mv is None and rec.meta["format"] == "dataframe" and rec.meta["quality_checked"]
+    out = rec.to_frame()
+    assert list(out.columns) == ["OP", "PV", "SP"] and isinstance(out.index, pd.DatetimeIndex)
+    assert str(out.index.tz) == "UTC" and out.index[0] == pd.Timestamp("2024-05-01", tz="UTC")
+    assert out.index[1] - out.index[0] == pd.Timedelta(seconds=1) and out.attrs["name"] == "FIC9"
+    back = LoopRecord.from_frame(out)
+    assert back.name == "FIC9" and back.start == rec.start and back.ts_s == rec.ts_s
+    for role in ("op", "pv", "sp"):
+        np.testing.assert_array_equal(getattr(back, role), getattr(rec, role))
+
+
+def test_from_frame_time_column_and_naming_rule():
+    df = frame_loop().reset_index()
+    df.columns = ["Timestamp", "FIC7.OUT", "FIC7.MEAS", "FIC7.SP"]
+    df["Timestamp"] = df["Timestamp"].dt.strftime("%d-%b-%Y %H:%M:%S")     # PI-style text times
+    rec = LoopRecord.from_frame(df)
+    assert rec.name == "FIC7" and rec.n == 600 and rec.start == "2024-05-01T00:00:00Z" and rec.sp is not None
+    assert rec.meta["columns"] == {"op": "FIC7.OUT", "pv": "FIC7.MEAS", "sp": "FIC7.SP"}
+    named = LoopRecord.from_frame(df.rename(columns={"FIC7.OUT": "valve", "FIC7.MEAS": "flow"}), op="valve",
+                                  pv="flow")
+    np.testing.assert_array_equal(named.op, rec.op)
+
+
+def test_from_frame_evenly_spaced_rows_need_ts_s():
+    from diagnose.errors import DataError
+
+    df = frame_loop().reset_index(drop=True)
+    rec = LoopRecord.from_frame(df, ts_s=0.5)
+    assert rec.ts_s == 0.5 and rec.n == 600 and rec.start is None
+    with pytest.raises(DataError, match="no time column; give the sample period"):
+        LoopRecord.from_frame(df)
+
+
+def test_from_frame_time_zones_and_dst():
+    import pandas as pd
+
+    # naive local times across the autumn change, the repeated hour written twice
+    local = pd.date_range("2024-10-27 00:00", "2024-10-27 05:00", freq="1min", tz="Europe/Berlin")
+    df = frame_loop(len(local)).set_axis(local.tz_localize(None), axis=0)
+    rec = LoopRecord.from_frame(df, tz="Europe/Berlin")
+    assert rec.n == len(local) and rec.ts_s == 60.0 and "duplicates" not in codes(rec)
+    assert rec.start == "2024-10-26T22:00:00Z"
+    aware = LoopRecord.from_frame(df.set_axis(local, axis=0))           # tz-aware index: converted to UTC
+    np.testing.assert_array_equal(aware.op, rec.op)
+    assert aware.start == rec.start
+    utc = LoopRecord.from_frame(df.set_axis(local.tz_localize(None), axis=0))   # naive = UTC by default
+    assert "duplicates" in codes(utc)                                   # the repeated hour collides
+
+
+def test_from_frame_gaps_and_duplicates():
+    import pandas as pd
+
+    from connectors import read_frame
+    from diagnose.errors import DataError
+
+    df = frame_loop()
+    holes = df.drop(df.index[100:103])                                 # 3 missing rows: filled
+    rec = LoopRecord.from_frame(pd.concat([holes, holes.iloc[[10]]]).sort_index(kind="stable"))
+    assert rec.n == 600 and next(f for f in rec.findings if f.code == "duplicates").data["count"] == 1
+    assert next(f for f in rec.findings if f.code == "gap").data["filled"] == 3
+    op = df["OP"].to_numpy()
+    np.testing.assert_allclose(rec.op[100:103], op[99] + (op[103] - op[99]) * np.arange(1, 4) / 4)
+    np.testing.assert_array_equal(rec.op[:100], op[:100])
+    nan = df.copy()
+    nan.iloc[200:205, 0] = np.nan                                       # NaN values: filled too
+    assert next(f for f in LoopRecord.from_frame(nan).findings if f.code == "gap").data["filled"] == 5
+    long_gap = df.drop(df.index[200:260])
+    with pytest.raises(DataError, match="splits into 2 segments at gaps longer than 10 s .*read_frame"):
+        LoopRecord.from_frame(long_gap)
+    parts = read_frame(long_gap)
+    assert [r.n for r in parts] == [200, 340] and parts[1].start == "2024-05-01T00:04:20Z"
+
+
+def test_from_frame_errors_are_data_errors():
+    import pandas as pd
+
+    from connectors import read_frame
+    from diagnose.errors import DataError
+
+    with pytest.raises(DataError, match=r"no PV column found \(columns: OP, X\)"):
+        LoopRecord.from_frame(pd.DataFrame({"OP": np.arange(50.0), "X": np.arange(50.0)}), ts_s=1.0)
+    two = pd.DataFrame({"A.OP": np.arange(50.0) % 7, "A.PV": np.arange(50.0) % 5,
+                        "B.OP": np.arange(50.0) % 3, "B.PV": np.arange(50.0) % 4})
+    with pytest.raises(DataError, match=r"holds 2 loops \(A, B\)"):
+        LoopRecord.from_frame(two, ts_s=1.0)
+    (b,) = [r for r in read_frame(two, ts_s=1.0) if r.name == "B"]
+    assert b.n == 50
+    with pytest.raises(DataError, match="expected a pandas DataFrame"):
+        LoopRecord.from_frame({"OP": [1, 2]})
