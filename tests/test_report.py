@@ -207,15 +207,20 @@ def _result(**kw):
     return base
 
 
-def test_severity_orders_loops_the_way_an_engineer_would():
-    big = _result(S=5.0)["severity"]["score"]
-    small = _result(S=0.5)["severity"]["score"]
-    unsure = _result(S=5.0, confidence=0.3)["severity"]["score"]
-    healthy = _result(stiction=False, S=0.0, J=0.0, **{"class": "none"},
+def test_severity_ranks_by_the_probability_of_stiction_then_its_size():
+    big = _result(S=5.0, stiction_probability=0.9)["severity"]["score"]
+    small = _result(S=0.5, stiction_probability=0.9)["severity"]["score"]
+    unsure = _result(S=5.0, stiction_probability=0.55)["severity"]["score"]
+    watch = _result(stiction=False, S=0.0, J=0.0, stiction_probability=0.4, **{"class": "none"},
+                    oscillation={"oscillating": False})["severity"]["score"]
+    healthy = _result(stiction=False, S=0.0, J=0.0, stiction_probability=0.0, **{"class": "none"},
                       oscillation={"oscillating": False})["severity"]["score"]
-    dq = _result(S=0.5, warnings=[{"code": "data_quality.gap", "message": "g"}])["severity"]["score"]
-    assert big > unsure > small > healthy == 0
+    dq = _result(S=0.5, stiction_probability=0.9,
+                 warnings=[{"code": "data_quality.gap", "message": "g"}])["severity"]["score"]
+    assert big > small > unsure > watch > healthy == 0
     assert dq == pytest.approx(small + 5.0)
+    # without a probability (an older result) a sticky verdict's confidence stands in for it
+    assert _result(S=5.0, confidence=0.9)["severity"]["score"] == pytest.approx(big)
 
 
 def test_plain_words_follow_the_evidence():

@@ -197,21 +197,26 @@ def sj_unit(result: Mapping[str, Any]) -> str:
 
 
 def severity(result: Mapping[str, Any]) -> dict[str, Any]:
-    """Rank score 0-100 from stiction size, confidence, oscillation and data quality.
+    """Rank score 0-100 from the probability of stiction, its size, oscillation and data quality.
 
-    * size: up to 50 points, ``50 * min(S / 5 %, 1)``, scaled by the confidence (0-1), only when
-      the result says the valve is sticky;
+    * stiction: up to 50 points, ``50 p (0.75 + 0.25 min(S / 5 %, 1))`` with ``p`` the combined
+      verdict's probability of stiction (the confidence of a sticky verdict where no probability
+      is given) and S taken as 0 when the valve is not sticky or its size is unknown: the
+      probability orders the loops, the size breaks ties among likely sticky valves;
     * oscillation: up to 25 points when the loop oscillates, ``25 * clip(r / 2, 0.5, 1)`` with r
       Thornhill's regularity (a regular oscillation has r > 1);
     * data quality: 5 points per data-quality warning, at most 15 (a loop whose data cannot be
       trusted needs someone to look at it too);
     * robustness: 10 points when the selected NARX-SP model is not robust at this (S, J).
     """
-    S = _num(result.get("S")) or 0.0
-    conf = _num(result.get("confidence"))
-    conf = 1.0 if conf is None else min(max(conf, 0.0), 1.0)
     sticky = stiction_present(result)
-    size = 50.0 * min(S / S_SATURATION_PCT, 1.0) * conf if sticky else 0.0
+    S = (_num(result.get("S")) or 0.0) if sticky else 0.0
+    p = _num(result.get("stiction_probability"))
+    if p is None:
+        conf = _num(result.get("confidence"))
+        conf = 1.0 if conf is None else min(max(conf, 0.0), 1.0)
+        p = conf if sticky else 0.0
+    size = 50.0 * min(max(p, 0.0), 1.0) * (0.75 + 0.25 * min(S / S_SATURATION_PCT, 1.0))
     osc = oscillation_info(result)
     if osc["present"]:
         strength = osc["strength"]  # Thornhill's regularity: > 1 regular, >= 2 very regular

@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable, Mapping, Sequence
 
+from ..plain import duration, number, percent_change
+
 
 Block = tuple
 
@@ -102,7 +104,6 @@ def _scalar_items(d: Mapping[str, Any], skip: Iterable[str] = ()) -> list[list[s
 
 
 def _process_text(proc: Any) -> str:
-    from ..plain import duration, number
 
     if not isinstance(proc, Mapping):
         return fmt(proc)
@@ -117,7 +118,6 @@ def _process_text(proc: Any) -> str:
 
 
 def _controller_text(ctl: Any) -> str:
-    from ..plain import duration, number
 
     if not isinstance(ctl, Mapping) or ctl.get("action") in (None, "unknown"):
         return "no PI law found in the records (manual, cascade slave or another algorithm)"
@@ -133,7 +133,6 @@ def _controller_text(ctl: Any) -> str:
 
 def _labelled(d: Mapping[str, Any], labels: Sequence[tuple[str, str]]) -> list[list[str]]:
     """Rows of ``(label, value)`` for the keys in ``labels`` that ``d`` holds, numbers plain."""
-    from ..plain import number
 
     rows = []
     for key, label in labels:
@@ -149,7 +148,6 @@ def _labelled(d: Mapping[str, Any], labels: Sequence[tuple[str, str]]) -> list[l
 
 
 def _params_text(params: Any) -> str:
-    from ..plain import duration, number
 
     if not isinstance(params, Mapping):
         return ""
@@ -158,7 +156,6 @@ def _params_text(params: Any) -> str:
 
 
 def _oscillation_text(osc: Mapping[str, Any]) -> str:
-    from ..plain import duration
 
     reg = f", regularity {osc['strength']:.2f}" if osc.get("strength") is not None else ""
     if osc.get("slow_cycle"):
@@ -177,7 +174,44 @@ def _oscillation_text(osc: Mapping[str, Any]) -> str:
 _METHOD_TEXT = {
     "op_mv": "OP and the recorded stem position (valve model fitted directly)",
     "op_pv": "OP and PV (Hammerstein fit: valve model + linear process, by simulation error)",
+    "op_only": "OP alone (PV unusable): S and J cannot be given",
 }
+
+#: What each evidence test looks at, in a few words (docs/evidence.md has the detail).
+EVIDENCE_LABELS = {
+    "horch_xcorr": "OP-PV cross-correlation (Horch)",
+    "horch_integrating": "PV curvature distribution, level loops (Horch)",
+    "he_curve_fit": "Triangle vs sine half-cycles (He et al.)",
+    "choudhury_bicoherence": "Bicoherence non-linearity (Choudhury et al.)",
+    "kano_stuck": "Stuck then slip in the PV-OP path (Kano et al.)",
+    "yamashita_qsa": "PV steady while OP moves (Yamashita)",
+    "singhal_area": "Area before vs after each peak (Singhal & Salsbury)",
+    "op_shape": "OP shape alone (He et al. on OP)",
+    "model_fit": "Valve model's gain over a linear loop",
+    "valve_band": "Fitted band S against OP's noise",
+    "band_sharpness": "How sharply the fit pins S",
+    "deadband_fit": "Deadband-shaped valve against a linear loop",
+    "oscillation_regularity": "Oscillation regularity (context)",
+}
+_DECISION_TEXT = {"stiction": "stiction", "no_stiction": "no stiction", "undetermined": "undecided",
+                  "cannot_judge": "cannot judge"}
+
+
+def evidence_rows(result: Mapping[str, Any]) -> list[list[str]]:
+    """The evidence table: each test, what it says, its index against its threshold, why."""
+    rows = []
+    contrib = ((result.get("combination") or {}).get("contributions") or {})
+    for ev in result.get("evidence") or ():
+        test = str(ev.get("test", "?"))
+        idx = "-" if ev.get("value") is None else number(ev.get("value"))
+        if ev.get("threshold") is not None and ev.get("value") is not None:
+            idx += f" (threshold {number(ev.get('threshold'))})"
+        weight = contrib.get(test)
+        says = _DECISION_TEXT.get(str(ev.get("decision")), str(ev.get("decision")))
+        if weight is not None and abs(weight) >= 0.005:
+            says += f", weighs {weight:+.2f}"
+        rows.append([EVIDENCE_LABELS.get(test, test), says, idx, str(ev.get("note", ""))])
+    return rows
 
 
 def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
@@ -196,7 +230,6 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
     degradation : str, optional
         The degradation warning for this loop, if any.
     """
-    from ..plain import duration, number
     from .pipeline import oscillation_info, op_in_percent, stiction_present
 
     figs = set(figures)
@@ -232,6 +265,9 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
          f"{fmt(result.get('S'))} {unit}, interval {fmt_interval(result.get('S_interval'))}"],
         ["J: slip jump, how far the valve jumps when it breaks free",
          f"{fmt(result.get('J'))} {unit}, interval {fmt_interval(result.get('J_interval'))}"],
+        ["Probability of stiction", fmt(result.get("stiction_probability"), ".0%") + (
+            f" (stiction at {fmt((result.get('combination') or {}).get('threshold'), '.0%')} and above)"
+            if (result.get("combination") or {}).get("threshold") is not None else "")],
         ["Confidence", fmt(result.get("confidence"), ".0%")],
         ["S and J from", _METHOD_TEXT.get(result.get("method"), fmt(result.get("method")))],
         ["Process model", _process_text(result.get("process"))],
@@ -241,6 +277,17 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
         ["Severity (0-100)", fmt(sev.get("score"), ".0f")],
     ]
     blocks.append(("table", ["Quantity", "Value"], rows))
+    ev_rows = evidence_rows(result)
+    if ev_rows:
+        n_st = sum(1 for e in result["evidence"] if e.get("decision") == "stiction")
+        n_no = sum(1 for e in result["evidence"] if e.get("decision") == "no_stiction")
+        n_cj = sum(1 for e in result["evidence"] if e.get("decision") == "cannot_judge")
+        blocks.append(("h2", "Why we believe it"))
+        blocks.append(("p", f"{n_st} tests say stiction, {n_no} say no stiction, {n_cj} cannot judge this "
+                            "record (the reason is given). Each test that judges moves the probability by its "
+                            "weight (log-odds; positive towards stiction); docs/evidence.md and "
+                            "docs/verdict.md describe the tests and how they are combined."))
+        blocks.append(("table", ["Test", "Says", "Index", "Why"], ev_rows))
     blocks.append(("h2", "Recommended action"))
     blocks.append(("p", str(result.get("action", ""))))
     warns = list(result.get("warnings") or [])
@@ -292,7 +339,6 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
             blocks.append(("table", ["Explanation", "Value"], items))
         hyps = expl.get("hypotheses") or expl.get("ranking")
         if isinstance(hyps, list) and hyps and isinstance(hyps[0], Mapping):
-            from ..plain import percent_change
 
             # the change is signed, negative for a fall, as in the explanation's own text
             blocks.append(("table", ["Hypothesis", "Named", "Held-out RMSE", "Change", "Parameters"],
@@ -336,7 +382,6 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
                    generated_at: str | None = None, tool_version: str | None = None,
                    links: bool = True, skipped_files: Sequence[Mapping[str, Any]] = ()) -> list[Block]:
     """The plant summary: loops ranked by severity, then the failures."""
-    from ..plain import duration
 
     ok = [r for r in rows if r.get("status") == "ok"]
     bad = [r for r in rows if r.get("status") != "ok"]

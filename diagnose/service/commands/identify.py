@@ -34,14 +34,24 @@ def summary(d: dict[str, Any]) -> str:
     """A short human summary of an identification dict."""
     lines = []
     verdict = "STICTION" if d["stiction"] else "no stiction"
-    lines.append(f"{d['loop']}: {verdict} (class {d['class']}, confidence {d.get('confidence', 0):.2f})")
-    if d["stiction"]:
+    prob = d.get("stiction_probability")
+    head = f"{d['loop']}: {verdict} (class {d['class']}"
+    if prob is not None:
+        head += f", probability {prob:.2f}"
+    lines.append(head + f", confidence {d.get('confidence', 0):.2f})")
+    if d["stiction"] and d.get("S") is not None:
         si, ji = d["S_interval"], d["J_interval"]
         src = " from OP/MV" if d.get("method") == "op_mv" else ""
         lines.append(f"  S = {d['S']:.2f} % [{si[0]:.2f}, {si[1]:.2f}]   J = {d['J']:.2f} % "
                      f"[{ji[0]:.2f}, {ji[1]:.2f}]  (% of valve span{src})")
         if d.get("class_alternatives"):
             lines.append(f"  the data also allow class {' or '.join(d['class_alternatives'])}")
+    ev = d.get("evidence") or []
+    if ev:
+        said = {k: [e["test"] for e in ev if e["decision"] == k]
+                for k in ("stiction", "no_stiction", "undetermined", "cannot_judge")}
+        lines.append("  evidence: " + "; ".join(f"{k.replace('_', ' ')}: {', '.join(v)}"
+                                               for k, v in said.items() if v))
     from ...plain import duration, number
     from ..pipeline import oscillation_info
 
