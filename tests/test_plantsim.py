@@ -13,12 +13,15 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.plantsim import (CLASSES, EFFECTS, SCENARIOS, concealed, corpus,  # noqa: E402
+from benchmarks.plantsim import (CLASSES, EFFECTS, SCENARIOS, STICKY_SCENARIOS, concealed, corpus,  # noqa: E402
                                  make_loop, stiction_class)
+from benchmarks.plantsim import guards  # noqa: E402
+from benchmarks.plantsim import scenarios as scen  # noqa: E402
 from benchmarks.plantsim import artifacts as art  # noqa: E402
 from benchmarks.plantsim import process as P  # noqa: E402
 from benchmarks.plantsim.__main__ import main as cli_main  # noqa: E402
-from benchmarks.plantsim.controller import PID, gain_margin, least_damped  # noqa: E402
+from benchmarks.plantsim.controller import PID, closed_loop_sensitivity, gain_margin, least_damped  # noqa: E402
+from benchmarks.plantsim.draws import FAST, Draws, Plan, historian, tune  # noqa: E402
 from benchmarks.plantsim.friction import (ForceBalance, Kano, TwoParameter, force_balance_bands,  # noqa: E402
                                           run_force_balance, run_static)
 from benchmarks.plantsim.loop import Signals, run_loop  # noqa: E402
@@ -343,6 +346,290 @@ def test_concealed_effects_are_recorded_and_change_the_record():
         concealed("backlash", 1)
 
 
+# --- corpus definitions and guards ------------------------------------------------------------
+
+# sums of OP and PV of make_loop(kind, 7, 1, n=400) as the corpus was first defined: the
+# "original" definition must keep reproducing them
+ORIGINAL_SUMS = {
+    "two_parameter": (23729.6817, 51010.5569),
+    "kano": (11195.5679, 1699.19656),
+    "force_balance": (19159.5433, 7103.87816),
+    "healthy": (29082.6078, 14879.4132),
+    "external_sine": (28330.631, 7677.70336),
+    "external_nonsine": (22447.0036, 257975.474),
+    "overtuned": (11157.6346, 118689.9),
+    "quantised": (22311.9465, 143700.991),
+    "compressed": (27249.8338, 13372.9598),
+    "level_pi": (28980.2178, 25830.1664),
+    "daily_cycle": (15362.7138, 1519.33109),
+}
+
+
+@pytest.mark.parametrize("kind", list(SCENARIOS))
+def test_original_definition_reproduces_earlier_seeds(kind):
+    lp = make_loop(kind, 7, 1, n=400)
+    assert lp.meta["definition"] == "original"
+    assert float(np.sum(lp.op)) == pytest.approx(ORIGINAL_SUMS[kind][0], rel=1e-8)
+    assert float(np.sum(lp.pv)) == pytest.approx(ORIGINAL_SUMS[kind][1], rel=1e-8)
+    ident = make_loop(kind, 7, 1, n=400, definition="identifiable")
+    assert ident.meta["definition"] == "identifiable"
+    assert not np.array_equal(ident.op, lp.op)
+    with pytest.raises(ValueError, match="unknown corpus definition"):
+        make_loop(kind, 7, 1, n=400, definition="strict")
+
+
+def _staircase(n=2000, hold=100, jump=2.0):
+    """A stick-slip stem: rests for ``hold`` samples, then jumps by ``jump``, alternately up and down."""
+    y = np.full(n, 50.0)
+    for k, start in enumerate(range(hold, n, hold)):
+        y[start:] += jump if k % 2 == 0 else -jump
+    return y
+
+
+def test_slips_stuck_and_op_noise_measure_what_they_say():
+    y = _staircase()
+    moves, stuck = guards.slips_and_stuck(y, 2.0)
+    assert moves == 19 and stuck == pytest.approx(1 - 19 / 1999)
+    nudged = y.copy()
+    nudged[[450, 1250, 1730]] += 0.1                      # three nudges under a quarter of S
+    assert guards.slips_and_stuck(nudged, 2.0)[0] == 19
+    assert guards.slips_and_stuck(nudged, 0.0)[0] == 22    # counted when any move counts
+    dither = 50 + np.random.default_rng(0).normal(0, 1, 2000)
+    moves, stuck = guards.slips_and_stuck(dither, 2.0)
+    assert stuck == 0.0 and moves <= 1                     # moving on every sample: one long move
+    rng = np.random.default_rng(1)
+    op = 0.01 * np.arange(5000) + rng.normal(0, 0.5, 5000)
+    op[[700, 2100, 3900]] += 30.0                          # kicks do not count as noise
+    assert guards.op_noise(op) == pytest.approx(0.5, rel=0.05)
+
+
+def test_growth_flags_a_growing_oscillation_only():
+    t = np.arange(4000)
+    cyc = np.sin(2 * np.pi * t / 97)
+    grows = 50 + 0.5 * np.exp(t / 1400) * cyc
+    ratio, rises = guards.growth(grows)
+    assert rises >= guards.GROWTH_MIN_RISES and ratio >= guards.GROWTH_MIN_RATIO
+    starts = 50 + 5 * cyc * (t > 1000)                    # a limit cycle that starts, then holds
+    ratio, rises = guards.growth(starts)
+    assert ratio > guards.GROWTH_MIN_RATIO and rises < guards.GROWTH_MIN_RISES
+    steps = 50 + 2 * cyc + 10 * (t > 3000)                 # a setpoint step near the end
+    assert guards.growth(steps)[1] < guards.GROWTH_MIN_RISES
+
+
+def _loop_signals(n=2000):
+    """A running sticky loop: OP ramps across the band between slips, PV cycles about SP."""
+    rng = np.random.default_rng(4)
+    fr = _staircase(n)
+    op = fr + np.tile(np.linspace(-1.0, 1.0, 100), n // 100) + rng.normal(0, 0.05, n)
+    sp = np.full(n, 40.0)
+    pv = sp + 0.5 * np.sign(np.sin(2 * np.pi * np.arange(n) / 200 + 0.3)) + rng.normal(0, 0.05, n)
+    return {"op": op, "pv": pv, "sp": sp, "mv": fr, "friction": fr}
+
+
+def _check(raw, *, kind="two_parameter", sticky=True, S=2.0, zeta=0.5, definition="identifiable"):
+    meta = {"S_pct": S, "closed_loop_zeta": zeta}
+    return guards.check(definition, kind=kind, sticky=sticky, raw=raw, op=raw["op"], pv=raw["pv"], span=100.0,
+                        meta=meta), meta
+
+
+def test_each_guard_fires_on_the_record_it_describes():
+    raw = _loop_signals()
+    failed, meta = _check(raw)
+    assert failed == []
+    assert meta["slips"] == 19 and meta["S_over_op_noise"] > 20 and meta["stuck_fraction"] > 0.9
+
+    def altered(**kw):
+        r = {k: v.copy() for k, v in raw.items()}
+        r.update(kw)
+        return r
+
+    n = raw["op"].size
+    sat = raw["op"].copy()
+    sat[:10] = 100.0                                       # 0.5 % of the samples
+    assert _check(altered(op=sat))[0] == ["saturation"]
+    assert _check(altered(op=sat), definition="original")[0] == []
+    swing = 50 + 45 * np.sin(2 * np.pi * np.arange(n) / 150)
+    assert "op_range" in _check(altered(op=swing))[0]
+    t = np.arange(n)
+    grow = 50 + 0.3 * np.exp(t / 700) * np.sin(2 * np.pi * t / 97)
+    assert "growing" in _check(altered(op=grow))[0]
+    assert _check(raw, zeta=0.1)[0] == ["damping"]
+    assert _check(raw, zeta=0.1, kind="overtuned", sticky=False)[0] == []
+    assert _check(altered(pv=raw["pv"] + 1.0))[0] == ["pv_follows"]
+    assert "pv_span" in _check(altered(pv=raw["pv"] + 70.0))[0]
+    # sticky records that cannot show stiction
+    few = np.full(n, 50.0)
+    few[[500, 1200, 1700]] = 0.0
+    few = 50.0 + np.cumsum(few == 0.0) * 2.0               # three slips only
+    assert _check(altered(friction=few, mv=few))[0] == ["identifiable"]
+    assert _check(altered(friction=few, mv=few), definition="original")[0] == []
+    dith = raw["friction"] + np.random.default_rng(2).normal(0, 0.5, n)   # moves on every sample
+    assert _check(altered(friction=dith))[0] == ["identifiable"]
+    noisy = raw["op"] + np.random.default_rng(3).normal(0, 1.5, n)       # S under twice OP's noise
+    failed, meta = _check(altered(op=noisy))
+    assert failed == ["identifiable"] and meta["S_over_op_noise"] < guards.MIN_S_OVER_OP_NOISE
+    assert _check(altered(op=noisy), sticky=False, kind="healthy")[0] == []
+    wild = raw["op"] + np.random.default_rng(6).normal(0, 4.0, n)          # amplified noise
+    assert _check(altered(op=wild), sticky=False, kind="healthy")[0] == ["op_noise"]
+
+
+def _bare_plan(**kw):
+    from dataclasses import MISSING, fields
+    plan = Plan(**{f.name: None for f in fields(Plan) if f.default is MISSING})
+    for k, v in kw.items():
+        setattr(plan, k, v)
+    return plan
+
+
+def test_historian_cap_keeps_a_small_pv_cycle_from_becoming_a_straight_line():
+    t = np.arange(3000)
+    rng = np.random.default_rng(5)
+    cycle = 0.3 * np.sin(2 * np.pi * t / 150) + rng.normal(0, 0.02, t.size)
+    flat_sp = np.full(t.size, 50.0)
+    raw = {"pv": 50 + cycle, "op": 40 + np.sin(2 * np.pi * t / 150), "sp": flat_sp}
+    # a deviation wider than everything PV does exports a line from the first to the last sample
+    d = Draws(np.random.default_rng(0))
+    _, flat = historian(_bare_plan(span=100.0, hist_quant=0.0, compress_pv=1.0, compress_op=0.0), d, raw)
+    assert d.meta["pv_archived_points"] == 2
+    assert np.abs(np.diff(flat, 2)).max() < 1e-9
+    # capped at a quarter of PV's spread about its setpoint (a setpoint move does not widen it)
+    sp = np.where(t < 1500, 50.0, 55.0)
+    raw = {"pv": sp + cycle, "op": raw["op"], "sp": sp}
+    spread = np.percentile(cycle, 95) - np.percentile(cycle, 5)
+    d = Draws(np.random.default_rng(0))
+    _, kept = historian(_bare_plan(span=100.0, hist_quant=0.0, compress_pv=1.0, compress_op=0.0,
+                                   artifact_cap=scen.ARTIFACT_CAP), d, raw)
+    assert d.meta["compress_pv_applied_pct"] == pytest.approx(spread / scen.ARTIFACT_CAP)
+    assert d.meta["pv_archived_points"] > 40
+    assert np.corrcoef(kept - sp, cycle)[0, 1] > 0.75
+    d = Draws(np.random.default_rng(0))
+    _, q = historian(_bare_plan(span=100.0, hist_quant=1.0, compress_pv=0.0, compress_op=0.0,
+                                artifact_cap=scen.ARTIFACT_CAP), d, raw)
+    assert d.meta["quant_applied_pct"] == pytest.approx(spread / scen.ARTIFACT_CAP)
+    assert np.unique(q[:1500]).size >= 5
+
+
+def test_identifiable_sticky_records_can_show_their_stiction():
+    loops = list(corpus(5, 8, kinds=STICKY_SCENARIOS, n=1000, ts_s=2.0, definition="identifiable"))
+    assert len(loops) == 24
+    for lp in loops:
+        m = lp.meta
+        assert m["guard_passed"] and m["definition"] == "identifiable"
+        assert len(m["redraw_reasons"]) == m["draw"]
+        assert m["slips"] >= guards.MIN_SLIPS and m["stuck_fraction"] >= guards.MIN_STUCK_FRACTION
+        assert m["S_over_op_noise"] >= guards.MIN_S_OVER_OP_NOISE
+        assert m["op_noise_pct"] == pytest.approx(guards.op_noise(lp.op))
+        assert m["op_saturated_fraction"] <= guards.MAX_SATURATED and m["op_range_pct"] <= guards.MAX_OP_RANGE_PCT
+        assert m["op_noise_pct"] <= guards.MAX_OP_NOISE_PCT
+        assert m["pv_offset_over_std"] <= guards.MAX_PV_OFFSET
+        assert m["integrating"] == (m["index"] % 4 == 3)
+        if m.get("lag_at") != "after" or not m.get("actuator_lag"):
+            # no lag behind the friction: the recorded stem is the friction element
+            assert m["slips"] == guards.slips_and_stuck(lp.mv, m["S_pct"])[0]
+    for kind in ("two_parameter", "kano"):
+        first4 = [lp.meta["class"] for lp in loops if lp.kind == kind][:4]
+        assert sorted(first4) == sorted(CLASSES)
+    # the guard did turn draws away here
+    assert any("identifiable" in r for lp in loops for r in lp.meta["redraw_reasons"])
+
+
+def test_identifiable_structure_shares():
+    draws = 3000
+    for kind in SCENARIOS:
+        integ = fast = 0
+        for i in range(draws):
+            d = Draws(np.random.default_rng([11, i]))
+            a, b = scen._structure(kind, d, i)
+            assert not (a and b)                           # a fast flow loop is self-regulating
+            integ += a
+            fast += b
+        if SCENARIOS[kind]:
+            assert integ == draws // 4
+        elif kind == "level_pi":
+            assert integ == draws
+        elif kind in ("overtuned", "external_sine", "external_nonsine"):
+            assert integ == 0
+        else:
+            assert abs(integ / draws - 0.25) < 0.03
+        if kind in scen.NO_FAST:
+            assert fast == 0
+        else:
+            assert abs(fast / draws - 0.25) < 0.03, kind
+
+
+def _first_fast(kind, seed, count):
+    out, i = [], 0
+    while len(out) < count:
+        lp = make_loop(kind, seed, i, definition="identifiable")
+        if lp.meta["historian_fast"]:
+            out.append(lp)
+        i += 1
+    return out
+
+
+def test_fast_loops_are_flow_loops_sampled_slower_than_they_respond():
+    for lp in _first_fast("two_parameter", 2, 2) + _first_fast("healthy", 2, 2):
+        m = lp.meta
+        assert lp.ts_s == FAST["ts_s"] and lp.name.startswith("FIC")
+        assert m["process"] in ("foptd", "soptd") and not m["integrating"]
+        assert FAST["tau_s"][0] <= m["tau_s"] <= FAST["tau_s"][1] and m["delay_s"] < lp.ts_s
+        assert FAST["Kc_pct_per_pct"][0] <= m["fast_Kc_pct_per_pct"] <= FAST["Kc_pct_per_pct"][1]
+        assert FAST["Ti_s"][0] <= m["fast_Ti_s"] <= FAST["Ti_s"][1]
+        lo, hi = FAST["closed_loop_tau_s"]
+        assert lo <= m["fast_closed_loop_tau_s"] <= hi
+        assert FAST["meas_noise_pct"][0] <= m["meas_noise_pct"] <= FAST["meas_noise_pct"][1]
+        assert m["guard_passed"]
+        if lp.sticky:
+            # no quick limit cycle: the valve rests for several samples between slips
+            rest = m["stuck_fraction"] * lp.n / m["slips"]
+            assert rest >= 5.0
+
+
+def test_tuning_detunes_a_ringing_loop_to_the_damping_floor():
+    proc = P.underdamped(1.0, 1 / 20.0, 0.3, 2.0)
+    detuned = 0
+    for seed in range(6):
+        plain = Draws(np.random.default_rng(seed))
+        plain.meta["pv_span"] = 100.0
+        tune(plain, proc, 1.0)
+        floor = Draws(np.random.default_rng(seed))
+        floor.meta["pv_span"] = 100.0
+        tune(floor, proc, 1.0, zeta_min=guards.MIN_ZETA)
+        assert floor.meta["closed_loop_zeta"] >= guards.MIN_ZETA
+        assert floor.meta["gain_margin"] >= 2.0
+        if plain.meta["closed_loop_zeta"] < guards.MIN_ZETA:
+            detuned += 1
+            assert floor.meta["detuned_for_damping"] and abs(floor.meta["Kc"]) < abs(plain.meta["Kc"])
+    assert detuned >= 3
+
+
+def test_closed_loop_sensitivity_matches_the_simulated_loop():
+    proc = P.foptd(1.3, 25.0, 3.3)
+    ts, Kc, Ti, m, n = 1.0, 1.0, 25.0, 10, 4000
+    period = 120.0
+    t = np.arange(n) * ts
+    load = np.sin(2 * np.pi * t / period)
+    z = np.zeros(n)
+    out = run_loop(n=n, warmup=0, ts_s=ts, m=m, process=proc, valve=ValveTrain(Linear(), m=m, h_s=ts / m),
+                   controller=PID(Kc, Ti, ts_s=ts, op_lo=-1e9, op_hi=1e9), signals=Signals(z, load, z, z),
+                   u0=50.0, pv0=0.0)
+    tail = slice(2000, None)
+    basis = np.column_stack([np.sin(2 * np.pi * t[tail] / period), np.cos(2 * np.pi * t[tail] / period)])
+    coef, *_ = np.linalg.lstsq(basis, out["pv"][tail], rcond=None)
+    S = closed_loop_sensitivity(proc, Kc, Ti, 0.0, ts, 2 * np.pi / period)
+    assert 0.3 < S < 1.5
+    assert np.hypot(*coef) == pytest.approx(S, rel=0.05)
+
+
+def test_identifiable_compressed_records_keep_pv_several_deviations_high():
+    for i in range(4):
+        lp = make_loop("compressed", 8, i, n=1500, ts_s=2.0, definition="identifiable")
+        m = lp.meta
+        assert m["compress_pv_applied_pct"] <= m["compress_pv_pct"] + 1e-12
+        assert m["pv_spread_pct"] >= scen.ARTIFACT_CAP * m["compress_pv_applied_pct"] - 1e-9
+        assert m["closed_loop_zeta"] >= guards.MIN_ZETA
+
+
 # --- files -----------------------------------------------------------------------------------
 
 def test_cli_writes_files_the_connectors_read(tmp_path, capsys):
@@ -371,3 +658,10 @@ def test_cli_writes_files_the_connectors_read(tmp_path, capsys):
         assert float(row["S_pct"]) == pytest.approx(loop.meta["S_pct"])
     assert cli_main(["--out", str(out), "--kinds", "sticky"]) == 1
     assert "unknown scenario sticky" in capsys.readouterr().err
+    ident = tmp_path / "ident"
+    assert cli_main(["--out", str(ident), "--seed", "2", "--n-per-kind", "1", "--n", "600", "--kinds", "kano",
+                     "--definition", "identifiable"]) == 0
+    with open(ident / "labels.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["definition"] for r in rows] == ["identifiable"]
+    assert int(rows[0]["slips"]) >= guards.MIN_SLIPS

@@ -7,7 +7,8 @@ method tuned on the project's simulator can be checked against plants it has not
 Public API
 ----------
 `corpus(seed, n_per_kind, ...)` -> iterator of `SimLoop`: a labelled corpus (sticky valves under
-three friction laws, healthy loops and the classic false alarms). `concealed(effect, seed, ...)`
+three friction laws, healthy loops and the classic false alarms; ``definition="identifiable"``
+redraws records a plant would not produce or whose stiction cannot show). `concealed(effect, seed, ...)`
 and `concealed_set(seed, n_per_effect, ...)`: sticky loops with one piece of missing physics
 hidden in them. `write_loops(loops, out_dir)` writes wide CSV files and ``labels.csv``.
 Command line: ``python -m benchmarks.plantsim --out DIR --seed S --n-per-kind N``.
@@ -17,7 +18,7 @@ See docs/plantsim.md.
 from .concealed import EFFECTS, concealed, concealed_set
 from .export import write_loops
 from .record import CLASSES, SimLoop, stiction_class
-from .scenarios import SCENARIOS, STICKY_SCENARIOS, corpus, make_loop
+from .scenarios import DEFINITIONS, SCENARIOS, STICKY_SCENARIOS, corpus, make_loop
 
 __all__ = ["SimLoop", "corpus", "make_loop", "concealed", "concealed_set", "write_loops", "SCENARIOS",
-           "STICKY_SCENARIOS", "CLASSES", "EFFECTS", "stiction_class"]
+           "STICKY_SCENARIOS", "DEFINITIONS", "CLASSES", "EFFECTS", "stiction_class"]

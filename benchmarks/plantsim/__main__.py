@@ -1,7 +1,7 @@
 """Command line: write a labelled corpus (or a concealed-effect set) as wide CSV files.
 
     python -m benchmarks.plantsim --out DIR --seed S [--n-per-kind N] [--kinds a,b] [--n SAMPLES]
-                                  [--ts SECONDS] [--mv]
+                                  [--ts SECONDS] [--mv] [--definition original|identifiable]
     python -m benchmarks.plantsim --out DIR --seed S --concealed N [--effects a,b] [--n SAMPLES] [--mv]
 """
 
@@ -13,7 +13,7 @@ import time
 
 from .export import write_loops
 from .concealed import EFFECTS, concealed_set
-from .scenarios import SCENARIOS, corpus
+from .scenarios import DEFINITIONS, SCENARIOS, corpus
 
 
 def _names(text: str, allowed, what: str) -> list[str]:
@@ -34,6 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, help="samples per record (default drawn; 8000 for --concealed)")
     ap.add_argument("--ts", type=float, help="sample period in seconds (default drawn; 1 for --concealed)")
     ap.add_argument("--mv", action="store_true", help="also write the true stem position (TAG.POS)")
+    ap.add_argument("--definition", choices=DEFINITIONS, default="original",
+                    help="corpus definition: original (default, reproduces earlier seeds) or identifiable "
+                         "(every record a running loop, every sticky record able to show its stiction)")
     ap.add_argument("--concealed", type=int, metavar="N",
                     help="write N concealed-effect records per effect instead of the corpus")
     ap.add_argument("--effects", help=f"comma-separated effects for --concealed (default all: {', '.join(EFFECTS)})")
@@ -54,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.n_per_kind < 1:
                 raise ValueError(f"--n-per-kind must be at least 1, got {args.n_per_kind}")
             kinds = _names(args.kinds, SCENARIOS, "scenario") if args.kinds else None
-            loops = list(corpus(args.seed, args.n_per_kind, kinds=kinds, n=args.n, ts_s=args.ts))
+            loops = list(corpus(args.seed, args.n_per_kind, kinds=kinds, n=args.n, ts_s=args.ts,
+                                definition=args.definition))
         paths = write_loops(loops, args.out, with_mv=args.mv)
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

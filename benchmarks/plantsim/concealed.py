@@ -16,8 +16,9 @@ from scipy import signal
 
 from . import disturbances as dist
 from .controller import PID
-from .draws import (MAX_DRAWS, Draws, Plan, centre_pv0, class_J, draw_noise, draw_process, draw_stem, inside_span,
-                    motion_starts, simulate, tune, warmup_samples)
+from .draws import (MAX_DRAWS, Draws, Plan, centre_pv0, class_J, draw_noise, draw_process, draw_stem, simulate,
+                    tune, warmup_samples)
+from .guards import inside_span, motion_starts
 from .friction import ForceBalance, Kano, TwoParameter
 from .process import flow_characteristic
 from .record import CLASSES, SimLoop, stiction_class

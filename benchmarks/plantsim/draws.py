@@ -25,6 +25,21 @@ from .valve import Lag, ValveTrain
 # a record is drawn again (from a derived seed) at most this many times when its guard fails
 MAX_DRAWS = 25
 
+#: The historian-sampled fast flow loop (``historian_fast``): ranges of the drawn process, tuning
+#: and noise. The process settles within one 10 s sample; the PI is detuned the way flow loops
+#: are left in plants (slow integral action, gain well under 1 %/%); flow meters are noisy.
+FAST = {
+    "ts_s": 10.0,
+    "gain_pct_per_pct": (0.5, 2.0),
+    "tau_s": (0.5, 5.0),
+    "delay_s": (0.0, 3.0),
+    "Kc_pct_per_pct": (0.1, 1.0),
+    "Ti_s": (30.0, 300.0),
+    "closed_loop_tau_s": (20.0, 300.0),
+    "meas_noise_pct": (0.3, 2.0),
+    "p_sp_steps": 0.8,
+}
+
 
 class Draws:
     """A generator that writes every value it draws into ``meta`` under the given name."""
@@ -70,10 +85,23 @@ def timebase(d: Draws, n: int | None, ts_s: float | None, *, n_range=(500, 10000
     return d.set("n", int(n)), ts_s
 
 
-def draw_process(d: Draws, ts: float, *, integrating_: bool, kinds=None, gain_range=(0.3, 3.0)) -> Process:
-    """A process structure and its parameters, time constants in units of ``ts``."""
+def draw_process(d: Draws, ts: float, *, integrating_: bool, kinds=None, gain_range=(0.3, 3.0),
+                 fast: bool = False) -> Process:
+    """A process structure and its parameters, time constants in units of ``ts``.
+
+    ``fast``: a flow loop that responds faster than the historian samples it: a first- or
+    second-order lag of 0.5-5 s and a dead time of 0-3 s, whatever ``ts`` is (see `FAST`).
+    """
     span = d.choice("pv_span", (10.0, 50.0, 100.0, 250.0, 1000.0))
     sign = d.choice("gain_sign", (1, -1), p=(0.8, 0.2))
+    if fast:
+        kind = d.choice("process", ("foptd", "soptd"), p=(0.6, 0.4))
+        K = sign * d.loguniform("gain_pct_per_pct", *FAST["gain_pct_per_pct"]) * span / 100.0
+        T = d.loguniform("tau_s", *FAST["tau_s"])
+        delay = d.uniform("delay_s", *FAST["delay_s"])
+        if kind == "foptd":
+            return foptd(K, T, delay)
+        return soptd(K, T, T * d.uniform("tau2_over_tau1", 0.1, 0.5), delay)
     if integrating_:
         # fill time: seconds for the level to move 1 % of span per 1 % of flow imbalance
         fill = d.loguniform("fill_time_s", 3.0 * ts, 100.0 * ts)
@@ -113,10 +141,30 @@ def draw_flow(d: Draws, p_char: float):
 
 
 def tune(d: Draws, proc: Process, ts: float, *, flow_slope: float = 1.0, gm_min: float = 2.0,
-          gm_target: float | None = None, level_zeta: float | None = None) -> PID:
-    """A tuned PI/PID; de-tuned by a drawn factor, then held to ``gm_min`` (or set to ``gm_target``)."""
+          gm_target: float | None = None, level_zeta: float | None = None, fast: bool = False,
+          zeta_min: float | None = None) -> PID:
+    """A tuned PI/PID; de-tuned by a drawn factor, then held to ``gm_min`` (or set to ``gm_target``).
+
+    ``fast``: the detuned PI of a historian-sampled flow loop, gain and integral time drawn
+    directly (`FAST`) rather than from a tuning rule. ``zeta_min``: the gain is lowered and the
+    integral time lengthened (``detuned_for_damping``) until the least-damped closed-loop pole pair
+    has at least this damping ratio (a healthy loop does not ring).
+    """
     Td = 0.0
-    if proc.integrating:
+    if fast:
+        # gain and integral time drawn together until the loop settles in minutes: the closed
+        # loop's time constant Ti / (Kc K) inside FAST["closed_loop_tau_s"]
+        K_norm = abs(proc.gain) * 100.0 / d.meta["pv_span"]
+        lo, hi = FAST["closed_loop_tau_s"]
+        for _ in range(100):
+            kc_norm = d.loguniform("fast_Kc_pct_per_pct", *FAST["Kc_pct_per_pct"])
+            Ti = d.loguniform("fast_Ti_s", *FAST["Ti_s"])
+            if lo <= Ti / (kc_norm * K_norm) <= hi:
+                break
+        d.set("fast_closed_loop_tau_s", Ti / (kc_norm * K_norm))
+        Kc = kc_norm * 100.0 / d.meta["pv_span"]
+        d.set("tuning", "detuned_pi")
+    elif proc.integrating:
         theta = proc.delay_s + proc.params["tau1_s"] + ts / 2.0
         tau_c = theta * d.loguniform("tau_c_over_theta", 1.0, 5.0)
         Kc, Ti = integrating_pi(abs(proc.gain), theta, tau_c)
@@ -159,6 +207,15 @@ def tune(d: Draws, proc: Process, ts: float, *, flow_slope: float = 1.0, gm_min:
         d.set("kc_capped", True)
     form = d.choice("controller_form", ("velocity", "positional"))
     z, period = least_damped(proc, Kc, Ti, Td, ts, flow_slope=flow_slope)
+    if zeta_min is not None and z < zeta_min:
+        for _ in range(30):
+            Kc *= 0.85
+            Ti *= 1.15
+            z, period = least_damped(proc, Kc, Ti, Td, ts, flow_slope=flow_slope)
+            if z >= zeta_min:
+                break
+        d.set("detuned_for_damping", True)
+        gm = gain_margin(proc, Kc, Ti, Td, ts, flow_slope=flow_slope)
     d.set("closed_loop_zeta", z), d.set("closed_loop_period_s", period)
     d.set("Kc", Kc), d.set("Ti_s", Ti), d.set("Td_s", Td), d.set("gain_margin", gm)
     return PID(Kc, Ti, Td, ts_s=ts, form=form)
@@ -324,6 +381,7 @@ class Plan:
     hist_quant: float = 0.0
     compress_pv: float = 0.0
     compress_op: float = 0.0
+    artifact_cap: float = 0.0
 
 
 def internal_steps(ts: float, lag: tuple | None, h_fine: float | None) -> int:
@@ -352,23 +410,37 @@ def simulate(plan: Plan, d: Draws) -> dict[str, np.ndarray]:
 
 
 def historian(plan: Plan, d: Draws, raw: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """OP and PV as the historian exports them (quantised and/or compressed)."""
+    """OP and PV as the historian exports them (quantised and/or compressed).
+
+    With ``plan.artifact_cap`` > 0 a historian deviation or step is at most PV's spread about its
+    setpoint (5-95 % range of the transmitted PV - SP, so setpoint moves do not count) divided by
+    the cap, so the artifact shapes PV without erasing it (a deviation wider than everything PV
+    does exports a straight line between the first and the last sample). The applied values are recorded (``compress_pv_applied_pct``, ``quant_applied_pct``,
+    % of span).
+    """
     pv, op = raw["pv"], raw["op"]
-    if plan.hist_quant > 0:
-        pv = art.quantise(pv, plan.hist_quant)
-    if plan.compress_pv > 0:
-        pv, k = art.compress(pv, plan.compress_pv)
+    hist_quant, compress_pv = plan.hist_quant, plan.compress_pv
+    if plan.artifact_cap > 0 and (hist_quant > 0 or compress_pv > 0):
+        dev = pv - raw["sp"]
+        spread = float(np.percentile(dev, 95) - np.percentile(dev, 5))
+        top = spread / plan.artifact_cap
+        pct = 100.0 / plan.span
+        d.set("pv_spread_pct", spread * pct)
+        if hist_quant > 0:
+            hist_quant = min(hist_quant, top)
+            d.set("quant_applied_pct", hist_quant * pct)
+        if compress_pv > 0:
+            compress_pv = min(compress_pv, top)
+            d.set("compress_pv_applied_pct", compress_pv * pct)
+    if hist_quant > 0:
+        pv = art.quantise(pv, hist_quant)
+    if compress_pv > 0:
+        pv, k = art.compress(pv, compress_pv)
         d.set("pv_archived_points", k)
     if plan.compress_op > 0:
         op, k = art.compress(op, plan.compress_op)
         d.set("op_archived_points", k)
     return op, pv
-
-
-def motion_starts(mv: np.ndarray, eps: float = 0.02) -> int:
-    """Starts of stem motion: samples where the stem moves after a sample at rest."""
-    moving = np.abs(np.diff(mv)) > eps
-    return int(np.count_nonzero(moving[1:] & ~moving[:-1]) + (1 if moving.size and moving[0] else 0))
 
 
 def warmup_samples(proc: Process, ts: float, Ti: float) -> int:
@@ -387,8 +459,3 @@ def centre_pv0(pv0: float, sp_dev: np.ndarray, span: float) -> float:
     lo, hi = min(0.0, float(sp_dev.min())), max(0.0, float(sp_dev.max()))
     a, b = 0.1 * span - lo, 0.9 * span - hi
     return float(min(max(pv0, a), b)) if a <= b else 0.5 * span - 0.5 * (lo + hi)
-
-
-def inside_span(pv: np.ndarray, span: float) -> bool:
-    """PV stays within the transmitter's range (2 % margin) for 99 % of the record."""
-    return float(np.mean((pv < -0.02 * span) | (pv > 1.02 * span))) <= 0.01

@@ -20,7 +20,7 @@ import numpy as np
 __all__ = ["write_loops", "LEAD_COLUMNS"]
 
 LEAD_COLUMNS = ("file", "name", "label", "sticky", "scenario", "law", "S_pct", "J_pct", "class", "process",
-                "integrating", "ts_s", "n")
+                "integrating", "ts_s", "n", "definition")
 START = datetime(2026, 1, 1, tzinfo=timezone.utc)
 
 

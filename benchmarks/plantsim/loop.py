@@ -66,8 +66,9 @@ def run_loop(*, n: int, warmup: int, ts_s: float, m: int, process: Process, valv
 
     Returns
     -------
-    dict with ``op``, ``pv``, ``sp``, ``mv`` (stem at the end of each sample) and ``pv_true``
-    (process output with loads, before the transmitter), each of length ``n``.
+    dict with ``op``, ``pv``, ``sp``, ``mv`` (stem at the end of each sample), ``friction`` (the
+    friction element at the end of each sample: the stem unless a lag follows the friction) and
+    ``pv_true`` (process output with loads, before the transmitter), each of length ``n``.
     """
     total = n + warmup
     disc = process.discretise(ts_s, m)
@@ -89,6 +90,7 @@ def run_loop(*, n: int, warmup: int, ts_s: float, m: int, process: Process, valv
     op = np.empty(total)
     pv = np.empty(total)
     pv_true = np.empty(total)
+    fric = np.empty(total)
     dot = np.dot
     for k in range(total):
         pt = pv0 + float(dot(C, x)) + out_load[k]
@@ -102,6 +104,7 @@ def run_loop(*, n: int, warmup: int, ts_s: float, m: int, process: Process, valv
         lo = k * m
         seg = stem[lo:lo + m]
         valve.fill(k, u, seg)
+        fric[k] = valve.friction_y
         if flow is None:
             inbuf[lo + D:lo + D + m] = seg - f0 + in_load[k]
         else:
@@ -112,4 +115,4 @@ def run_loop(*, n: int, warmup: int, ts_s: float, m: int, process: Process, valv
         pv_true[k] = pt
     sl = slice(warmup, None)
     return {"op": op[sl], "pv": pv[sl], "sp": np.asarray(sp[sl], dtype=float), "mv": stem[m - 1::m][sl],
-            "pv_true": pv_true[sl]}
+            "friction": fric[sl], "pv_true": pv_true[sl]}

@@ -22,6 +22,16 @@ Scenarios (``SimLoop.kind``) and why each negative is hard:
 * ``level_pi`` -- an integrating level under a lightly damped PI: a slow, regular oscillation whose
   OP-PV phase resembles a sticky level loop's.
 * ``daily_cycle`` -- a healthy loop following a 24-hour load cycle: slow drift and a long ramp in OP.
+
+Two definitions (``definition=``). ``"original"`` reproduces the corpus as first defined, seed for
+seed. ``"identifiable"`` draws from its own streams and (a) redraws any record that fails a
+`guards` check: OP saturated or swinging over the valve's range, a growing oscillation, a ringing
+loop outside the ringing scenarios, a PV that does not hold its setpoint, and a sticky valve that
+cannot show its stiction (too few slips, never stuck, or a band under twice OP's noise); (b) caps a
+historian deviation or step at a quarter of PV's spread, so an artifact shapes PV without erasing it;
+(c) makes a quarter of the records integrating in the sticky scenarios too; (d) makes a quarter of
+the records historian-sampled fast flow loops (``historian_fast``: lags of seconds sampled at 10 s,
+a detuned PI, noisy meters, operator setpoint moves).
 """
 
 from __future__ import annotations
@@ -32,15 +42,18 @@ from typing import Iterator
 import numpy as np
 
 from . import disturbances as dist
-from .controller import PID
-from .draws import (MAX_DRAWS, Draws, Plan, centre_pv0, class_J, draw_flow, draw_noise, draw_process, draw_stem,
-                    friction_schedule, healthy_valve, historian, inside_span, motion_starts, simulate,
-                    sp_and_load_steps, timebase, tune, warmup_samples)
+from . import guards
+from .controller import PID, closed_loop_sensitivity
+from .draws import (FAST, MAX_DRAWS, Draws, Plan, centre_pv0, class_J, draw_flow, draw_noise, draw_process,
+                    draw_stem, friction_schedule, healthy_valve, historian, simulate, sp_and_load_steps, timebase,
+                    tune, warmup_samples)
 from .friction import ForceBalance, Kano, Linear, TwoParameter
 from .process import Process
 from .record import CLASSES, SimLoop, stiction_class
 
-__all__ = ["SCENARIOS", "STICKY_SCENARIOS", "corpus", "make_loop"]
+__all__ = ["SCENARIOS", "STICKY_SCENARIOS", "DEFINITIONS", "corpus", "make_loop"]
+
+DEFINITIONS = guards.DEFINITIONS
 
 # Order matters: a scenario's position seeds its records, so append new scenarios at the end.
 SCENARIOS: dict[str, bool] = {
@@ -57,6 +70,14 @@ SCENARIOS: dict[str, bool] = {
     "daily_cycle": False,
 }
 STICKY_SCENARIOS = tuple(k for k, v in SCENARIOS.items() if v)
+
+# identifiable definition: share of records that are historian-sampled fast flow loops, in the
+# scenarios where such a loop makes sense (not the ringing ones, which need a tuned loop), and the
+# share of integrating processes; a historian deviation is at most PV's spread over ARTIFACT_CAP
+P_FAST = 0.25
+P_INTEGRATING = 0.25
+NO_FAST = ("overtuned", "level_pi")
+ARTIFACT_CAP = 4.0
 
 
 def _sticky_valve(d: Draws, law: str, cls: str | None, ts: float, total: int, warmup: int, *,
@@ -111,10 +132,55 @@ def _sticky_valve(d: Draws, law: str, cls: str | None, ts: float, total: int, wa
     return law_obj, bands, schedule, lag, lag_at, h_fine
 
 
-def _draw_plan(kind: str, d: Draws, index: int, n: int | None, ts_s: float | None) -> Plan:
+def _original_integrating(kind: str, d: Draws, index: int) -> bool:
+    """Original definition: sticky scenarios alternate; a quarter of most negatives are integrating."""
+    if SCENARIOS[kind]:
+        return d.set("integrating", index % 2 == 1)
+    if kind == "level_pi":
+        return d.set("integrating", True)
+    if kind in ("overtuned", "external_sine", "external_nonsine"):
+        return d.set("integrating", False)
+    return d.chance("integrating", 0.25)
+
+
+def _structure(kind: str, d: Draws, index: int) -> tuple[bool, bool]:
+    """Identifiable definition: (integrating, historian_fast) of record ``index``.
+
+    Sticky scenarios make every fourth record integrating; elsewhere a quarter of the records are
+    integrating (all in ``level_pi``, none where an integrating process does not fit the
+    scenario). A quarter of the records are fast flow loops (none in `NO_FAST`), drawn among the
+    self-regulating ones so that both shares hold.
+    """
+    if SCENARIOS[kind]:
+        integ = d.set("integrating", index % 4 == 3)
+        p_integ = P_INTEGRATING
+    elif kind == "level_pi":
+        integ = d.set("integrating", True)
+        p_integ = 1.0
+    elif kind in ("overtuned", "external_sine", "external_nonsine"):
+        integ = d.set("integrating", False)
+        p_integ = 0.0
+    else:
+        integ = d.chance("integrating", P_INTEGRATING)
+        p_integ = P_INTEGRATING
+    fast = False
+    if not integ and kind not in NO_FAST:
+        fast = d.chance("historian_fast", P_FAST / (1.0 - p_integ))
+    d.set("historian_fast", fast)
+    return integ, fast
+
+
+def _draw_plan(kind: str, d: Draws, index: int, n: int | None, ts_s: float | None,
+               definition: str = "original") -> Plan:
     sticky = SCENARIOS[kind]
+    ident = definition == "identifiable"
     d.set("scenario", kind)
     d.set("sticky", sticky)
+    fast = False
+    if ident:
+        integ, fast = _structure(kind, d, index)
+        if fast and ts_s is None:
+            ts_s = FAST["ts_s"]
     if kind == "daily_cycle" and ts_s is None:
         ts_s = d.choice("ts_s", (5.0, 10.0))
     if kind == "daily_cycle":
@@ -122,15 +188,9 @@ def _draw_plan(kind: str, d: Draws, index: int, n: int | None, ts_s: float | Non
         n, ts = timebase(d, n, ts_s, n_range=(3000, 10000), p_window=0.0)
     else:
         n, ts = timebase(d, n, ts_s)
-    if sticky:
-        integ = d.set("integrating", index % 2 == 1)
-    elif kind == "level_pi":
-        integ = d.set("integrating", True)
-    elif kind in ("overtuned", "external_sine", "external_nonsine"):
-        integ = d.set("integrating", False)
-    else:
-        integ = d.chance("integrating", 0.25)
-    proc = draw_process(d, ts, integrating_=integ)
+    if not ident:
+        integ = _original_integrating(kind, d, index)
+    proc = draw_process(d, ts, integrating_=integ, fast=fast)
     for k, v in proc.describe().items():
         d.set(k, v)
     span = d.meta["pv_span"]
@@ -142,7 +202,8 @@ def _draw_plan(kind: str, d: Draws, index: int, n: int | None, ts_s: float | Non
     gm_target = d.uniform("gain_margin_target", 1.15, 1.45) if kind == "overtuned" else None
     level_zeta = d.uniform("closed_loop_zeta_target", 0.08, 0.3) if kind == "level_pi" else None
     ctrl = tune(d, proc, ts, flow_slope=slope, gm_target=gm_target, level_zeta=level_zeta,
-                 gm_min=1.1 if kind == "level_pi" else 2.0)
+                gm_min=1.1 if kind == "level_pi" else 2.0, fast=fast,
+                zeta_min=guards.MIN_ZETA if ident and kind not in guards.RINGING else None)
     Kc, Ti, Td, form = ctrl.Kc, ctrl.Ti, ctrl.Td, ctrl.form
 
     def ctrl_factory() -> PID:
@@ -154,25 +215,42 @@ def _draw_plan(kind: str, d: Draws, index: int, n: int | None, ts_s: float | Non
     # valve
     law, bands, schedule, lag, lag_at, h_fine = Linear(), None, None, None, "after", None
     if sticky:
-        cls = CLASSES[(index // 2) % 4] if kind != "force_balance" else None
+        # original: the class changes every second record; identifiable: every record, so that
+        # each four records hold all classes and sixteen hold every class x structure
+        cycle = (index + index // 4) if ident else index // 2
+        cls = CLASSES[cycle % 4] if kind != "force_balance" else None
         law, bands, schedule, lag, lag_at, h_fine = _sticky_valve(d, kind, cls, ts, total, warmup)
     else:
         law, lag = healthy_valve(d, ts)
 
     # signals
-    meas, out_load, in_load = draw_noise(d, total, span, proc)
+    if fast:
+        meas, out_load, in_load = draw_noise(d, total, span, proc, meas_pct=FAST["meas_noise_pct"])
+    else:
+        meas, out_load, in_load = draw_noise(d, total, span, proc)
     p_sp = {"healthy": 0.6, "level_pi": 0.3}.get(kind, 0.3)
+    if fast:
+        # the operator moves a flow setpoint now and then
+        p_sp = FAST["p_sp_steps"]
     p_ld = {"healthy": 0.5}.get(kind, 0.25)
     sp, ld = sp_and_load_steps(d, total, warmup, span, proc, u0, p_sp, p_ld)
     in_load = in_load + ld
     pv0 = d.set("pv0", centre_pv0(pv0, sp, span))
     plan = Plan(kind, sticky, n, ts, warmup, proc, ctrl_factory, law, lag, lag_at, bands, schedule, h_fine,
-                 flow, sp, out_load, in_load, meas, u0, pv0, span)
+                flow, sp, out_load, in_load, meas, u0, pv0, span)
+    if ident and (sticky or kind == "compressed"):
+        plan.artifact_cap = ARTIFACT_CAP
 
     rng = d.rng
     if kind in ("external_sine", "external_nonsine"):
         period = d.loguniform("osc_period_s", 15.0 * ts, 200.0 * ts)
-        amp_pv = span / 100.0 * d.uniform("osc_pv_amplitude_pct", 0.5, 4.0)
+        lo, hi = 0.5, 4.0
+        if ident:
+            # the load must stand out of the measurement noise (a noisy fast flow loop) to fake
+            # a stiction cycle
+            noise = d.meta["meas_noise_pct"]
+            lo, hi = max(lo, 2.0 * noise), max(hi, 5.0 * noise)
+        amp_pv = span / 100.0 * d.uniform("osc_pv_amplitude_pct", lo, hi)
         entry = d.choice("osc_entry", ("input", "output"))
         phase = d.uniform("osc_phase", 0.0, 2 * math.pi)
         if kind == "external_sine":
@@ -213,9 +291,17 @@ def _draw_plan(kind: str, d: Draws, index: int, n: int | None, ts_s: float | Non
         # PV must move several deviations for compression to shape it rather than flatten it
         base = d.choice("compress_base", ("sine_load", "coloured_load"))
         if base == "sine_load":
-            plan.out_load = plan.out_load + dist.sine(
-                total, ts, d.loguniform("wave_period_s", 20.0 * ts, 200.0 * ts),
-                dev * d.uniform("wave_amplitude_over_dev", 2.0, 6.0), d.uniform("wave_phase", 0.0, 2 * math.pi))
+            period = d.loguniform("wave_period_s", 20.0 * ts, 200.0 * ts)
+            amp = dev * d.uniform("wave_amplitude_over_dev", 2.0, 6.0)
+            if ident:
+                # the amplitude is what PV shows: the load is raised by what the controller
+                # rejects at that period, as long as OP needs under 15 % of travel to reject it
+                w = 2 * math.pi / period
+                S = closed_loop_sensitivity(proc, Kc, Ti, Td, ts, w)
+                reach = 15.0 * abs(proc.frequency_response(np.array([w]))[0])
+                amp = d.set("wave_load_amplitude", min(amp / max(S, 1e-6), max(amp, reach)))
+            plan.out_load = plan.out_load + dist.sine(total, ts, period, amp,
+                                                      d.uniform("wave_phase", 0.0, 2 * math.pi))
         else:
             colour = d.choice("compress_load_colour", ("ar1", "random_walk", "pink"))
             plan.out_load = plan.out_load + dist.coloured(
@@ -247,36 +333,39 @@ def _name(proc: Process, ts: float, index: int) -> str:
 
 
 def make_loop(kind: str, seed: int, index: int, *, n: int | None = None, ts_s: float | None = None,
-              name: str | None = None) -> SimLoop:
+              name: str | None = None, definition: str = "original") -> SimLoop:
     """Record ``index`` of scenario ``kind`` for corpus seed ``seed`` (see `corpus`)."""
     if kind not in SCENARIOS:
         raise ValueError(f"unknown scenario {kind!r}; choose from {', '.join(SCENARIOS)}")
+    if definition not in DEFINITIONS:
+        raise ValueError(f"unknown corpus definition {definition!r}; choose from {', '.join(DEFINITIONS)}")
     pos = list(SCENARIOS).index(kind)
+    # the identifiable corpus draws from its own streams: a record of it is not a redraw of the original
+    tag = [1] if definition == "identifiable" else []
+    reasons: list[str] = []
     for draw in range(MAX_DRAWS):
-        d = Draws(np.random.default_rng(np.random.SeedSequence([int(seed), pos, int(index), draw])))
-        plan = _draw_plan(kind, d, index, n, ts_s)
+        d = Draws(np.random.default_rng(np.random.SeedSequence([int(seed), pos, int(index), draw] + tag)))
+        plan = _draw_plan(kind, d, index, n, ts_s, definition)
         raw = simulate(plan, d)
-        sat = float(np.mean((raw["op"] <= 0.01) | (raw["op"] >= 99.99)))
-        moves = motion_starts(raw["mv"])
-        d.set("op_saturated_fraction", sat)
-        d.set("stem_moves", moves)
-        d.set("pv_std", float(np.std(raw["pv"])))
-        d.set("op_std", float(np.std(raw["op"])))
-        ok = (sat <= 0.05 and (not plan.sticky or moves >= 3) and bool(np.all(np.isfinite(raw["pv"])))
-              and inside_span(raw["pv"], plan.span))
-        if ok:
+        op, pv = historian(plan, d, raw)
+        failed = guards.check(definition, kind=kind, sticky=plan.sticky, raw=raw, op=op, pv=pv, span=plan.span,
+                              meta=d.meta)
+        if not failed:
             break
+        reasons.append("+".join(failed))
     d.set("draw", draw)
-    d.set("guard_passed", ok)
+    d.set("guard_passed", not failed)
     d.set("seed", int(seed)), d.set("index", int(index))
-    op, pv = historian(plan, d, raw)
+    d.set("definition", definition)
+    if definition != "original":
+        d.set("redraw_reasons", reasons)
     return SimLoop(op=op, pv=pv, sp=raw["sp"], mv=raw["mv"], ts_s=plan.ts,
                    name=name or _name(plan.proc, plan.ts, index), sticky=plan.sticky, kind=kind,
                    meta=dict(d.meta))
 
 
 def corpus(seed: int, n_per_kind: int, *, kinds=None, n: int | None = None, ts_s: float | None = None,
-           start_index: int = 0) -> Iterator[SimLoop]:
+           start_index: int = 0, definition: str = "original") -> Iterator[SimLoop]:
     """Yield a labelled corpus: ``n_per_kind`` records of each scenario.
 
     Parameters
@@ -284,9 +373,11 @@ def corpus(seed: int, n_per_kind: int, *, kinds=None, n: int | None = None, ts_s
     seed : int
         Corpus seed; the same seed gives the same records bit for bit.
     n_per_kind : int
-        Records per scenario. For the sticky scenarios the record index cycles self-regulating /
-        integrating (every record) and the four classes (every second record), so 8 records cover
-        all eight combinations.
+        Records per scenario. In the original definition the sticky scenarios alternate
+        self-regulating / integrating records and change class every second record (8 records
+        cover all eight combinations); in the identifiable one every fourth record is
+        integrating and the class changes every record (4 records cover the classes, 16 every
+        combination).
     kinds : iterable of str, optional
         Scenarios to include (default all of `SCENARIOS`, in that order).
     n : int, optional
@@ -296,7 +387,14 @@ def corpus(seed: int, n_per_kind: int, *, kinds=None, n: int | None = None, ts_s
         Sample period (default drawn from 1, 2, 5, 10 s).
     start_index : int
         Number of the first record (names are ``<prefix><number>``).
+    definition : {"original", "identifiable"}
+        ``"original"`` reproduces the corpus as first defined, seed for seed. ``"identifiable"``
+        redraws records a plant would not produce or whose stiction cannot show (see
+        `guards`), makes a quarter of the sticky records integrating, and adds fast flow loops
+        sampled by a historian (docs/plantsim.md).
     """
+    if definition not in DEFINITIONS:
+        raise ValueError(f"unknown corpus definition {definition!r}; choose from {', '.join(DEFINITIONS)}")
     kinds = list(SCENARIOS) if kinds is None else list(kinds)
     for k in kinds:
         if k not in SCENARIOS:
@@ -304,7 +402,7 @@ def corpus(seed: int, n_per_kind: int, *, kinds=None, n: int | None = None, ts_s
     number = start_index
     for k in kinds:
         for i in range(n_per_kind):
-            loop = make_loop(k, seed, i, n=n, ts_s=ts_s, name=None)
+            loop = make_loop(k, seed, i, n=n, ts_s=ts_s, name=None, definition=definition)
             yield SimLoop(loop.op, loop.pv, loop.sp, loop.mv, loop.ts_s,
                           _name_from(loop, number), loop.sticky, loop.kind, loop.meta)
             number += 1

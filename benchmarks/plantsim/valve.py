@@ -108,6 +108,9 @@ class ValveTrain:
         self.schedule = schedule
         self.bands = bands
         self.physical = isinstance(law, ForceBalance)
+        # position of the friction element at the end of the last sample (the stem itself unless a
+        # lag follows the friction): where stick and slip are measured
+        self.friction_y = 0.0
         if self.physical:
             # a whole number of fine steps per internal step, so the stem keeps real time
             self.n_fine = max(1, int(math.ceil(h_s / law.h - 1e-9)))
@@ -117,6 +120,7 @@ class ValveTrain:
         y = self.law.reset(x0)
         if self.physical:
             y = self.law.x
+        self.friction_y = y
         if self.lag is not None:
             self.lag.reset(x0 if self.lag_at == "before" else y)
         return y
@@ -139,6 +143,7 @@ class ValveTrain:
             if self.lag is None:
                 if law.holds(op, n_fine * self.m):
                     out[:] = law.x
+                    self.friction_y = law.x
                     return
                 for j in range(self.m):
                     law.advance(op, n_fine)
@@ -148,13 +153,16 @@ class ValveTrain:
                 for j in range(self.m):
                     law.advance(float(z[j]), n_fine)
                     out[j] = law.x
+            self.friction_y = law.x
             return
         if self.lag is None:
-            out[:] = law.step(op)
+            out[:] = self.friction_y = law.step(op)
         elif self.lag_at == "after":
-            out[:] = self.lag.respond(law.step(op))
+            self.friction_y = law.step(op)
+            out[:] = self.lag.respond(self.friction_y)
         else:
             z = self.lag.respond(op)
             for j in range(self.m):
                 out[j] = law.step(float(z[j]))
+            self.friction_y = out[-1]
 
