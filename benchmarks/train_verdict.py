@@ -59,7 +59,7 @@ CANDIDATES: dict[str, dict[str, tuple[int, bool]]] = {
     "full": {"horch_xcorr": (1, False), "horch_integrating": (1, False), "he_curve_fit": (1, False),
              "choudhury_bicoherence": (1, False), "choudhury_bicoherence.NGI": (1, False),
              "kano_stuck": (1, False), "kano_stuck.kano_raw_index": (1, False), "yamashita_qsa": (1, False),
-             "singhal_area": (1, False), "model_fit": (1, False), "valve_band": (1, True),
+             "singhal_area": (1, False), "model_fit": (1, False), "model_fit.lr": (1, True), "valve_band": (1, True),
              "band_sharpness": (-1, True), "deadband_fit": (1, True), "oscillation_regularity": (0, True)},
     "op_only": {"op_shape": (1, False), "op_shape.regularity": (0, True)},
 }
@@ -82,6 +82,11 @@ def _row_features(rec: LoopRecord, *, integrating: bool | None = None) -> dict[s
         res = identify(rec.replace(mv=None), integrating=integrating)
         out["full"] = feature_values(res.evidence)
         out["full_S"] = res.fitted_S_pct
+        # raw numbers behind the fit's rows, so new fit features can be tried without refitting
+        out["full_raw"] = {"n_eff": res.fit.n_eff, "cost": res.fit.cost, "linear_cost": res.linear_fit.cost,
+                           "S_lo": res.fit.S_interval_pct[0], "S_hi": res.fit.S_interval_pct[1],
+                           "J": res.fitted_J_pct, "r2": res.r2, "kind": res.process.kind,
+                           "regularity": res.oscillation.regularity, "period_s": res.oscillation.period_s}
     except Exception as exc:  # noqa: BLE001 - a record the tool refuses is a row without features
         out["full_error"] = f"{type(exc).__name__}: {exc}"
     out["time_s"] = time.perf_counter() - t0
@@ -101,10 +106,12 @@ def _sim_job(args: tuple[str, int, int, dict]) -> dict[str, Any]:
         from benchmarks.plantsim import SCENARIOS, make_loop
 
         kind = list(SCENARIOS)[index % len(SCENARIOS)]
-        loop = make_loop(kind, seed, index // len(SCENARIOS), n=opts.get("n"), ts_s=opts.get("ts_s"))
+        loop = make_loop(kind, seed, index // len(SCENARIOS), n=opts.get("n"), ts_s=opts.get("ts_s"),
+                         definition=opts.get("definition", "identifiable"))
         rec = LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp, mv=loop.mv)
         meta = {k: v for k, v in loop.meta.items() if isinstance(v, (int, float, str, bool)) or v is None}
         row = {"source": source, "seed": seed, "index": index, "kind": loop.kind, "sticky": bool(loop.sticky),
+               "fast": bool(meta.get("historian_fast")),
                "law": meta.get("law"), "integrating": meta.get("integrating"), "n": loop.n,
                "ts_s": loop.ts_s, "S_true": meta.get("S_pct"), "J_true": meta.get("J_pct")}
     else:
@@ -170,7 +177,7 @@ def cmd_features(a: argparse.Namespace) -> int:
 
     for seed in a.seed:
         for i in range(a.n_per_kind * len(SCENARIOS)):
-            jobs.append(("plantsim", seed, i, {"n": a.n, "ts_s": a.ts_s}))
+            jobs.append(("plantsim", seed, i, {"n": a.n, "ts_s": a.ts_s, "definition": a.definition}))
         if a.own_loops:
             from benchmarks.validate_simulated import cases
 
@@ -402,6 +409,8 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--n-per-kind", type=int, default=20)
     f.add_argument("--n", type=int, default=None, help="record length (default: drawn per loop)")
     f.add_argument("--ts-s", type=float, default=None)
+    f.add_argument("--definition", default="identifiable", choices=("identifiable", "original"),
+                   help="plantsim's corpus definition (docs/plantsim.md)")
     f.add_argument("--own-loops", type=int, default=40, help="loops of the project's own benchmark per seed")
     f.add_argument("--own-n", type=int, default=3000)
     f.add_argument("--real", action="store_true", help="also the real recordings in --data")

@@ -389,16 +389,24 @@ def _integrating_hint(record: LoopRecord, fit: HammersteinFit | None) -> bool | 
     return False if fit is not None else None
 
 
-def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None, backlash_lr: float | None,
-                  op_noise_pct: float, osc: Oscillation, method: str) -> tuple[Evidence, ...]:
-    """The Hammerstein (or OP/MV valve) fit's own evidence as rows of the evidence table."""
+def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None, n_eff: float | None,
+                  backlash_lr: float | None, op_noise_pct: float, osc: Oscillation,
+                  method: str) -> tuple[Evidence, ...]:
+    """The Hammerstein (or OP/MV valve) fit's own evidence as rows of the evidence table.
+
+    ``model_fit`` carries the improvement itself and, as ``lr``, the likelihood ratio
+    ``n_eff ln(c_linear / c_valve)``: the same improvement weighed by how many independent samples
+    back it (a 5 % gain over 10 000 samples is stronger evidence than over 500)."""
     rows = []
     src = "the valve fitted on the stem position" if method == "op_mv" else "the valve + process model"
     if ins is not None:
         dec = "stiction" if ins > INSAMPLE_THRESHOLD else "no_stiction"
+        extras = {}
+        if n_eff is not None and math.isfinite(n_eff) and ins < 1.0:
+            extras["lr"] = min(n_eff * -math.log1p(-max(ins, 0.0)), 1e4)
         rows.append(Evidence("model_fit", ins, INSAMPLE_THRESHOLD, dec,
                              f"{src} explains {100 * ins:.1f} % of the error a linear loop leaves "
-                             f"(threshold {100 * INSAMPLE_THRESHOLD:.0f} %)"))
+                             f"(threshold {100 * INSAMPLE_THRESHOLD:.0f} %)", extras=extras))
     ratio = S_pct / op_noise_pct if op_noise_pct > 0 else (100.0 if S_pct > 0 else 0.0)
     ratio = min(ratio, 100.0)
     dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct >= S_MIN_PCT else "no_stiction"
@@ -583,7 +591,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             if S >= SHARP_MIN_S_PCT and stiction_class(S, J) == "deadband":
                 backlash_lr = _backlash_lr(fit, linear, ctest)
     op_noise = _op_noise_pct(op)
-    fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, backlash_lr=backlash_lr,
+    n_eff = (valve_fit.hammerstein if valve_fit is not None else fit).n_eff
+    fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=n_eff, backlash_lr=backlash_lr,
                              op_noise_pct=op_noise, osc=osc, method=method)
     tests = run_all(op, pv, ts, sp=record.sp, integrating=integrating)
     evidence = tuple(tests) + fit_rows
