@@ -78,7 +78,7 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
         from scipy.signal import lfilter
 
         from diagnose.output_error import _legendre_basis
-        from diagnose.stiction_model import stiction_reference
+        from diagnose.stiction_model import simulate_valve
 
         a = math.exp(-ts_s / hp_tau_s) if hp_tau_s else None
         hp = (lambda v: lfilter([1.0, -1.0], [1.0, -a], v - v[0], axis=0)) if a is not None else (lambda v: v)
@@ -94,7 +94,7 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
 
         def cost(v):
             S, J, f, tau, d, kind, ratio = unpack(v)
-            mv = stiction_reference(x, S, J, int(f))
+            mv = simulate_valve(x, S, J, int(f))
             u = np.concatenate([np.full(d, mv[0]), mv[: n - d]]) - mv[0]
             z = lag(u, tau)
             if kind == "soptd":

@@ -861,7 +861,6 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     best, x0, prob = min(candidates, key=lambda c: c[0].sse)
     set_start(x0)
 
-    prob.smooth = False
     sse0, _ = prob.sse([best.S], [best.J], [best.F], best.cfg)
     best = _Best(best.S, best.J, best.F, best.cfg, float(sse0[0, 0]))
     if stiction and best.S > 0:

@@ -17,7 +17,7 @@ from diagnose.physics.plant import (AsymmetricStictionValve, AugmentedValve, Cha
                                     DriftingStictionValve, LaggedValve, equal_percentage)
 from diagnose.physics.valve import augmented_valve, characteristic
 from diagnose.process_model import ProcessModel
-from diagnose.simulate import FOPTD, simc_pi, simulate_loop
+from diagnose.simulate import make_process, simc_pi, simulate_loop
 from diagnose.stiction_model import stiction_batch
 
 KEYS = {"missing_physics", "baseline_rmse", "improved_rmse", "hypotheses", "mismatch", "explanation",
@@ -262,10 +262,10 @@ def test_plant_parts_hide_their_effect():
     # friction grows: the valve sits stuck more of the time late in the record
     still = np.diff(y_d) == 0
     assert still[2000:].mean() > still[:1000].mean()
-    proc = CharacteristicProcess(FOPTD(gain=1.0, tau_s=5.0, delay_s=0.0), R=20.0)
+    proc = CharacteristicProcess(make_process("foptd", gain=1.0, tau_s=5.0, delay_s=0.0), R=20.0)
     assert proc.reset(50.0, 1.0) == pytest.approx(equal_percentage(50.0, 20.0))
     with pytest.raises(DataError, match="rangeability"):
-        CharacteristicProcess(FOPTD(), R=0.5)
+        CharacteristicProcess(make_process("foptd", gain=1.0, tau_s=20.0, delay_s=2.0), R=0.5)
 
 
 def test_characteristic_is_affine_in_the_plant_equal_percentage():
