@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from diagnose.errors import DataError, NotFittedError
-from diagnose.fit import (ErrorSurface, HammersteinFit, StictionEstimator, ValveFit, fit_hammerstein,
-                          fit_valve)
+from diagnose.fit import ErrorSurface, HammersteinFit, StictionEstimator, fit_hammerstein
+from diagnose.valve_fit import ValveFit, fit_valve
 from diagnose.process_model import ProcessModel
 from diagnose.simulate import sticky_loop
 from diagnose.stiction_model import stiction_batch, stiction_class
@@ -210,22 +210,27 @@ def test_refinements_keep_J_within_the_OP_range():
     # and the cost can keep falling as J grows (J = 26 % on 13 % of OP travel, with a quarter of
     # the gain, was seen on a simulated loop): even on a cost that always prefers a larger J, the
     # refinements stop at the bound they keep S under (1.2 x OP's range)
-    from diagnose.fit import _Best, _nelder_mead_refine, _zoom
-    from diagnose.output_error import _make_configs
+    import dataclasses
+
+    from diagnose.objective import Candidate
+    from diagnose.search import ModelSpace, PolishConfig, ZoomConfig, nelder_mead, resolve, zoom
 
     class JHungry:
-        def sse(self, S, J, F, cfg):
+        ts_s = 1.0
+
+        def score(self, S, J, F, grid):
             S, J = np.asarray(S, float), np.asarray(J, float)
             c = (S - 3.0) ** 2 + 1.0 / (1.0 + J)
             return c[:, None], np.ones((S.shape[0], 1))
 
-    cfg = _make_configs([("foptd", 15.0, 0.0, 3)], 1.0)
-    start = _Best(3.0, 6.0, 1.0, cfg, 1.0 / 7.0)
+    lim = resolve(np.linspace(45.0, 52.5, 200), 1.0, ModelSpace(structure=("foptd", 15.0, 0.0, 3.0)), 12, 12)
     cap = 9.0
-    for res in (_zoom(JHungry(), start, rounds=6, span=0.5, S_max_pct=cap),
-                _nelder_mead_refine(JHungry(), start, 1.0, fixed=True, S_max_pct=cap)):
-        assert res.J > 6.0                          # the cost did pull J up ...
-        assert res.J <= cap + 1e-9                  # ... to the bound at most
+    lim = dataclasses.replace(lim, S_cap=cap)
+    start = Candidate(3.0, 6.0, 1.0, ("foptd", 15.0, 0.0, 3), 1.0 / 7.0)
+    for res in (zoom(JHungry(), start, lim, ZoomConfig(rounds=6, span=0.5)),
+                nelder_mead(JHungry(), start, lim, PolishConfig())):
+        assert res.J_pct > 6.0                      # the cost did pull J up ...
+        assert res.J_pct <= cap + 1e-9              # ... to the bound at most
 
 
 def _benchmark_case(seed: int, name: str, n: int):
@@ -259,7 +264,8 @@ def test_a_long_record_is_refined_from_its_own_starting_state():
 
 
 def test_extra_search_windows_are_the_records_thirds_at_most_2000_samples():
-    from diagnose.fit import WINDOW_MAX_SAMPLES, _extra_windows
+    from diagnose.search import WINDOW_MAX_SAMPLES
+    from diagnose.search import search_windows as _extra_windows
     ones = np.ones
     assert _extra_windows(3000, 3, ones(3000)) == [(0, 1000), (1000, 1000), (2000, 1000)]
     assert _extra_windows(10000, 3, ones(10000)) == [(0, 2000), (4000, 2000), (8000, 2000)]

@@ -93,26 +93,20 @@ def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = 
 
 
 def _from_fit_module(stage: Stage) -> Baseline | None:
-    try:
-        from .. import fit as fitmod  # the fitting stage (issue 3)
-    except ImportError:
-        return None
+    from ..fit import fit_hammerstein
+    from ..valve_fit import fit_valve
     train = stage.train
     try:
-        if stage.name == "loop" and hasattr(fitmod, "fit_hammerstein"):
-            res = fitmod.fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train,
-                                         gain_sign=stage.gain_sign or None)
+        if stage.name == "loop":
+            res = fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train, gain_sign=stage.gain_sign or None)
             struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(res.f0), res.process)
             stem_hat, y_hat = res.simulate(stage.x)
             return Baseline(struct, np.asarray(y_hat, float), np.asarray(stem_hat, float),
                             "fit_hammerstein")
-        if stage.name == "valve" and hasattr(fitmod, "fit_valve"):
+        if stage.name == "valve":
             # the plain valve: fit_valve's (S, J, f0); its own actuator lag and dead time, when it
             # fits them, are left out here (they are what the actuator_lag hypothesis tests)
-            try:
-                res = fitmod.fit_valve(stage.x, stage.y, stage.ts_s, train=train)
-            except TypeError:
-                res = fitmod.fit_valve(stage.x[train], stage.y[train], stage.ts_s)
+            res = fit_valve(stage.x, stage.y, stage.ts_s, train=train)
             struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(getattr(res, "f0", 1)),
                                      IDENTITY)
             stem = stems(stage, [struct])[0]
