@@ -38,7 +38,7 @@ from .objective import (Candidate, Objective, ProcessGrid, burn_in, legendre_bas
                         op_offset, score_design, score_weights, validate_record)
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
-                     PolishConfig, ZoomConfig, best_structure, dense_grid, global_grid, linear_fit,
+                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit,
                      nelder_mead, noise_model, polish_structure, refine, resolve, search_windows,
                      shape_bands, shape_profile, start_state, widest_window, zoom)
 from .stiction_model import stiction_batch
@@ -125,6 +125,10 @@ class HammersteinFit:
         The valve's first stuck point, % of span (OP's first sample plus ``op_offset_pct`` unless
         the fit chose another: the valve's state at the start of a record is unknown). None: OP's
         first sample.
+    start_stem_pct, start_stuck_pct : float or None
+        The stem position the valve was stuck at on the first sample (the valve fit reads it from
+        the recorded stem position) and the input at which it stuck (None: where a moving valve
+        stops); ``start_stem_pct`` None: at rest at its first input.
     """
 
     S_pct: float
@@ -146,6 +150,8 @@ class HammersteinFit:
     score_coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
     load_order: int = 0
     start_op_pct: float | None = None
+    start_stem_pct: float | None = None
+    start_stuck_pct: float | None = None
 
     def heldout_cost(self, op_pct, pv, mask) -> float:
         """Mean squared (prefiltered) output error on the samples in ``mask``.
@@ -165,7 +171,8 @@ class HammersteinFit:
         if x.shape[0] != self.n_fit or not m.any():
             raise DataError("heldout_cost needs the fitted record's OP/PV and a non-empty mask")
         x = self._with_start(x)
-        mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0])[0]
+        mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0], start_pct=self.start_stem_pct,
+                            stuck_at_pct=self.start_stuck_pct)[0]
         proto = replace(self.process, gain=1.0, bias=0.0, u_balance_pct=None)
         z = proto.regressor(mv - mv[0], self.ts_s)
         a = math.exp(-self.ts_s / self.hp_tau_s) if self.hp_tau_s else -1.0
@@ -182,9 +189,12 @@ class HammersteinFit:
         x = np.asarray(op_pct, dtype=float) + self.op_offset_pct
         if x.ndim != 1 or x.shape[0] == 0 or not np.all(np.isfinite(x)):
             raise DataError("op_pct must be a non-empty 1-D series of finite values")
+        start = stuck = None
         if x.shape[0] == self.n_fit:
             x = self._with_start(x)
-        mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0])[0] - self.op_offset_pct
+            start, stuck = self.start_stem_pct, self.start_stuck_pct
+        mv = stiction_batch(x, [self.S_pct], [self.J_pct], [self.f0], start_pct=start,
+                            stuck_at_pct=stuck)[0] - self.op_offset_pct
         pv = self.process.simulate(mv, self.ts_s)
         if self.load.shape[0] > 1 and x.shape[0] == self.n_fit:
             pv = pv + legendre_basis(x.shape[0], self.load.shape[0] - 1)[:, 1:] @ self.load[1:]
@@ -218,7 +228,8 @@ def single_search(obj: Objective, lim: Limits, cfg: SearchConfig, stiction: bool
     best = linear_fit(obj, lim)
     if not stiction:
         return best
-    starts, gcoarse, per_structure = global_grid(obj, lim, cfg.grid, best)
+    gcoarse = coarse_structures(lim, best)
+    starts, per_structure = global_grid(obj, lim, cfg.grid, gcoarse)
     # each start's process structure from the full grid
     results = [best]
     keys: list = []
@@ -428,7 +439,8 @@ def finish(obj: Objective, best: Candidate, lim: Limits, off: float, *, surface:
     ts_s = obj.ts_s
     kind = best.structure[0]
     x = obj.x
-    mv = stiction_batch(x, [best.S_pct], [best.J_pct], [best.f0])[0]
+    mv = stiction_batch(x, [best.S_pct], [best.J_pct], [best.f0], start_pct=obj.start_stem_pct,
+                        stuck_at_pct=obj.start_stuck_pct)[0]
     proto = ProcessGrid.of([best.structure], ts_s, lim.tau_max_s).model(0)
     z = proto.regressor(mv - mv[0], ts_s)
     ws = obj.weights > 0
@@ -505,7 +517,8 @@ def finish(obj: Objective, best: Candidate, lim: Limits, off: float, *, surface:
                           surface=surf, load=load, n_fit=n, op_offset_pct=off, n_eff=ne,
                           cost=float(res_f @ res_f) / n_sc, hp_tau_s=obj.hp_tau_s,
                           score_coef=np.asarray(score_coef, float), load_order=obj.load_order,
-                          start_op_pct=start_op)
+                          start_op_pct=start_op, start_stem_pct=obj.start_stem_pct,
+                          start_stuck_pct=obj.start_stuck_pct)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ import numpy as np
 
 from .errors import StictionError
 
-ABI = 2
+ABI = 3
 
 
 class KernelsMissingError(StictionError, ImportError):
@@ -47,7 +47,7 @@ _C = ctypes.c_int
 _lib = _load()
 for _name, _args, _res in (
     ("valve_run", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I], None),
-    ("score", [_P, _I, _P, _P, _P, _I, _P, _P, _P, _P, _I, _D, _D, _P, _P, _P, _I, _P, _D, _P, _P, _D], _C),
+    ("score", [_P, _I, _P, _I, _P, _I, _D, _D, _P, _P, _P, _I, _P, _D, _P, _D], _C),
     ("fused_sse", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I, _P,
                    _P, _D, _P], _C),
     ("valve_step1", [_P, _P, _D], _D),
@@ -85,7 +85,7 @@ def _f64(a) -> np.ndarray:
 
 
 def _ptr(a: np.ndarray) -> int:
-    return a.ctypes.data
+    return a.__array_interface__["data"][0]
 
 
 def valve_run(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s: float,
@@ -107,32 +107,45 @@ def valve_run(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s: float
     return out
 
 
-def score(x, S, J, F, a1, a2, d, integ, ts_s: float, ahp: float, w, yw, Qw, Qty, yyp: float,
-          gfix: float) -> tuple[np.ndarray, np.ndarray]:
-    """Output-error SSE and gain (m, P) of m valve candidates x P process structures.
+class ScoreData:
+    """The record side of `score`, prepared once: the valve input x, the weights w, the weighted data
+    yw, the weighted orthonormal load basis Qw (n x K) and Qty, the residual sum of squares after the
+    basis yyp, the noise prefilter's pole ahp (< 0: none), the sample period and a fixed gain (NaN:
+    free). Holds its arrays (read-only) and their addresses, so a call passes pointers only."""
 
-    See ``score`` in diagnose/csrc/kernels_lanes.h; `diagnose.objective.Objective` prepares the
-    arguments.
+    __slots__ = ("x", "w", "yw", "Qw", "Qty", "yyp", "ahp", "ts_s", "gfix", "n", "K", "_args")
+
+    def __init__(self, x, w, yw, Qw, Qty, yyp: float, ahp: float, ts_s: float, gfix: float) -> None:
+        self.x, self.w, self.yw, self.Qw, self.Qty = (_f64(a) for a in (x, w, yw, Qw, Qty))
+        self.n = self.x.shape[0]
+        self.K = self.Qw.shape[1]
+        if not (self.w.shape[0] == self.yw.shape[0] == self.Qw.shape[0] == self.n and self.Qty.shape[0] == self.K):
+            raise ValueError("ScoreData: inconsistent shapes")
+        self.yyp, self.ahp, self.ts_s, self.gfix = float(yyp), float(ahp), float(ts_s), float(gfix)
+        self._args = (_ptr(self.x), self.n, _ptr(self.w), _ptr(self.yw), _ptr(self.Qw), self.K, _ptr(self.Qty))
+
+
+def score(data: ScoreData, valves: np.ndarray, structs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Output-error SSE and gain, each (m, P), of m valve candidates x P process structures.
+
+    ``valves`` is (5, m): S, J, f0 and the start state y0, xs0 (NaN: at rest at the first input;
+    see `valve_run`); ``structs`` is (4, P): lag poles a1, a2 (< 0: first order), dead
+    time in samples, integrator (0/1); both C-contiguous float64. See ``score`` in
+    diagnose/csrc/kernels_lanes.h; `diagnose.objective.Objective` prepares the arguments.
     """
-    x, S, J, F, a1, a2, w, yw, Qty, Qw = (_f64(v) for v in (x, S, J, F, a1, a2, w, yw, Qty, Qw))
-    d = np.ascontiguousarray(d, dtype=np.int64)
-    ib = np.ascontiguousarray(integ, dtype=np.bool_).view(np.uint8)
-    m, P, n = S.shape[0], a1.shape[0], x.shape[0]
-    K = Qw.shape[1]
-    if (J.shape[0] != m or F.shape[0] != m or a2.shape[0] != P or d.shape[0] != P or ib.shape[0] != P
-            or w.shape[0] != n or yw.shape[0] != n or Qw.shape[0] != n or Qty.shape[0] != K):
-        raise ValueError("score: inconsistent shapes")
-    if n and np.any(d < 0):
-        raise ValueError("score: dead times must be >= 0 samples")
-    sse = np.empty((m, P))
-    gain = np.empty((m, P))
+    m = valves.shape[1]
+    P = structs.shape[1]
+    if valves.shape[0] != 5 or structs.shape[0] != 4 or valves.dtype != np.float64 or structs.dtype != np.float64 \
+            or not valves.flags.c_contiguous or not structs.flags.c_contiguous:
+        raise ValueError("score: valves must be (5, m) and structs (4, P), C-contiguous float64")
+    out = np.empty((2, m, P))
     if m and P:
-        rc = _lib.score(_ptr(x), n, _ptr(S), _ptr(J), _ptr(F), m, _ptr(a1), _ptr(a2), _ptr(d), _ptr(ib), P,
-                        float(ts_s), float(ahp), _ptr(w), _ptr(yw), _ptr(Qw), K, _ptr(Qty), float(yyp),
-                        _ptr(sse), _ptr(gain), float(gfix))
+        x, n, w, yw, Qw, K, Qty = data._args
+        rc = _lib.score(x, n, _ptr(valves), m, _ptr(structs), P, data.ts_s, data.ahp, w, yw, Qw, K, Qty, data.yyp,
+                        _ptr(out), data.gfix)
         if rc != 0:
             raise MemoryError("score: out of memory")
-    return sse, gain
+    return out[0], out[1]
 
 
 def fused_sse(x, params: np.ndarray, cc, a1, a2, d, integ, ts_s: float, E, y, w, sgn: float) -> np.ndarray:

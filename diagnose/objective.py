@@ -49,43 +49,47 @@ StructureKey = tuple
 
 @dataclass(frozen=True, eq=False)
 class ProcessGrid:
-    """Process structures in the arrays the scoring kernel takes (one entry per structure).
+    """Process structures in the form the scoring kernel takes (one column per structure).
 
-    Build with `ProcessGrid.of`; ``keys[i]`` is ``(kind, tau_s, tau2_s, delay_samples)``.
+    Build with `ProcessGrid.of`; ``keys[i]`` is ``(kind, tau_s, tau2_s, delay_samples)``; ``table``
+    is (4, P): the lag poles a1 and a2 (-1: first order), the dead time in samples and the
+    integrator flag.
     """
 
     keys: tuple
     ts_s: float
-    a1: np.ndarray
-    a2: np.ndarray
-    d: np.ndarray
-    integ: np.ndarray
+    table: np.ndarray
 
     @classmethod
     def of(cls, keys: Iterable[StructureKey], ts_s: float, tau_max_s: float = math.inf) -> "ProcessGrid":
         """Structures from ``(kind, tau_s, tau2_s, delay_samples)`` keys; lags above ``tau_max_s``
         are clipped to it (local searches scale lags freely)."""
-        out, a1, a2, d, integ = [], [], [], [], []
+        out, rows = [], []
         for kind, t1, t2, dd in keys:
             if kind not in KINDS:
                 raise DataError(f"unknown process kind {kind!r}; use foptd, soptd or integrating")
             t1 = min(float(t1), tau_max_s)
             t2 = min(float(t2), tau_max_s) if kind == "soptd" else 0.0
             out.append((kind, t1, t2, int(dd)))
-            a1.append(lag_coefficient(t1, ts_s))
-            a2.append(lag_coefficient(t2, ts_s) if kind == "soptd" else -1.0)
-            d.append(int(dd))
-            integ.append(kind == "integrating")
-        return cls(tuple(out), float(ts_s), np.asarray(a1, float), np.asarray(a2, float),
-                   np.asarray(d, np.int64), np.asarray(integ, np.bool_))
+            rows.append((lag_coefficient(t1, ts_s), lag_coefficient(t2, ts_s) if kind == "soptd" else -1.0,
+                         float(int(dd)), 1.0 if kind == "integrating" else 0.0))
+        table = np.ascontiguousarray(np.asarray(rows, dtype=np.float64).reshape(-1, 4).T)
+        table.flags.writeable = False
+        return cls(tuple(out), float(ts_s), table)
 
     def __len__(self) -> int:
         return len(self.keys)
 
+    @property
+    def d(self) -> np.ndarray:
+        """Dead times, samples."""
+        return self.table[2].astype(np.int64)
+
     def take(self, idx) -> "ProcessGrid":
         idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
-        return ProcessGrid(tuple(self.keys[i] for i in idx), self.ts_s, self.a1[idx], self.a2[idx],
-                           self.d[idx], self.integ[idx])
+        table = np.ascontiguousarray(self.table[:, idx])
+        table.flags.writeable = False
+        return ProcessGrid(tuple(self.keys[i] for i in idx), self.ts_s, table)
 
     def model(self, i: int = 0) -> ProcessModel:
         """Structure ``i`` as a unit-gain, zero-bias `ProcessModel`."""
@@ -258,6 +262,11 @@ class Objective:
         Fix the process gain (PV units per %) instead of fitting it (the valve fit's 1).
     gain_sign : {+1, -1} or None
         Sign the process gain must have (the controller's action).
+    start_stem_pct, start_stuck_pct : float or None
+        The valve's stem at the first sample, % of span, stuck there after a motion in the
+        candidate's direction f0 (the valve fit reads it from the recorded stem position), and the
+        input at which it stuck (None: where a valve moving in direction f0 stops,
+        ``stem + f0 (S - J) / 2``). None: at rest at ``x[0]``.
 
     Use `Objective.build` to make one from a record.
     """
@@ -270,15 +279,15 @@ class Objective:
     hp_tau_s: float | None = None
     gain_fixed: float | None = None
     gain_sign: float | None = None
+    start_stem_pct: float | None = None
+    start_stuck_pct: float | None = None
     # derived once (__post_init__)
     ahp: float = field(init=False)
     y_mean: float = field(init=False)
     y_std: float = field(init=False)
     n_scored: int = field(init=False)
-    _yw: np.ndarray = field(init=False, repr=False)
-    _Qw: np.ndarray = field(init=False, repr=False)
-    _Qty: np.ndarray = field(init=False, repr=False)
     _yyp: float = field(init=False, repr=False)
+    _data: kernels.ScoreData = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -311,10 +320,9 @@ class Objective:
         yw = w * yn
         Qw = np.ascontiguousarray(Q * w[:, None])
         Qty = Qw.T @ yn
-        s(self, "_yw", yw)
-        s(self, "_Qw", Qw)
-        s(self, "_Qty", Qty)
         s(self, "_yyp", float(np.sum(yw * yn) - Qty @ Qty))
+        gfix = self.gain_fixed / self.y_std if self.gain_fixed is not None else np.nan
+        s(self, "_data", kernels.ScoreData(self.x, w, yw, Qw, Qty, self._yyp, ahp, self.ts_s, gfix))
 
     @classmethod
     def build(cls, op_pct, pv, ts_s: float, *, train=None, burn_frac: float = 0.05, load_order: int = 2,
@@ -340,7 +348,18 @@ class Objective:
         new = object.__new__(Objective)
         new.__dict__.update(self.__dict__)
         object.__setattr__(new, "x", _frozen(x))
+        d = self._data
+        object.__setattr__(new, "_data", kernels.ScoreData(new.x, d.w, d.yw, d.Qw, d.Qty, d.yyp, d.ahp, d.ts_s,
+                                                           d.gfix))
         return new
+
+    def with_start_stem(self, stem_pct: float | None, stuck_pct: float | None = None) -> "Objective":
+        """The same objective with the valve stuck at stem position ``stem_pct`` at the first sample,
+        the input then at ``stuck_pct`` (None: where a moving valve stops); ``stem_pct`` None: at
+        rest at ``x[0]``."""
+        stem = None if stem_pct is None or math.isnan(stem_pct) else float(stem_pct)
+        stuck = None if stem is None or stuck_pct is None or math.isnan(stuck_pct) else float(stuck_pct)
+        return replace(self, start_stem_pct=stem, start_stuck_pct=stuck)
 
     def with_noise(self, hp_tau_s: float | None) -> "Objective":
         """The same data scored with another noise prefilter."""
@@ -349,11 +368,14 @@ class Objective:
     def with_weights(self, weights: np.ndarray) -> "Objective":
         return replace(self, weights=weights)
 
-    def window(self, i0: int, m: int) -> "Objective":
-        """Samples ``i0 .. i0 + m`` as an objective of their own (the valve starts at rest at its
-        first OP sample; no burn-in is added: the weights are kept as they are)."""
+    def window(self, i0: int, m: int, burn_frac: float = 0.05) -> "Objective":
+        """Samples ``i0 .. i0 + m`` as an objective of their own: the valve starts at rest at the
+        window's first OP sample, and the window's own burn-in (`burn_in`) is left out of the score
+        (as are the samples left out here)."""
         sl = slice(i0, i0 + m)
-        return replace(self, x=self.x[sl], y=self.y[sl], weights=self.weights[sl])
+        w = np.array(self.weights[sl])
+        w[: burn_in(self.x[sl], burn_frac)] = 0.0
+        return replace(self, x=self.x[sl], y=self.y[sl], weights=w, start_stem_pct=None, start_stuck_pct=None)
 
     # ---- scoring ----------------------------------------------------------------------------------
 
@@ -368,12 +390,21 @@ class Objective:
         The SSE is of the prefiltered, standardised PV (`mse` converts it); a gain against
         ``gain_sign`` scores as no process at all.
         """
-        S = np.ascontiguousarray(S_pct, dtype=np.float64)
-        J = np.ascontiguousarray(J_pct, dtype=np.float64)
-        F = np.ascontiguousarray(f0, dtype=np.float64)
-        gfix = self.gain_fixed / self.y_std if self.gain_fixed is not None else np.nan
-        sse, gain = kernels.score(self.x, S, J, F, grid.a1, grid.a2, grid.d, grid.integ, self.ts_s, self.ahp,
-                                  self.weights, self._yw, self._Qw, self._Qty, self._yyp, gfix)
+        S = np.asarray(S_pct, dtype=np.float64)
+        valves = np.empty((5, S.shape[0]))
+        valves[0] = S
+        valves[1] = J_pct
+        valves[2] = f0
+        valves[3] = np.nan if self.start_stem_pct is None else self.start_stem_pct
+        valves[4] = np.nan if self.start_stuck_pct is None else self.start_stuck_pct
+        return self.score_table(valves, grid.table)
+
+    def score_table(self, valves: np.ndarray, structs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`score` with the valves as a (5, m) array (S, J, f0, and the start state y0, xs0: the
+        stem stuck at y0 after a motion in direction f0, the input then at xs0; NaN: at rest at
+        ``x[0]``) and the structures as a `ProcessGrid.table` (4, P): the local searches' fast path
+        and the valve fit's start states."""
+        sse, gain = kernels.score(self._data, valves, structs)
         if self.gain_sign:
             # a process gain against the controller's action is the controller path (PV explained
             # through OP = f(PV)), not the plant: score it no better than no process at all

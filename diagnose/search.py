@@ -3,7 +3,8 @@ config, each returning scored `Candidate` objects and never changing the objecti
 
 * `linear_fit`: the best process structure for a valve without stiction (S = J = 0);
 * `best_structure`, `polish_structure`: a valve's process structure from a grid, then finer lags;
-* `global_grid`: (S, J/S) x a coarse set of lags and dead times: the distinct best starts;
+* `coarse_structures`, `global_grid`: (S, J/S) x a coarse set of lags and dead times: the distinct
+  best starts;
 * `dense_grid`: a dense (S, J/S, f0) grid at a few structures (the valley in S and J is narrow);
 * `shape_profile`: every class shape (J/S) picks its own structure, then gets the dense grid;
 * `nelder_mead`: local polish of (S, J, lags) by `scipy.optimize.minimize(method="Nelder-Mead")`;
@@ -29,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .objective import MIN_SAMPLES, Candidate, Objective, ProcessGrid, burn_in, score_weights
+from .process_model import lag_coefficient
 from .stiction_model import stiction_classes
 
 #: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
@@ -45,6 +47,7 @@ PROFILE_S_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.2)
 S_CAP_FACTOR = 1.2
 #: Noise-model time constants (samples) tried by `noise_model`; None is pure output error.
 NOISE_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
+NAN = float("nan")
 #: First stuck points tried by `start_state`, as multiples of max(S, J) around OP's first sample
 START_DELTAS = (-1.0, -0.5, 0.5, 1.0)
 
@@ -220,28 +223,33 @@ class GridConfig:
     both_f0: bool = False
 
 
-def global_grid(obj: Objective, lim: Limits, cfg: GridConfig, linear: Candidate
-                ) -> tuple[list[Candidate], ProcessGrid, np.ndarray]:
-    """Distinct best starts of the global (S, J/S) x coarse-structure grid.
-
-    Returns the starts (best first), the coarse structures and their best cost over the valves.
-    """
+def coarse_structures(lim: Limits, linear: Candidate) -> ProcessGrid:
+    """The global grid's structures: FOPTD at 6 lags (geometric, one sample to an eighth of the
+    record) x the dead times `GLOBAL_DELAYS` and the linear model's, plus the integrator at those
+    dead times (when searched); the linear model's structure alone when the structure is fixed."""
+    if lim.fixed:
+        return lim.grid([linear.structure])
     ts = lim.ts_s
+    t_lo, t_hi = lim.tau_range_s if lim.tau_range_s is not None else (ts, max(lim.n * ts / 8.0, 2 * ts))
+    taus = np.geomspace(t_lo, max(t_hi, 1.01 * t_lo), 6)
+    d_lin = int(linear.structure[3])
+    dset = sorted({max(lim.dmin, dd) for dd in GLOBAL_DELAYS + (d_lin,) if dd <= lim.dmax})
+    keys = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
+    if "integrating" in lim.kinds:
+        keys += [("integrating", float(ts), 0.0, dd) for dd in dset]
+    return lim.grid(keys)
+
+
+def global_grid(obj: Objective, lim: Limits, cfg: GridConfig, grid: ProcessGrid
+                ) -> tuple[list[Candidate], np.ndarray]:
+    """Distinct best starts of the global (S, J/S, f0) grid at the structures of ``grid``.
+
+    Returns the starts (best first) and each structure's best cost over the valves.
+    """
     ratios = np.asarray(cfg.J_ratios, float)
     f_set = [1.0, -1.0] if cfg.both_f0 else [1.0]
     Sg, Rg, Fg = np.meshgrid(lim.S_grid, ratios, f_set, indexing="ij")
     Sg, Jg, Fg = Sg.ravel(), (Sg * Rg).ravel(), Fg.ravel()
-    if not lim.fixed:
-        t_lo, t_hi = lim.tau_range_s if lim.tau_range_s is not None else (ts, max(lim.n * ts / 8.0, 2 * ts))
-        taus = np.geomspace(t_lo, max(t_hi, 1.01 * t_lo), 6)
-        d_lin = int(linear.structure[3])
-        dset = sorted({max(lim.dmin, dd) for dd in GLOBAL_DELAYS + (d_lin,) if dd <= lim.dmax})
-        keys = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
-        if "integrating" in lim.kinds:
-            keys += [("integrating", float(ts), 0.0, dd) for dd in dset]
-        grid = lim.grid(keys)
-    else:
-        grid = lim.grid([linear.structure])
     sse, _ = obj.score(Sg, Jg, Fg, grid)
     order = np.argsort(sse.min(axis=1))
     starts: list[Candidate] = []
@@ -253,7 +261,7 @@ def global_grid(obj: Objective, lim: Limits, cfg: GridConfig, linear: Candidate
             starts.append(c)
         if len(starts) >= cfg.n_starts:
             break
-    return starts, grid, sse.min(axis=0)
+    return starts, sse.min(axis=0)
 
 
 @dataclass(frozen=True)
@@ -354,6 +362,9 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
     scale = max(cand.S_pct, 0.05)
     free_lags = lags and not lim.fixed
     S_cap = lim.S_cap
+    ts = obj.ts_s
+    tau_max = lim.tau_max_s
+    integ = 1.0 if kind == "integrating" else 0.0
 
     def unpack(v):
         S = min(abs(v[0]) * scale, S_cap)
@@ -362,10 +373,14 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
         return S, J, tau
 
     def scored(v):
+        # the kernel's tables built directly: this runs thousands of times per fit
         S, J, tau = unpack(v)
-        grid = lim.grid([(kind, tau, tau * ratio2, d)])
-        sse, _ = obj.score([S, S], [J, J], [1.0, -1.0], grid)
-        return sse[:, 0], S, J, grid
+        t1_ = min(tau, tau_max)
+        a2 = lag_coefficient(min(tau * ratio2, tau_max), ts) if kind == "soptd" else -1.0
+        structs = np.array([[lag_coefficient(t1_, ts)], [a2], [float(d)], [integ]])
+        valves = np.array([[S, S], [J, J], [1.0, -1.0], [NAN, NAN], [NAN, NAN]])
+        sse, _ = obj.score_table(valves, structs)
+        return sse[:, 0], S, J, (kind, t1_, min(tau * ratio2, tau_max) if kind == "soptd" else 0.0, d)
 
     def cost(v):
         return float(scored(v)[0].min())
@@ -381,9 +396,9 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
                             "fatol": cfg.tol * (abs(f0) + 1e-12)})
     if float(res.fun) >= cand.sse:
         return cand
-    sse, S, J, grid = scored(res.x)
+    sse, S, J, key = scored(res.x)
     k = int(np.argmin(sse))
-    return Candidate(S, J, (1.0, -1.0)[k], grid.keys[0], float(sse[k]))
+    return Candidate(S, J, (1.0, -1.0)[k], key, float(sse[k]))
 
 
 def refine(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig) -> Candidate:
@@ -468,6 +483,35 @@ def zoom(obj: Objective, cand: Candidate, lim: Limits, cfg: ZoomConfig) -> Candi
         dS /= 4.0
         dJ /= 4.0
     return cand
+
+
+def profile_intervals(obj: Objective, cand: Candidate, lim: Limits, bound_sse: float, *, span: float = 0.15,
+                      steps: int = 121) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The ranges of S (J fixed) and of J (S fixed) whose cost stays within ``bound_sse``, scanned in
+    ``steps`` steps over +-``span`` of S (of max(S, J) for J) around the candidate, both starting
+    directions, at its structure; each widened by half a step and holding the candidate.
+
+    On exact data the cost is zero on a flat cell around the truth (every (S, J) in it gives the same
+    valve path) and the F-test bound collapses to it: this scan is fine enough to find the cell,
+    where a coarse grid finds a single point."""
+    grid = cand.grid(obj.ts_s, lim.tau_max_s)
+    u = np.linspace(-span, span, steps)
+    hS = span * max(cand.S_pct, 1e-6) / (steps - 1)
+    hJ = span * max(cand.S_pct, cand.J_pct, 1e-6) / (steps - 1)
+    S_scan = np.unique(np.clip(cand.S_pct * (1.0 + u), 0.0, lim.S_cap))
+    J_scan = np.unique(np.clip(cand.J_pct + max(cand.S_pct, cand.J_pct) * u, 0.0, lim.S_cap))
+    out = []
+    for scan, fixed, h, centre in ((S_scan, "J", hS, cand.S_pct), (J_scan, "S", hJ, cand.J_pct)):
+        m = scan.shape[0]
+        S = np.concatenate([scan, scan]) if fixed == "J" else np.full(2 * m, cand.S_pct)
+        J = np.full(2 * m, cand.J_pct) if fixed == "J" else np.concatenate([scan, scan])
+        F = np.repeat([1.0, -1.0], m)
+        sse, _ = obj.score(S, J, F, grid)
+        inside = scan[np.minimum(sse[:m, 0], sse[m:, 0]) <= bound_sse]
+        lo = float(inside.min()) - 0.5 * h if inside.size else centre
+        hi = float(inside.max()) + 0.5 * h if inside.size else centre
+        out.append((max(0.0, min(lo, centre)), max(hi, centre)))
+    return out[0], out[1]
 
 
 # --------------------------------------------------------------------------------------------------

@@ -123,7 +123,8 @@ def simulate_valve(x_pct, S_pct: float, J_pct: float, f0: int = 1, *, return_sta
     return y, stuck, direction
 
 
-def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, out: np.ndarray | None = None) -> np.ndarray:
+def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, start_pct=None, stuck_at_pct=None,
+                   out: np.ndarray | None = None) -> np.ndarray:
     """Run many candidate valves over one input series in one compiled call.
 
     Parameters
@@ -134,6 +135,13 @@ def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, out: np.ndarray | None = None) 
         Candidate stiction parameters, % of span.
     f0 : int or array_like of {+1, -1}, shape (m,)
         Starting direction per candidate.
+    start_pct : float or array_like, shape (m,), optional
+        The stem position at the first sample, % of span: the valve is stuck there after a motion
+        in direction ``f0`` (the input then stood at ``start + f0 (S - J) / 2``). None or NaN: at
+        rest at the first input.
+    stuck_at_pct : float or array_like, shape (m,), optional
+        With ``start_pct``: the input at which the valve stuck (None or NaN: where a valve moving in
+        direction ``f0`` stops, ``start + f0 (S - J) / 2``).
     out : ndarray, shape (m, n), optional
         Preallocated output (saves an allocation inside fitting loops).
 
@@ -161,7 +169,9 @@ def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, out: np.ndarray | None = None) 
         raise DataError(f"out must be a C-contiguous float64 array of shape {(m, n)}, got {out.shape}")
     zero = np.zeros(m)
     nan = np.full(m, np.nan)
-    return kernels.valve_run(x, S, J, S, J, zero, zero, f, zero, nan, nan, 1.0, out)
+    y0 = nan if start_pct is None else np.broadcast_to(np.asarray(start_pct, dtype=np.float64), (m,))
+    xs0 = nan if stuck_at_pct is None else np.broadcast_to(np.asarray(stuck_at_pct, dtype=np.float64), (m,))
+    return kernels.valve_run(x, S, J, S, J, zero, zero, f, zero, y0, xs0, 1.0, out)
 
 
 def stiction_class(S_pct: float, J_pct: float, *, tol_pct: float | None = None) -> str:

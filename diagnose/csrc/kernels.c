@@ -25,7 +25,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 2
+#define KERNELS_ABI 3
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -395,10 +395,9 @@ typedef void (*valve_run_fn)(const double *, int64_t, int64_t, const double *, c
                              const double *, const double *, const double *, const double *,
                              const double *, const double *, const double *, const double *, double,
                              double *, int64_t);
-typedef int (*score_fn)(const double *, int64_t, const double *, const double *, const double *, int64_t,
-                        const double *, const double *, const int64_t *, const uint8_t *, int64_t,
-                        double, double, const double *, const double *, const double *, int64_t,
-                        const double *, double, double *, double *, double);
+typedef int (*score_fn)(const double *, int64_t, const double *, int64_t, const double *, int64_t, double, double,
+                        const double *, const double *, const double *, int64_t, const double *, double,
+                        double *, double);
 
 static const valve_run_fn VALVE_RUN[] = {
     valve_run_base,
@@ -473,14 +472,12 @@ void valve_run(const double *x, int64_t n, int64_t m, const double *S_up, const 
     VALVE_RUN[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts, out, ld);
 }
 
-int score(const double *x, int64_t n, const double *S, const double *J, const double *F, int64_t m,
-          const double *a1, const double *a2, const int64_t *d, const uint8_t *integ, int64_t P,
+int score(const double *x, int64_t n, const double *valves, int64_t m, const double *structs, int64_t P,
           double ts, double ahp, const double *w, const double *yw, const double *Qw, int64_t K,
-          const double *Qty, double yyp, double *sse, double *gain, double gfix)
+          const double *Qty, double yyp, double *out, double gfix)
 {
     ensure_isa();
-    return SCORE[isa_for(m * P)](x, n, S, J, F, m, a1, a2, d, integ, P, ts, ahp, w, yw, Qw, K, Qty, yyp, sse,
-                          gain, gfix);
+    return SCORE[isa_for(m * P)](x, n, valves, m, structs, P, ts, ahp, w, yw, Qw, K, Qty, yyp, out, gfix);
 }
 
 /* ---- a Python module, so that pip builds and installs this file as an extension ---------------- */

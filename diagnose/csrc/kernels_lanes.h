@@ -112,20 +112,24 @@ KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const doubl
 }
 
 /*
- * Output-error scoring of every (valve candidate i, process structure p): sse and gain are m x P
- * (row-major). The valve of candidate i (S[i], J[i], F[i], at rest at x[0]) drives the unit-gain
- * structure p (lags a1, a2 (< 0: first order), dead time d samples, integrator), taken relative to
- * the valve's first position; the noise prefilter (ahp >= 0) follows; the weighted normal-equation
- * sums against the data yw and the orthonormal load basis Qw (n x K) give the SSE after the load and
- * the gain are solved (closed form in finish_one; gfix: a fixed gain, NaN: free).
+ * Output-error scoring of every (valve candidate i, process structure p).
+ *
+ * valves is 5 x m: rows S, J, F (starting direction) and the start state y0, xs0 of valve_lanes
+ * (NaN: at rest at x[0]); structs is 4 x P: rows a1, a2 (lag poles, a2 < 0: first order), the dead
+ * time in samples and the integrator flag; out is 2 x m x P: the SSE, then the gain (row-major).
+ * The valve of candidate i drives the unit-gain structure p, taken relative to the valve's first
+ * position; the noise prefilter (ahp >= 0) follows; the weighted normal-equation sums against the
+ * data yw and the orthonormal load basis Qw (n x K) give the SSE after the load and the gain are
+ * solved (closed form in finish_one; gfix: a fixed gain, NaN: free).
  * The m * P jobs run LANES at a time in (i, p) order. Returns 0, or -1 when memory runs out.
  */
-KATTR int V(score_, SFX)(const double *x, int64_t n, const double *S, const double *J, const double *F,
-                         int64_t m, const double *a1, const double *a2, const int64_t *d,
-                         const uint8_t *integ, int64_t P, double ts, double ahp, const double *w,
-                         const double *yw, const double *Qw, int64_t K, const double *Qty, double yyp,
-                         double *sse, double *gain, double gfix)
+KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64_t m, const double *structs,
+                         int64_t P, double ts, double ahp, const double *w, const double *yw, const double *Qw,
+                         int64_t K, const double *Qty, double yyp, double *out, double gfix)
 {
+    const double *S = valves, *J = valves + m, *F = valves + 2 * m, *Y0 = valves + 3 * m, *XS0 = valves + 4 * m;
+    const double *a1 = structs, *a2 = structs + P, *dd = structs + 2 * P, *integ = structs + 3 * P;
+    double *sse = out, *gain = out + m * P;
     if (m <= 0 || P <= 0)
         return 0;
     int64_t nb = n > 0 ? n : 1;
@@ -142,7 +146,6 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *S, const doub
         owner[b] = -1;
         ubuf[b * nb] = 0.0;
     }
-    const double nan = NAN;
     int hp = ahp >= 0.0;
     int64_t njobs = m * P;
     for (int64_t t0 = 0; t0 < njobs; t0 += LANES) {
@@ -186,18 +189,19 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *S, const doub
         }
         if (nneed > 0 && n > 0) {
             /* the new candidates' valves in one pass (spare lanes repeat the first) */
-            double s4[LANES], j4[LANES], f4[LANES], zr[LANES], nn[LANES];
+            double s4[LANES], j4[LANES], f4[LANES], zr[LANES], y4[LANES], x4[LANES];
             double *o4[LANES];
             for (int g = 0; g < LANES; g++) {
                 int h = g < nneed ? g : 0;
                 s4[g] = S[need_i[h]];
                 j4[g] = J[need_i[h]];
                 f4[g] = F[need_i[h]];
+                y4[g] = Y0[need_i[h]];
+                x4[g] = XS0[need_i[h]];
                 zr[g] = 0.0;
-                nn[g] = nan;
                 o4[g] = need_u[h];
             }
-            V(valve_lanes_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, nn, nn, ts, o4);
+            V(valve_lanes_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, y4, x4, ts, o4);
         }
         VT A1, B1, A2, B2, I, N;
         int64_t D[LANES];
@@ -209,9 +213,9 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *S, const doub
             B1[g] = 1.0 - A1[g];
             A2[g] = nmax(a2[p], 0.0);
             B2[g] = 1.0 - A2[g];
-            I[g] = integ[p] ? ts : 0.0;
-            N[g] = integ[p] ? 0.0 : 1.0;
-            D[g] = d[p];
+            I[g] = integ[p] != 0.0 ? ts : 0.0;
+            N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
+            D[g] = (int64_t)dd[p];
         }
         VT z1 = {0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
         VT ahpv = z1 + ahp;
