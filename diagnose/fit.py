@@ -28,6 +28,8 @@ from the residuals' lag-one autocorrelation.
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -250,10 +252,17 @@ def single_search(obj: Objective, lim: Limits, cfg: SearchConfig, stiction: bool
     results += dense
     results += shape_profile(obj, lim, cfg.dense, sse_dense, keys)
     results.sort(key=lambda r: r.sse)
-    refined = [refine(obj, c, lim, cfg.polish) for c in results[: max(2, cfg.polish.n_refine)]]
-    top = min(refined, key=lambda r: r.sse)
-    refined += [refine(obj, c, lim, cfg.polish) for c in shape_bands(obj, top, lim, cfg.bands)]
-    return min(refined + results, key=lambda r: r.sse)
+    done: dict = {}         # the same start refines to the same result: refine it once
+
+    def refined(c: Candidate) -> Candidate:
+        if c not in done:
+            done[c] = refine(obj, c, lim, cfg.polish)
+        return done[c]
+
+    out = [refined(c) for c in results[: max(2, cfg.polish.n_refine)]]
+    top = min(out, key=lambda r: r.sse)
+    out += [refined(c) for c in shape_bands(obj, top, lim, cfg.bands)]
+    return min(out + results, key=lambda r: r.sse)
 
 
 def refine_on_record(obj: Objective, part: HammersteinFit, lim: Limits, cfg: SearchConfig, stiction: bool,
@@ -287,7 +296,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
                     gain_sign: float | None = None, gain_fixed: float | None = None,
                     hp_tau_s: float | str | None = "auto", load_order: int = 2, burn_frac: float = 0.05,
                     windows: int = 0, surface: bool = True, space: ModelSpace = ModelSpace(),
-                    search: SearchConfig = SearchConfig()) -> HammersteinFit:
+                    search: SearchConfig = SearchConfig(), threads: int | None = None) -> HammersteinFit:
     """Fit valve stiction (S, J, f0) and a low-order process to closed-loop OP/PV data.
 
     Parameters
@@ -333,6 +342,9 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         The process kinds, dead times, lags and S range searched, or a fixed process structure.
     search : SearchConfig
         The search strategies' configs.
+    threads : int, optional
+        Threads the independent looks at a long record's windows run on (None: up to the machine's
+        cores; 1 when the caller runs fits in parallel itself). The result does not depend on it.
 
     Returns
     -------
@@ -366,18 +378,30 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         spans += search_windows(n, windows, w)
     window_space = replace(space, S_max_pct=float(lim.S_grid[-1]))
     window_search = replace(search, max_samples=None)
-    candidates: list[tuple[Candidate, Objective, float | None]] = []
-    if not long_record:
-        candidates.append((single_search(obj, lim, search, stiction), obj, None))
-    for i0, m in spans:
+
+    def look(span: tuple[int, int]) -> tuple[Candidate, Objective, float | None]:
+        """The search on one window, refined on the whole record."""
+        i0, m = span
         sl = slice(i0, i0 + m)
         tw = w[sl] > 0
         tw[: max(0, burn - i0)] = True      # the window's fit applies its own burn-in
         part = fit_hammerstein(x[sl], y[sl], ts_s, train=tw, stiction=stiction, gain_sign=gain_sign,
                                gain_fixed=gain_fixed, hp_tau_s="auto" if auto_noise else hp_tau_s,
                                load_order=load_order, burn_frac=burn_frac, surface=False,
-                               space=window_space, search=window_search)
-        candidates.append(refine_on_record(obj, part, lim, search, stiction, burn, auto_noise))
+                               space=window_space, search=window_search, threads=1)
+        return refine_on_record(obj, part, lim, search, stiction, burn, auto_noise)
+
+    candidates: list[tuple[Candidate, Objective, float | None]] = []
+    if not long_record:
+        candidates.append((single_search(obj, lim, search, stiction), obj, None))
+    n_threads = min(len(spans), threads if threads is not None else (os.cpu_count() or 1))
+    if n_threads > 1:
+        # the looks are independent and the kernels release the GIL: on several cores they run side
+        # by side (the result does not depend on it: every look is kept in its order)
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            candidates += list(pool.map(look, spans))
+    else:
+        candidates += [look(sp) for sp in spans]
     best, obj, x0 = min(candidates, key=lambda c: c[0].sse)
     if stiction and best.S_pct > 0:
         best = zoom(obj, best, lim, search.zoom)

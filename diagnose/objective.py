@@ -288,6 +288,7 @@ class Objective:
     n_scored: int = field(init=False)
     _yyp: float = field(init=False, repr=False)
     _data: kernels.ScoreData = field(init=False, repr=False)
+    _noise_variants: dict = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -323,6 +324,9 @@ class Objective:
         s(self, "_yyp", float(np.sum(yw * yn) - Qty @ Qty))
         gfix = self.gain_fixed / self.y_std if self.gain_fixed is not None else np.nan
         s(self, "_data", kernels.ScoreData(self.x, w, yw, Qw, Qty, self._yyp, ahp, self.ts_s, gfix))
+        # the same data under other noise models, made once (the noise-model choice and every
+        # whole-record refinement try them all); shared by the start variants of `with_start`
+        s(self, "_noise_variants", {hp: self})
 
     @classmethod
     def build(cls, op_pct, pv, ts_s: float, *, train=None, burn_frac: float = 0.05, load_order: int = 2,
@@ -362,8 +366,17 @@ class Objective:
         return replace(self, start_stem_pct=stem, start_stuck_pct=stuck)
 
     def with_noise(self, hp_tau_s: float | None) -> "Objective":
-        """The same data scored with another noise prefilter."""
-        return replace(self, hp_tau_s=hp_tau_s)
+        """The same data scored with another noise prefilter (the valve's start kept)."""
+        key = float(hp_tau_s) if hp_tau_s is not None and hp_tau_s > 0 else None
+        if key == self.hp_tau_s:
+            return self
+        variants = self._noise_variants
+        other = variants.get(key)
+        if other is None:
+            other = replace(self, hp_tau_s=key)
+            object.__setattr__(other, "_noise_variants", variants)
+            variants[key] = other
+        return other.with_start(float(self.x[0]))
 
     def with_weights(self, weights: np.ndarray) -> "Objective":
         return replace(self, weights=weights)

@@ -132,7 +132,13 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
     double *sse = out, *gain = out + m * P;
     if (m <= 0 || P <= 0)
         return 0;
-    int64_t nb = n > 0 ? n : 1;
+    /* each lane's valve output relative to its first sample, after dmax zeros (the input before
+     * the record, seen through the longest dead time): the process loop reads it without a branch */
+    int64_t dmax = 0;
+    for (int64_t p = 0; p < P; p++)
+        if ((int64_t)dd[p] > dmax)
+            dmax = (int64_t)dd[p];
+    int64_t nb = (n > 0 ? n : 1) + dmax;
     double *ubuf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
     double *szq = (double *)malloc(sizeof(double) * (size_t)(K > 0 ? K : 1));
     VT sq[K > 0 ? K : 1];
@@ -144,14 +150,14 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
     int64_t owner[LANES];       /* candidate whose valve output buffer b holds */
     for (int b = 0; b < LANES; b++) {
         owner[b] = -1;
-        ubuf[b * nb] = 0.0;
+        for (int64_t k = 0; k < nb; k++)
+            ubuf[b * nb + k] = 0.0;
     }
     int hp = ahp >= 0.0;
     int64_t njobs = m * P;
     for (int64_t t0 = 0; t0 < njobs; t0 += LANES) {
         int64_t ci[LANES], pi[LANES];
         const double *ug_ptr[LANES];
-        double u0[LANES];
         for (int g = 0; g < LANES; g++) {
             int64_t t = t0 + g < njobs ? t0 + g : njobs - 1;     /* pad the last group */
             ci[g] = t / P;
@@ -181,7 +187,7 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
             owner[b] = i;
             used[b] = 1;
             need_i[nneed] = i;
-            need_u[nneed] = ubuf + b * nb;
+            need_u[nneed] = ubuf + b * nb + dmax;
             nneed++;
             for (int h = g; h < LANES; h++)
                 if (ci[h] == i)
@@ -202,20 +208,23 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 o4[g] = need_u[h];
             }
             V(valve_lanes_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, y4, x4, ts, o4);
+            for (int h = 0; h < nneed; h++) {
+                double *row = need_u[h];
+                double first = row[0];
+                for (int64_t k = 0; k < n; k++)
+                    row[k] -= first;
+            }
         }
         VT A1, B1, A2, B2, I, N;
-        int64_t D[LANES];
         for (int g = 0; g < LANES; g++) {
             int64_t p = pi[g];
-            ug_ptr[g] = ubuf + buf_of[g] * nb;
-            u0[g] = ug_ptr[g][0];
+            ug_ptr[g] = ubuf + buf_of[g] * nb + dmax - (int64_t)dd[p];
             A1[g] = a1[p];
             B1[g] = 1.0 - A1[g];
             A2[g] = nmax(a2[p], 0.0);
             B2[g] = 1.0 - A2[g];
             I[g] = integ[p] != 0.0 ? ts : 0.0;
             N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
-            D[g] = (int64_t)dd[p];
         }
         VT z1 = {0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
         VT ahpv = z1 + ahp;
@@ -223,10 +232,8 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
             sq[j] = z1;
         for (int64_t k = 0; k < n; k++) {
             VT ug;
-            for (int g = 0; g < LANES; g++) {
-                int64_t kk = k - D[g];
-                ug[g] = kk >= 0 ? (ug_ptr[g][kk] - u0[g]) : 0.0;
-            }
+            for (int g = 0; g < LANES; g++)
+                ug[g] = ug_ptr[g][k];
             z1 = A1 * z1 + B1 * ug;
             z2 = A2 * z2 + B2 * z1;
             ac += I * z2;
