@@ -211,22 +211,22 @@ def op_offset(x: np.ndarray) -> float:
     raise DataError(f"OP spans {lo:g}..{hi:g}, more than a valve's 0..100 %; scale it to % of span")
 
 
-def validate_record(op_pct, pv, ts_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """OP and PV as float arrays, with the errors a user can act on."""
+def validate_record(op_pct, pv, ts_s: float, y_name: str = "PV") -> tuple[np.ndarray, np.ndarray]:
+    """OP and PV (or the series named ``y_name``) as float arrays, with the errors a user can act on."""
     x = np.asarray(op_pct, dtype=float)
     y = np.asarray(pv, dtype=float)
     if x.ndim != 1 or y.ndim != 1 or x.shape != y.shape:
-        raise DataError(f"OP and PV must be 1-D series of equal length, got {x.shape} and {y.shape}")
+        raise DataError(f"OP and {y_name} must be 1-D series of equal length, got {x.shape} and {y.shape}")
     if x.shape[0] < MIN_SAMPLES:
         raise DataError(f"record has {x.shape[0]} samples; the fit needs at least {MIN_SAMPLES}")
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-        raise DataError("OP and PV must be finite; fill or split gaps first")
+        raise DataError(f"OP and {y_name} must be finite; fill or split gaps first")
     if not (ts_s > 0 and math.isfinite(ts_s)):
         raise DataError(f"ts_s must be a positive number of seconds, got {ts_s!r}")
     if np.ptp(x) <= 0:
         raise DataError("OP is constant: the controller never moved the valve, nothing to identify")
     if np.ptp(y) <= 0:
-        raise DataError("PV is constant: nothing to identify")
+        raise DataError(f"{y_name} is constant: nothing to identify")
     return x, y
 
 

@@ -123,7 +123,7 @@ def fit_valve(op_pct, mv_pct, ts_s: float = 1.0, *, train=None, stiction: bool =
     surface : bool
         Compute the error surface and the intervals (False: point estimates only).
     """
-    x, y = validate_record(op_pct, mv_pct, ts_s)
+    x, y = validate_record(op_pct, mv_pct, ts_s, "MV (the stem position)")
     n = x.shape[0]
     off = op_offset(x)
     x = x + off
@@ -240,6 +240,7 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     Returns ``(S_lo, S_hi, J_lo, J_hi, half)`` (``half`` the median of f (u - y) over moving samples),
     or None when the record has no complete stay or the bounds contradict each other (noise, a lag:
     then the search alone decides)."""
+    u = np.clip(u, 0.0, 100.0)            # as the valve sees its input
     dy = np.diff(y)
     moving = np.abs(dy) > tol
     if moving.sum() < 2:

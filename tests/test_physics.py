@@ -106,7 +106,7 @@ def test_initial_valve_state_is_recovered():
 def test_fine_valve_polish_reaches_the_sharp_minimum():
     # OP -> MV with an actuator lag: the output-error cost is V-shaped in S (1 % off moves slips by
     # samples); a start 5 % off in S and J (the 3 % grids' typical miss) is polished to the truth
-    from diagnose.physics.hypotheses import _fine_valve
+    from diagnose.physics.hypotheses import fine_valve
 
     x = _walk(1500, 12)
     kw = dict(S_up=3.157, J_up=1.28, f0=1, ts_s=1.0, tau_lag_s=6.0)
@@ -117,7 +117,7 @@ def test_fine_valve_polish_reaches_the_sharp_minimum():
     stage = Stage("valve", x, y, 1.0, train)
     start = Structure.plain(3.32, 1.34, 1, ProcessModel("foptd", 1.0, 0.0, 0.0, 0.0)).replace(tau_lag_s=6.0)
     start, c0 = fit_initial_state(stage, start)
-    best = _fine_valve(stage, start, "tau_lag_s")
+    best = fine_valve(stage, start, "tau_lag_s")
     c1 = float(train_sse(stage, [best])[0])
     assert c1 < 0.5 * c0
     assert c1 / train.sum() < 1.5 * 0.1 ** 2

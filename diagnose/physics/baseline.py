@@ -44,7 +44,7 @@ def _global_sj(stage: Stage, struct: Structure, span: float, step: float = 0.025
     return global_sj(stage, struct, span, step)
 
 
-def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
+def grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
                    template: Structure | None = None, coarse: list | None = None) -> Structure:
     """Global search of the plain model: coarse (S, J, f0) x FOPTD dynamics grid, then a fine global
     (S, J, f0) grid and the dynamics in turn. ``template`` carries extra physics held fixed during
@@ -69,7 +69,7 @@ def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int =
 
 
 def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = None) -> list:
-    """The coarse (S, J, f0) x FOPTD dynamics grid of `_grid_baseline`: the best candidate of each
+    """The coarse (S, J, f0) x FOPTD dynamics grid of `grid_baseline`: the best candidate of each
     of the ``n_starts`` best dynamics, as (training SSE, Structure), cheapest first. ``template``
     carries extra physics held fixed (e.g. a load period)."""
     x = stage.x
@@ -128,7 +128,7 @@ def make_baseline(stage: Stage, given: Structure | None = None, *, use_fit_modul
         b = _from_fit_module(stage)
         if b is not None:
             return b
-    struct = _grid_baseline(stage)
+    struct = grid_baseline(stage)
     struct, _ = refine_plain(stage, struct)
     stem = stems(stage, [struct])[0]
     y_hat, _ = _linear_fit(stage, struct, stem, stage.n)
