@@ -74,10 +74,12 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
             cfg = ProcessGrid.of([(kind, tau, tau * ratio, d)], ts_s)
             return float(prob.score([S], [J], [f], cfg)[0][0, 0])
     else:
-        # plain: the reference valve in Python, scipy.signal.lfilter, numpy least squares
+        # plain: the valve in plain Python (Kano's model as written for the tests, tests/kano.py,
+        # equal to the compiled kernel), scipy.signal.lfilter, numpy least squares
         from scipy.signal import lfilter
 
-        from diagnose.stiction_model import simulate_valve
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+        from kano import kano_valve
 
         a = math.exp(-ts_s / hp_tau_s) if hp_tau_s else None
         hp = (lambda v: lfilter([1.0, -1.0], [1.0, -a], v - v[0], axis=0)) if a is not None else (lambda v: v)
@@ -93,7 +95,7 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
 
         def cost(v):
             S, J, f, tau, d, kind, ratio = unpack(v)
-            mv = simulate_valve(x, S, J, int(f))
+            mv = kano_valve(x, S, J, 1 if f > 0 else -1)
             u = np.concatenate([np.full(d, mv[0]), mv[: n - d]]) - mv[0]
             z = lag(u, tau)
             if kind == "soptd":
