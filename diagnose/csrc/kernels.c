@@ -53,6 +53,159 @@ static inline void finish_one(double szz, double szy, const double *szq, const d
     }
 }
 
+/* ---- the augmented model of `stiction explain`: after the valve ------------------------------ */
+
+/* Solve A c = b (p x p, row-major, A and b overwritten) by Gaussian elimination with partial
+ * pivoting; returns 0, or -1 for a singular matrix. */
+static int solve_small(double *A, double *b, int p, double *c)
+{
+    for (int col = 0; col < p; col++) {
+        int piv = col;
+        for (int r = col + 1; r < p; r++)
+            if (fabs(A[r * p + col]) > fabs(A[piv * p + col]))
+                piv = r;
+        if (A[piv * p + col] == 0.0)
+            return -1;
+        if (piv != col) {
+            for (int cc = 0; cc < p; cc++) {
+                double t = A[col * p + cc];
+                A[col * p + cc] = A[piv * p + cc];
+                A[piv * p + cc] = t;
+            }
+            double t = b[col];
+            b[col] = b[piv];
+            b[piv] = t;
+        }
+        for (int r = col + 1; r < p; r++) {
+            double fct = A[r * p + col] / A[col * p + col];
+            for (int cc = col; cc < p; cc++)
+                A[r * p + cc] -= fct * A[col * p + cc];
+            b[r] -= fct * b[col];
+        }
+    }
+    for (int r = p - 1; r >= 0; r--) {
+        double s = b[r];
+        for (int cc = r + 1; cc < p; cc++)
+            s -= A[r * p + cc] * c[cc];
+        c[r] = s / A[r * p + r];
+    }
+    return 0;
+}
+
+#define FUSED_MAXP 16
+
+/*
+ * The training SSE of one augmented model from its (lagged) stem zv[0..n): the installed
+ * characteristic c (100 (e^(c u/100) - 1) / (e^c - 1), c = 0 linear), the dead time d (samples,
+ * a ring buffer of d + 1 slots in `ring`), the lags a1, a2 (< 0: first order), an optional
+ * integrator, and the weighted least squares of y on [z, 1, E] (E: n x q extra columns; a ridge of
+ * 1e-9 of each diagonal term keeps a singular design solvable). sgn (+1, -1; 0 free) is the sign
+ * the coefficient of z must have: a fit with the other sign is refit with that coefficient 0.
+ */
+static double fused_rest(const double *zv, int64_t n, double c_i, double a1i, double a2i, int64_t di, int ig,
+                         double ts_s, const double *E, int64_t q, const double *y, const double *w, double sgn,
+                         double *ring)
+{
+    int p = 2 + (int)q;
+    double A[FUSED_MAXP * FUSED_MAXP], b[FUSED_MAXP], col[FUSED_MAXP], coef[FUSED_MAXP];
+    double Aw[FUSED_MAXP * FUSED_MAXP], bw[FUSED_MAXP], sub[FUSED_MAXP];
+    for (int r = 0; r < p; r++) {
+        b[r] = 0.0;
+        for (int c2 = 0; c2 < p; c2++)
+            A[r * p + c2] = 0.0;
+    }
+    double yy = 0.0;
+    int lin = fabs(c_i) < 1e-9;
+    double den = lin ? 1.0 : expm1(c_i);
+    int64_t L = di + 1;
+    int second = a2i >= 0.0;
+    double u0 = lin ? zv[0] : 100.0 * expm1(c_i * zv[0] / 100.0) / den;
+    for (int64_t j = 0; j < L; j++)
+        ring[j] = u0;
+    double z1 = u0, z2 = u0, acc = 0.0;
+    int64_t wpos = 0;           /* ring slot of sample k */
+    for (int64_t k = 0; k < n; k++) {
+        double uk = k == 0 ? u0 : (lin ? zv[k] : 100.0 * expm1(c_i * zv[k] / 100.0) / den);
+        double ud;
+        /* dead time: ring buffer of the last d + 1 inputs (slot wpos holds sample k, the next slot
+         * sample k - d) */
+        if (di == 0) {
+            ud = uk;
+        } else {
+            ring[wpos] = uk;
+            wpos++;
+            if (wpos == L)
+                wpos = 0;
+            ud = k >= di ? ring[wpos] : u0;
+        }
+        z1 = a1i * z1 + (1.0 - a1i) * ud;
+        if (second)
+            z2 = a2i * z2 + (1.0 - a2i) * z1;
+        else
+            z2 = z1;
+        double zk;
+        if (ig) {
+            acc += ts_s * z2;
+            zk = acc;
+        } else {
+            zk = z2;
+        }
+        double wk = w[k];
+        if (wk == 0.0)
+            continue;
+        double yk = y[k];
+        if (q == 0) {
+            A[0] += wk * zk * zk;
+            A[1] += wk * zk;
+            A[3] += wk;
+            b[0] += wk * zk * yk;
+            b[1] += wk * yk;
+            yy += wk * yk * yk;
+            continue;
+        }
+        col[0] = zk;
+        col[1] = 1.0;
+        for (int64_t j = 0; j < q; j++)
+            col[2 + j] = E[k * q + j];
+        for (int r = 0; r < p; r++) {
+            b[r] += wk * col[r] * yk;
+            for (int c2 = 0; c2 < p; c2++)
+                A[r * p + c2] += wk * col[r] * col[c2];
+        }
+        yy += wk * yk * yk;
+    }
+    if (q == 0)
+        A[2] = A[1];
+    for (int r = 0; r < p; r++)
+        A[r * p + r] += 1e-9 * (A[r * p + r] + 1e-12);
+    memcpy(Aw, A, sizeof(double) * (size_t)(p * p));
+    memcpy(bw, b, sizeof(double) * (size_t)p);
+    if (solve_small(Aw, bw, p, coef) != 0)
+        return yy;
+    if (sgn != 0.0 && coef[0] * sgn < 0.0) {
+        int ps = p - 1;
+        for (int r = 0; r < ps; r++) {
+            bw[r] = b[r + 1];
+            for (int c2 = 0; c2 < ps; c2++)
+                Aw[r * ps + c2] = A[(r + 1) * p + c2 + 1];
+        }
+        if (solve_small(Aw, bw, ps, sub) != 0)
+            return yy;
+        coef[0] = 0.0;
+        for (int r = 1; r < p; r++)
+            coef[r] = sub[r - 1];
+    }
+    double cb = 0.0, cac = 0.0;
+    for (int r = 0; r < p; r++) {
+        cb += coef[r] * b[r];
+        double s = 0.0;
+        for (int c2 = 0; c2 < p; c2++)
+            s += A[r * p + c2] * coef[c2];
+        cac += coef[r] * s;
+    }
+    return nmax(yy - 2.0 * cb + cac, 0.0);
+}
+
 /* ---- the vectorised kernels, once per instruction set ---------------------------------------- */
 
 #define LANES 2
@@ -188,207 +341,6 @@ void hp_filter_2d(const double *v, int64_t n, int64_t m, int64_t ldv, double a, 
     }
 }
 
-/* ---- the augmented model of `stiction explain` -------------------------------------------------- */
-
-/* Solve A c = b (p x p, row-major, A and b overwritten) by Gaussian elimination with partial
- * pivoting; returns 0, or -1 for a singular matrix. */
-static int solve_small(double *A, double *b, int p, double *c)
-{
-    for (int col = 0; col < p; col++) {
-        int piv = col;
-        for (int r = col + 1; r < p; r++)
-            if (fabs(A[r * p + col]) > fabs(A[piv * p + col]))
-                piv = r;
-        if (A[piv * p + col] == 0.0)
-            return -1;
-        if (piv != col) {
-            for (int cc = 0; cc < p; cc++) {
-                double t = A[col * p + cc];
-                A[col * p + cc] = A[piv * p + cc];
-                A[piv * p + cc] = t;
-            }
-            double t = b[col];
-            b[col] = b[piv];
-            b[piv] = t;
-        }
-        for (int r = col + 1; r < p; r++) {
-            double fct = A[r * p + col] / A[col * p + col];
-            for (int cc = col; cc < p; cc++)
-                A[r * p + cc] -= fct * A[col * p + cc];
-            b[r] -= fct * b[col];
-        }
-    }
-    for (int r = p - 1; r >= 0; r--) {
-        double s = b[r];
-        for (int cc = r + 1; cc < p; cc++)
-            s -= A[r * p + cc] * c[cc];
-        c[r] = s / A[r * p + r];
-    }
-    return 0;
-}
-
-#define FUSED_MAXP 16
-
-/*
- * Training SSE of m candidate augmented models (one fused pass per candidate, nothing of size
- * candidates x samples held): the valve (valve_step.h, per-direction S and J drifting linearly in
- * time), the actuator lag a_lag, the installed characteristic c (100 (e^(c u/100) - 1) / (e^c - 1),
- * c = 0 linear), the dead time d (samples), the lags a1, a2 (< 0: first order), an optional
- * integrator, and the weighted least squares of y on [z, 1, E] (E: n x q extra columns).
- * sgn (+1, -1; 0 free) is the sign the coefficient of z must have: a fit with the other sign is
- * refit with that coefficient 0. Returns 0, or -1 when memory runs out or q is too large.
- */
-int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
-              const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-              const double *f0, const double *a_lag, const double *y0, const double *xs0,
-              const double *cc, const double *a1, const double *a2, const int64_t *d,
-              const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
-              const double *w, double sgn, double *out)
-{
-    int p = 2 + (int)q;
-    if (p > FUSED_MAXP)
-        return -1;
-    int64_t maxd = 0;
-    for (int64_t i = 0; i < m; i++)
-        if (d[i] > maxd)
-            maxd = d[i];
-    double *ring = (double *)malloc(sizeof(double) * (size_t)(maxd + 1));
-    if (ring == NULL)
-        return -1;
-    double A[FUSED_MAXP * FUSED_MAXP], b[FUSED_MAXP], col[FUSED_MAXP], coef[FUSED_MAXP];
-    double Aw[FUSED_MAXP * FUSED_MAXP], bw[FUSED_MAXP], sub[FUSED_MAXP];
-    for (int64_t i = 0; i < m; i++) {
-        for (int r = 0; r < p; r++) {
-            b[r] = 0.0;
-            for (int c2 = 0; c2 < p; c2++)
-                A[r * p + c2] = 0.0;
-        }
-        double yy = 0.0;
-        double a = a_lag[i];
-        double c_i = cc[i];
-        int lin = fabs(c_i) < 1e-9;
-        double den = lin ? 1.0 : expm1(c_i);
-        int64_t di = d[i];
-        int64_t L = di + 1;
-        double sup0 = S_up[i], sdn0 = S_dn[i], jup0 = J_up[i], jdn0 = J_dn[i];
-        double dsi = dS[i], dji = dJ[i];
-        int drift = dsi != 0.0 || dji != 0.0;
-        double prm[4] = {nmax(sup0, 0.0), nmax(jup0, 0.0), nmax(sdn0, 0.0), nmax(jdn0, 0.0)};
-        double a1i = a1[i], a2i = a2[i];
-        int second = a2i >= 0.0;
-        int ig = integ[i] != 0;
-        double st[6];
-        double yp = valve_start1(st, prm, x[0], f0[i], y0[i], isnan(y0[i]) ? NAN : xs0[i]);
-        double zv = yp;
-        double u0 = lin ? zv : 100.0 * expm1(c_i * zv / 100.0) / den;
-        for (int64_t j = 0; j < L; j++)
-            ring[j] = u0;
-        double z1 = u0, z2 = u0, acc = 0.0;
-        int64_t wpos = 0;           /* ring slot of sample k */
-        for (int64_t k = 0; k < n; k++) {
-            double uk;
-            if (k > 0) {
-                if (drift) {
-                    double t = (double)k * ts_s;
-                    prm[0] = nmax(sup0 + dsi * t, 0.0);
-                    prm[2] = nmax(sdn0 + dsi * t, 0.0);
-                    prm[1] = nmax(jup0 + dji * t, 0.0);
-                    prm[3] = nmax(jdn0 + dji * t, 0.0);
-                }
-                yp = valve_step1(st, prm, x[k]);
-                zv = a * zv + (1.0 - a) * yp;
-                uk = lin ? zv : 100.0 * expm1(c_i * zv / 100.0) / den;
-            } else {
-                uk = u0;
-            }
-            double ud;
-            /* dead time: ring buffer of the last d + 1 inputs (slot wpos holds sample k, the next
-             * slot sample k - d) */
-            if (di == 0) {
-                ud = uk;
-            } else {
-                ring[wpos] = uk;
-                wpos++;
-                if (wpos == L)
-                    wpos = 0;
-                ud = k >= di ? ring[wpos] : u0;
-            }
-            z1 = a1i * z1 + (1.0 - a1i) * ud;
-            if (second)
-                z2 = a2i * z2 + (1.0 - a2i) * z1;
-            else
-                z2 = z1;
-            double zk;
-            if (ig) {
-                acc += ts_s * z2;
-                zk = acc;
-            } else {
-                zk = z2;
-            }
-            double wk = w[k];
-            if (wk == 0.0)
-                continue;
-            double yk = y[k];
-            if (q == 0) {
-                A[0] += wk * zk * zk;
-                A[1] += wk * zk;
-                A[3] += wk;
-                b[0] += wk * zk * yk;
-                b[1] += wk * yk;
-                yy += wk * yk * yk;
-                continue;
-            }
-            col[0] = zk;
-            col[1] = 1.0;
-            for (int64_t j = 0; j < q; j++)
-                col[2 + j] = E[k * q + j];
-            for (int r = 0; r < p; r++) {
-                b[r] += wk * col[r] * yk;
-                for (int c2 = 0; c2 < p; c2++)
-                    A[r * p + c2] += wk * col[r] * col[c2];
-            }
-            yy += wk * yk * yk;
-        }
-        if (q == 0)
-            A[2] = A[1];
-        for (int r = 0; r < p; r++)
-            A[r * p + r] += 1e-9 * (A[r * p + r] + 1e-12);
-        memcpy(Aw, A, sizeof(double) * (size_t)(p * p));
-        memcpy(bw, b, sizeof(double) * (size_t)p);
-        if (solve_small(Aw, bw, p, coef) != 0) {
-            out[i] = yy;
-            continue;
-        }
-        if (sgn != 0.0 && coef[0] * sgn < 0.0) {
-            int ps = p - 1;
-            for (int r = 0; r < ps; r++) {
-                bw[r] = b[r + 1];
-                for (int c2 = 0; c2 < ps; c2++)
-                    Aw[r * ps + c2] = A[(r + 1) * p + c2 + 1];
-            }
-            if (solve_small(Aw, bw, ps, sub) != 0) {
-                out[i] = yy;
-                continue;
-            }
-            coef[0] = 0.0;
-            for (int r = 1; r < p; r++)
-                coef[r] = sub[r - 1];
-        }
-        double cb = 0.0, cac = 0.0;
-        for (int r = 0; r < p; r++) {
-            cb += coef[r] * b[r];
-            double s = 0.0;
-            for (int c2 = 0; c2 < p; c2++)
-                s += A[r * p + c2] * coef[c2];
-            cac += coef[r] * s;
-        }
-        double sse = yy - 2.0 * cb + cac;
-        out[i] = nmax(sse, 0.0);
-    }
-    free(ring);
-    return 0;
-}
-
 /* ---- dispatch ------------------------------------------------------------------------------------ */
 
 typedef void (*valve_run_fn)(const double *, int64_t, int64_t, const double *, const double *,
@@ -409,6 +361,17 @@ static const score_fn SCORE[] = {
     score_base,
 #ifdef HAVE_X86_VARIANTS
     score_avx2, score_avx512,
+#endif
+};
+typedef int (*fused_fn)(const double *, int64_t, int64_t, const double *, const double *, const double *,
+                        const double *, const double *, const double *, const double *, const double *,
+                        const double *, const double *, const double *, const double *, const double *,
+                        const int64_t *, const uint8_t *, double, const double *, int64_t, const double *,
+                        const double *, double, double *);
+static const fused_fn FUSED[] = {
+    fused_base,
+#ifdef HAVE_X86_VARIANTS
+    fused_avx2, fused_avx512,
 #endif
 };
 static const char *const ISA_NAMES[] = {"baseline (2 lanes)", "avx2 (4 lanes)", "avx512 (8 lanes)"};
@@ -478,6 +441,24 @@ int score(const double *x, int64_t n, const double *valves, int64_t m, const dou
 {
     ensure_isa();
     return SCORE[isa_for(m * P)](x, n, valves, m, structs, P, ts, ahp, w, yw, Qw, K, Qty, yyp, out, gfix);
+}
+
+/*
+ * Training SSE of m candidate augmented models (`stiction explain`): the valve (valve_step.h, per
+ * direction S and J drifting linearly in time, actuator lag a_lag, start y0 / xs0), run LANES
+ * candidates at a time, then per candidate `fused_rest`. Returns 0, or -1 when memory runs out or
+ * q is too large.
+ */
+int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+              const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+              const double *f0, const double *a_lag, const double *y0, const double *xs0,
+              const double *cc, const double *a1, const double *a2, const int64_t *d,
+              const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
+              const double *w, double sgn, double *out)
+{
+    ensure_isa();
+    return FUSED[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+                             ts_s, E, q, y, w, sgn, out);
 }
 
 /* ---- a Python module, so that pip builds and installs this file as an extension ---------------- */

@@ -265,6 +265,46 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
     return 0;
 }
 
+/* fused_sse for this instruction set: the valves of LANES candidates at a time, then fused_rest. */
+KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+                         const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+                         const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                         const double *cc, const double *a1, const double *a2, const int64_t *d,
+                         const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
+                         const double *w, double sgn, double *out)
+{
+    if (2 + q > FUSED_MAXP)
+        return -1;
+    if (m <= 0 || n <= 0)
+        return 0;
+    int64_t maxd = 0;
+    for (int64_t i = 0; i < m; i++)
+        if (d[i] > maxd)
+            maxd = d[i];
+    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * n + maxd + 1));
+    if (buf == NULL)
+        return -1;
+    double *ring = buf + LANES * n;
+    for (int64_t i0 = 0; i0 < m; i0 += LANES) {
+        double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
+        double yv[LANES], sv[LANES];
+        double *rows[LANES];
+        for (int g = 0; g < LANES; g++) {
+            int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last valve */
+            su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
+            ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
+            rows[g] = buf + g * n;
+        }
+        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+        for (int g = 0; g < LANES && i0 + g < m; g++) {
+            int64_t i = i0 + g;
+            out[i] = fused_rest(rows[g], n, cc[i], a1[i], a2[i], d[i], integ[i] != 0, ts_s, E, q, y, w, sgn, ring);
+        }
+    }
+    free(buf);
+    return 0;
+}
+
 #undef VT
 #undef MT
 #undef V
