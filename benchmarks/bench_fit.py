@@ -35,9 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from diagnose.fit import _op_offset, fit_hammerstein  # noqa: E402
+from diagnose.fit import fit_hammerstein  # noqa: E402
 from diagnose.identify import FIT_WINDOWS  # noqa: E402
-from diagnose.output_error import _burn_in, _make_configs, _Problem, _score_weights  # noqa: E402
+from diagnose.objective import Objective, ProcessGrid, burn_in, legendre_basis, op_offset, score_weights  # noqa: E402
 from validate_simulated import make_case  # noqa: E402
 
 
@@ -54,10 +54,10 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
     from scipy.optimize import differential_evolution
 
     x = np.asarray(op, float)
-    x = x + _op_offset(x)
+    x = x + op_offset(x)
     n = x.shape[0]
-    w = _score_weights(n, None, _burn_in(x, 0.05))
-    prob = _Problem(x, np.asarray(pv, float), ts_s, w, 2, hp_tau_s)
+    w = score_weights(n, None, burn_in(x, 0.05))
+    prob = Objective(x, np.asarray(pv, float), ts_s, w, 2, hp_tau_s)
     lo, hi = np.percentile(x, [0.5, 99.5])
     smax = float(hi - lo)
     dmax = int(min(n * ts_s / 10.0, 60 * ts_s) / ts_s)
@@ -71,18 +71,19 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
     if engine == "kernel":
         def cost(v):
             S, J, f, tau, d, kind, ratio = unpack(v)
-            cfg = _make_configs([(kind, tau, tau * ratio, d)], ts_s)
-            return float(prob.sse([S], [J], [f], cfg)[0][0, 0])
+            cfg = ProcessGrid.of([(kind, tau, tau * ratio, d)], ts_s)
+            return float(prob.score([S], [J], [f], cfg)[0][0, 0])
     else:
-        # plain: the reference valve in Python, scipy.signal.lfilter, numpy least squares
+        # plain: the valve in plain Python (Kano's model as written for the tests, tests/kano.py,
+        # equal to the compiled kernel), scipy.signal.lfilter, numpy least squares
         from scipy.signal import lfilter
 
-        from diagnose.output_error import _legendre_basis
-        from diagnose.stiction_model import stiction_reference
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+        from kano import kano_valve
 
         a = math.exp(-ts_s / hp_tau_s) if hp_tau_s else None
         hp = (lambda v: lfilter([1.0, -1.0], [1.0, -a], v - v[0], axis=0)) if a is not None else (lambda v: v)
-        B = _legendre_basis(n, 2)
+        B = legendre_basis(n, 2)
         Bf = hp(B[:, 1:]) if a is not None else B
         ws = w > 0
         yf = hp(np.asarray(pv, float))
@@ -94,7 +95,7 @@ def de_fit(op, pv, ts_s, hp_tau_s, *, seed=0, maxiter=1000, engine="kernel", pop
 
         def cost(v):
             S, J, f, tau, d, kind, ratio = unpack(v)
-            mv = stiction_reference(x, S, J, int(f))
+            mv = kano_valve(x, S, J, 1 if f > 0 else -1)
             u = np.concatenate([np.full(d, mv[0]), mv[: n - d]]) - mv[0]
             z = lag(u, tau)
             if kind == "soptd":
@@ -172,11 +173,11 @@ def compare(n_loops: int, seed: int, plain_too: bool = True, budgets=(),
             swept[f"de{pop}_{tol:g}"] = (r_, time.perf_counter() - t0)
         # our cost in the same units as DE's (the kernel's scaled SSE)
         x = rec.op + ours.op_offset_pct
-        w = _score_weights(rec.n, None, _burn_in(x, 0.05))
-        prob = _Problem(x, rec.pv, rec.ts_s, w, 2, ours.hp_tau_s)
+        w = score_weights(rec.n, None, burn_in(x, 0.05))
+        prob = Objective(x, rec.pv, rec.ts_s, w, 2, ours.hp_tau_s)
         p = ours.process
-        cfg = _make_configs([(p.kind, p.tau_s, p.tau2_s, int(round(p.delay_s / rec.ts_s)))], rec.ts_s)
-        c_ours = float(prob.sse([ours.S_pct], [ours.J_pct], [ours.f0], cfg)[0][0, 0])
+        cfg = ProcessGrid.of([(p.kind, p.tau_s, p.tau2_s, int(round(p.delay_s / rec.ts_s)))], rec.ts_s)
+        c_ours = float(prob.score([ours.S_pct], [ours.J_pct], [ours.f0], cfg)[0][0, 0])
         row = {"loop": rec.name, "class": case.cls, "S_true": case.S_pct, "J_true": case.J_pct,
                "ours_S": ours.S_pct, "ours_J": ours.J_pct, "ours_cost": c_ours, "ours_s": t_ours,
                "ours_w_S": ours_w.S_pct, "ours_w_J": ours_w.J_pct, "ours_w_s": t_ours_w,
@@ -267,11 +268,11 @@ def cli_timing(runs: int) -> dict:
         subprocess.run([sys.executable, "-c", "pass"], capture_output=True, check=True)
         t_py.append(time.perf_counter() - t0)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import numpy, numba"], capture_output=True, check=True)
+    subprocess.run([sys.executable, "-c", "import numpy, scipy.optimize"], capture_output=True, check=True)
     t_imp = time.perf_counter() - t0
     return {"samples": rec.n, "runs": runs, "identify_wall_s_min": min(t_cli),
             "identify_wall_s_median": statistics.median(t_cli), "python_pass_s_median": statistics.median(t_py),
-            "python_import_numpy_numba_s": t_imp}
+            "python_import_numpy_scipy_optimize_s": t_imp}
 
 
 def main(argv=None) -> int:

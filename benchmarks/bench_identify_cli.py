@@ -1,25 +1,24 @@
-"""Wall time of the whole ``stiction identify FILE --json`` command, native kernels against numba.
+"""Wall time of the whole ``stiction identify FILE --json`` command.
 
 Interpreter start, imports, reading the file, the identification and the JSON output are all
 included: this is the time a user waits. The data are a simulated sticky loop
 (``stiction simulate --S 3 --J 1 --n N``) with the stem-position column dropped, so identify takes
-the OP/PV (Hammerstein) path. Both kernel paths run in the same session, interleaved run by run,
-so that machine load affects them alike:
+the OP/PV (Hammerstein) path. Variants run in the same session, interleaved run by run, so that
+machine load affects them alike:
 
-* ``native``: the C kernels (``STICTION_NATIVE=1``; the library is built on the warm-up run if the
-  cache does not have it);
-* ``numba``: the numba fallback (``STICTION_NATIVE=0``; numba's on-disk cache warmed by the warm-up
-  run, i.e. no compilation is timed);
-* ``native kernels, bytecode cached``: as ``native`` with Python's own compile cache (``__pycache__/*.pyc``)
-  allowed, as on a user's machine: the other variants inherit this session's environment, and where
-  that sets ``PYTHONDONTWRITEBYTECODE`` (some containers and CI images do) every run compiles the
-  package's sources again. The warm-up run writes the cache.
+* ``identify``: the command as installed (the widest vector variant of the kernels the CPU has);
+* ``identify, baseline kernels``: the same with the kernels' x86-64 baseline variant (what a CPU
+  without AVX2 runs; the numbers are the same);
+* ``identify, bytecode cached``: with Python's own compile cache (``__pycache__/*.pyc``) allowed, as
+  on a user's machine, where this session sets ``PYTHONDONTWRITEBYTECODE`` (some containers do);
+* ``--baseline-src DIR``: the same command run from another source tree (e.g. an earlier commit
+  checked out with ``git worktree add``), through ``PYTHONPATH``: a before/after ratio in one run.
 
 Two floors are timed as well: ``python -c pass`` and ``python -c "import numpy"``.
 
 Usage::
 
-    python benchmarks/bench_identify_cli.py [--runs 7] [--n 10000] [--md docs/_bench_speed.md]
+    python benchmarks/bench_identify_cli.py [--runs 7] [--n 10000] [--baseline-src DIR] [--md FILE]
 """
 
 from __future__ import annotations
@@ -85,28 +84,35 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7, help="timed runs per variant (default 7)")
     ap.add_argument("--n", type=int, default=10000, help="samples in the simulated loop (default 10000)")
+    ap.add_argument("--baseline-src", metavar="DIR",
+                    help="also time the command from this source tree (run through PYTHONPATH)")
     ap.add_argument("--md", metavar="FILE", help="also write the results as a Markdown fragment")
     args = ap.parse_args(argv)
 
     base_env = dict(os.environ)
-    base_env.pop("STICTION_NATIVE", None)
-    variants = {"native kernels": dict(base_env, STICTION_NATIVE="1"),
-                "numba kernels": dict(base_env, STICTION_NATIVE="0")}
-    cached_env = dict(base_env, STICTION_NATIVE="1")
+    cached_env = dict(base_env)
     cached_env.pop("PYTHONDONTWRITEBYTECODE", None)
-    variants["native kernels, bytecode cached"] = cached_env
-    floors = {"python -c pass": [sys.executable, "-c", "pass"],
-              "python -c 'import numpy'": [sys.executable, "-c", "import numpy"]}
+    main_code = "import sys; from diagnose.service.cli import main; sys.exit(main())"
+    isa0_code = ("import sys, diagnose.kernels as k; k.set_isa(0); from diagnose.service.cli import main; "
+                 "sys.exit(main())")
     with tempfile.TemporaryDirectory() as tmp:
         data = make_loop(Path(tmp), args.n)
-        cmd = [*_stiction_cmd(), "identify", str(data), "--json"]
-        # warm-up: builds the native library / loads numba's cache once, and checks both agree
-        outs = {name: _run(cmd, env)[2] for name, env in variants.items()}
-        same = len(set(outs.values())) == 1
+        tail = ["identify", str(data), "--json"]
+        variants = {"identify": ([*_stiction_cmd(), *tail], base_env),
+                    "identify, baseline kernels": ([sys.executable, "-c", isa0_code, *tail], base_env),
+                    "identify, bytecode cached": ([*_stiction_cmd(), *tail], cached_env)}
+        if args.baseline_src:
+            env = dict(base_env, PYTHONPATH=str(Path(args.baseline_src).resolve()))
+            variants[f"identify from {args.baseline_src}"] = ([sys.executable, "-c", main_code, *tail], env)
+        floors = {"python -c pass": [sys.executable, "-c", "pass"],
+                  "python -c 'import numpy'": [sys.executable, "-c", "import numpy"]}
+        # warm-up (writes caches), and the outputs of this tree's variants must agree
+        outs = {name: _run(cmd, env)[2] for name, (cmd, env) in variants.items()}
+        same = len({v for k, v in outs.items() if not k.startswith("identify from")}) == 1
         load0 = os.getloadavg()
         times: dict[str, list[tuple[float, float]]] = {k: [] for k in [*variants, *floors]}
         for _ in range(args.runs):
-            for name, env in variants.items():
+            for name, (cmd, env) in variants.items():
                 times[name].append(_run(cmd, env)[:2])
             for name, c in floors.items():
                 times[name].append(_run(c, base_env)[:2])
@@ -117,14 +123,14 @@ def main(argv=None) -> int:
              f"Machine: {os.cpu_count()} CPUs ({_cpu_model()}), Python {platform.python_version()}; "
              f"load average {load0[0]:.2f} before, {load1[0]:.2f} after.",
              f"PYTHONDONTWRITEBYTECODE in this session: {os.environ.get('PYTHONDONTWRITEBYTECODE') or 'unset'}.",
-             f"JSON outputs of all variants identical: {'yes' if same else 'NO'}.",
+             f"JSON outputs of this tree's variants identical: {'yes' if same else 'NO'}.",
              "",
              "| variant | wall min (s) | wall median (s) | wall max (s) | CPU median (s) |",
              "|---|---:|---:|---:|---:|"]
     for name, rows in times.items():
         wall = [w for w, _ in rows]
         cpu = [c for _, c in rows]
-        label = f"identify, {name}" if name in variants else name
+        label = name
         lines.append(f"| {label} | {min(wall):.3f} | {statistics.median(wall):.3f} | {max(wall):.3f} | "
                      f"{statistics.median(cpu):.3f} |")
     text = "\n".join(lines) + "\n"

@@ -21,7 +21,7 @@ from diagnose.narx.bank import bank_grid, train_bank, train_bank_model
 from diagnose.narx.metrics import rmse_pct
 from diagnose.narx.networks import NarxSP
 from diagnose.narx.protocol import long_signal, make_dataset
-from diagnose.stiction_model import stiction_reference
+from diagnose.stiction_model import simulate_valve
 
 
 def torch_step_loop(net: NarxSP, x, y0, y1):
@@ -52,7 +52,7 @@ def main(argv=None):
     ds = make_dataset(3.0, 1.0)
     net = NarxSP(seed=0).fit(ds.x_train, ds.y_train, ds.x_val, ds.y_val)
     x = long_signal(10_000)
-    y = stiction_reference(x, 3.0, 1.0, 1)
+    y = simulate_valve(x, 3.0, 1.0, 1)
     net.free_run(x[:50], y[:2])
     times = []
     for _ in range(20):

@@ -21,7 +21,7 @@ from diagnose.narx.bank import bank_grid, load_bank
 from diagnose.narx.conditional import ConditionalNarxSP
 from diagnose.narx.metrics import rmse_pct
 from diagnose.narx.protocol import bank_train_signal, signal_scale, test_signal
-from diagnose.stiction_model import stiction_reference
+from diagnose.stiction_model import simulate_valve
 
 
 def main(argv=None):
@@ -33,7 +33,7 @@ def main(argv=None):
     cases = []
     for S, J in bank_grid():
         x = bank_train_signal(3000, signal_scale(S, J))
-        cases.append((S, J, x, stiction_reference(x, S, J, 1)))
+        cases.append((S, J, x, simulate_valve(x, S, J, 1)))
     t0 = time.perf_counter()
     net = ConditionalNarxSP(seed=a.seed).fit(cases)
     fit_s = time.perf_counter() - t0
@@ -49,7 +49,7 @@ def main(argv=None):
     for label, pts in (("random", zip(S_t, J_t)), ("grid", bank_grid())):
         for S, J in pts:
             x = test_signal(scale=signal_scale(S, J))
-            y = stiction_reference(x, S, J, 1)
+            y = simulate_valve(x, S, J, 1)
             sel = bank.select(S, J)
             e_bank = rmse_pct(y, bank.free_run(sel, x, y[:2]))
             e_cond = rmse_pct(y, net.free_run(S, J, x, y[:2]))

@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from diagnose.identify import identify  # noqa: E402
-from diagnose.output_error import _burn_in, _make_configs, _Problem, _score_weights  # noqa: E402
+from diagnose.objective import Objective, ProcessGrid, burn_in, legendre_basis, op_offset, score_weights  # noqa: E402
 from validate_simulated import cases  # noqa: E402
 
 #: Stuck points tried for the truth's unknown starting state, in units of max(S, J) around OP[0].
@@ -54,7 +54,7 @@ TIE_DEVIANCE = 2.0
 
 
 def _config(kind: str, tau_s: float, tau2_s: float, delay_s: float, ts_s: float):
-    return _make_configs([(kind, tau_s, tau2_s, int(round(delay_s / ts_s)))], ts_s)
+    return ProcessGrid.of([(kind, tau_s, tau2_s, int(round(delay_s / ts_s)))], ts_s)
 
 
 def costs(case, res) -> dict:
@@ -63,26 +63,25 @@ def costs(case, res) -> dict:
     rec = case.record
     op, pv, ts = np.asarray(rec.op, float), np.asarray(rec.pv, float), rec.ts_s
     x = op + fit.op_offset_pct
-    w = _score_weights(x.shape[0], None, _burn_in(x, 0.05))
+    w = score_weights(x.shape[0], None, burn_in(x, 0.05))
     sign = res.controller.sign or None
-    prob = _Problem(x.copy(), pv, ts, w, fit.load_order, fit.hp_tau_s, None, sign)
+    prob = Objective(x.copy(), pv, ts, w, fit.load_order, fit.hp_tau_s, None, sign)
 
     def cost(p, S, J, F):
-        return float(prob.sse([S], [J], [F], _config(p.kind, p.tau_s, p.tau2_s, p.delay_s, ts))[0][0, 0])
+        return float(prob.score([S], [J], [F], _config(p.kind, p.tau_s, p.tau2_s, p.delay_s, ts))[0][0, 0])
 
     c_lin = min(cost(lin.process, 0.0, 0.0, 1.0), cost(fit.process, 0.0, 0.0, 1.0))
-    if fit.start_op_pct is not None:
-        prob.x[0] = fit.start_op_pct
+    prob = prob.with_start(fit.start_op_pct)
     c_fit = cost(fit.process, fit.S_pct, fit.J_pct, float(fit.f0))
     info = case.info
     tau2 = info["tau_s"] / 4 if info["kind"] == "soptd" else 0.0
     cfg = _config(info["kind"], info["tau_s"], tau2, info["delay_s"], ts)
-    truth = _Problem(op.copy(), pv, ts, w, fit.load_order, fit.hp_tau_s, None, sign)
+    truth = Objective(op.copy(), pv, ts, w, fit.load_order, fit.hp_tau_s, None, sign)
     S, J = case.S_pct, case.J_pct
     c_truth = math.inf
     for dl in TRUTH_STARTS:
-        truth.x[0] = min(max(op[0] + dl * max(S, J, 0.01), 0.0), 100.0)
-        c_truth = min(c_truth, float(truth.sse([S, S], [J, J], [1.0, -1.0], cfg)[0][:, 0].min()))
+        t0 = truth.with_start(min(max(op[0] + dl * max(S, J, 0.01), 0.0), 100.0))
+        c_truth = min(c_truth, float(t0.score([S, S], [J, J], [1.0, -1.0], cfg)[0][:, 0].min()))
     return {"c_lin": c_lin, "c_fit": c_fit, "c_truth": c_truth, "n_eff": float(fit.n_eff)}
 
 

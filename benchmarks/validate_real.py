@@ -166,7 +166,7 @@ def tennessee(data: Path, verbose: bool) -> dict:
 
 
 def damadics(data: Path, verbose: bool) -> dict:
-    from diagnose.fit import fit_valve
+    from diagnose.valve_fit import fit_valve
 
     path = data / "damadics-lublin" / "lublin_actuator3_2001-10-11_1h.csv"
     c = _columns(path)

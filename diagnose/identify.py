@@ -6,8 +6,8 @@
    record whose PV is unusable (flat, dead) is judged from OP's shape alone (`method="op_only"`);
 2. S, J and the process from the Hammerstein fit on the whole record
    (`diagnose.fit.fit_hammerstein`); when the stem position MV is recorded, S, J and the class
-   come from the direct OP -> MV fit (`diagnose.fit.fit_valve`) and ``method`` says so;
-3. the class test (`_class_test`): the valve's starting stuck point as a nuisance parameter, and
+   come from the direct OP -> MV fit (`diagnose.valve_fit.fit_valve`) and ``method`` says so;
+3. the class test (`diagnose.search.class_test`): the valve's starting stuck point as a nuisance parameter, and
    the special shapes J = 0 (deadband) and J = S (no offset) accepted when the data do not reject
    them against the free fit; then the class from `diagnose.stiction_model.stiction_class`
    (tolerance max(0.1 %, 15 % of S));
@@ -29,14 +29,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from . import search
+from .controller import ControllerAction, controller_action
 from .errors import DataError
 from .evidence import Evidence, pv_usable, run_all
-from .controller import ControllerAction, controller_action
-from .fit import HammersteinFit, ValveFit, fit_hammerstein, fit_valve
+from .fit import HammersteinFit, fit_hammerstein
+from .objective import MIN_SAMPLES
 from .oscillation import Oscillation, oscillation_context
-from .output_error import MIN_SAMPLES, _burn_in, _make_configs, _Problem, _score_weights
 from .record import Finding, LoopRecord
-from .stiction_model import stiction_class, stiction_classes
+from .stiction_model import stiction_class
+from .valve_fit import ValveFit, fit_valve
 from .verdict import Verdict, combine
 
 #: Smallest S (% of span) at which the fit's own evidence counts: below this a valve is within the
@@ -69,24 +71,6 @@ BACKLASH_LR = 10.83
 OP_ONLY_CONFIDENCE_CAP = 0.75
 #: A level tag (ISA letters L..C: LIC, LC, LRC) says the process is integrating.
 _LEVEL_TAG = re.compile(r"(?<![A-Z])L[IR]?C(?=[0-9_.\-]|$)")
-#: The class test: 95 % quantile of chi-square with two degrees of freedom, the joint (S, J) region
-#: that also gives the reported intervals (a restriction, J = 0 or J = S, is accepted when it lies
-#: inside it; docs/fitting.md).
-CLASS_TEST_CHI2 = 5.991
-#: Local grid of the class test: S relative to the fit's S, J/S ratios, and the valve's initial
-#: stuck point relative to OP's first sample, in units of max(S, J).
-CLASS_TEST_S_REL = 1.0 + np.array([-0.1, -0.05, -0.02, 0.0, 0.02, 0.05, 0.1])
-CLASS_TEST_J_RATIOS = np.linspace(0.0, 2.0, 17)
-CLASS_TEST_DELTAS = np.linspace(-1.0, 1.0, 5)
-#: Fine scan of S before the class test's grid (number of S values over +-10 % of the fit's S, at
-#: these J/S ratios; 0 turns it off), and the neighbours of its best S added to the grid.
-CLASS_TEST_FINE_S = 201
-CLASS_TEST_FINE_RATIOS = (0.5, 1.0, 1.5)
-CLASS_TEST_FINE_NEAR = np.array([-0.003, -0.0015, 0.0, 0.0015, 0.003])
-#: Second stage of the class test: nearby process structures (dead time +-1 sample, lags x0.8 and
-#: x1.25).
-CLASS_TEST_STRUCTURES = True
-
 
 def _finite(v: float | None) -> float | None:
     if v is None:
@@ -250,124 +234,6 @@ def _backlash_lr(fit: HammersteinFit, linear: HammersteinFit, ctest: dict[str, A
     return n_eff * math.log(1.0 / ratio) if ratio > 0 else math.inf
 
 
-def _class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit: HammersteinFit,
-                burn_frac: float = 0.05, gain_sign: float | None = None) -> dict[str, Any]:
-    """Re-examine J with the valve's initial stuck point free, and test the special shapes.
-
-    The search starts the valve model at rest at the first OP sample. A real valve at the start of
-    a record is stuck wherever its history left it, and a sticky valve keeps that memory until OP
-    makes an excursion larger than S (in noisy closed loops this can take thousands of samples):
-    with the wrong starting point even the true (S, J) scores badly. Here the starting stuck point
-    is a nuisance parameter, ``x_ss = OP[0] + delta`` (OP[0]: the fit's own first stuck point,
-    ``start_op_pct``, where it chose one), ``delta/max(S, J)`` in -1..1 (5 values),
-    both starting directions, at the fitted process structure, over a local grid of S (+-10 %, plus
-    the best S of a fine scan and its close neighbours: with J > 0 the cost is a needle in S)
-    and J/S in 0..2 (17 values): about 1200 valve runs.
-
-    ``deadband`` (J = 0) and ``no_offset`` (J = S) are single values of J (`undershoot` and
-    `overshoot` are ranges): each restriction is accepted when its best cost is within the F-test
-    bound of the best unrestricted cost, ``c_restricted <= c_free (1 + CLASS_TEST_CHI2 / nu)``,
-    ``nu = n_eff - 2``; when both are accepted the cheaper one wins. Otherwise the unrestricted
-    grid point replaces the fit's (S, J) when it is cheaper than the fit.
-
-    Returns
-    -------
-    dict
-        ``cost_fit`` (the fit as it was), ``cost_free``, ``cost_deadband``, ``cost_no_offset``
-        (PV units squared per scored sample), ``bound``, and the chosen ``cls`` (a restriction, or
-        None), ``S_pct``, ``J_pct``, ``f0``, ``delta_pct``.
-    """
-    x = np.asarray(op, dtype=float) + fit.op_offset_pct
-    w = _score_weights(x.shape[0], None, _burn_in(x, burn_frac))
-    if fit.start_op_pct is not None:
-        x[0] = fit.start_op_pct      # the fit's own starting point is the reference
-    y = np.asarray(pv, dtype=float)
-    n = x.shape[0]
-    prob = _Problem(x, y, ts_s, w, fit.load_order, fit.hp_tau_s, None, gain_sign)
-    p = fit.process
-    cfg = _make_configs([(p.kind, p.tau_s, p.tau2_s, int(round(p.delay_s / ts_s)))], ts_s)
-    scale = prob.y_std ** 2 / max(1, prob.n_scored)
-    c_fit = float(prob.sse([fit.S_pct], [fit.J_pct], [float(fit.f0)], cfg)[0][0, 0]) * scale
-    S0 = fit.S_pct
-    S_set = S0 * CLASS_TEST_S_REL
-    if CLASS_TEST_FINE_S:
-        # stage 0: with J > 0 the cost is a needle in S (a stopped valve must beat J to move on,
-        # and whether each noisy OP excursion does flips whole stretches of the simulation):
-        # scan S finely at a few shapes and add the best S and its close neighbours to the grid
-        Sf = S0 * (1.0 + np.linspace(-0.1, 0.1, CLASS_TEST_FINE_S))
-        Rf = np.asarray(CLASS_TEST_FINE_RATIOS)
-        Sm, Rm, Fm = np.meshgrid(Sf, Rf, [1.0, -1.0], indexing="ij")
-        cf = prob.sse(Sm.ravel(), (Sm * Rm).ravel(), Fm.ravel(), cfg)[0][:, 0]
-        S_star = float(Sm.ravel()[int(np.argmin(cf))])
-        S_set = np.unique(np.concatenate([S_set, S_star * (1.0 + CLASS_TEST_FINE_NEAR)]))
-    ratios = CLASS_TEST_J_RATIOS
-    Sg, Rg, Fg = np.meshgrid(S_set, ratios, [1.0, -1.0], indexing="ij")
-    Sg, Rg, Fg = Sg.ravel(), Rg.ravel(), Fg.ravel()
-    Jg = Sg * Rg
-    x0 = float(x[0])
-    best = {"free": (c_fit, S0, fit.J_pct, fit.f0, 0.0), "deadband": (np.inf,), "no_offset": (np.inf,)}
-    per_ratio = [(np.inf, 1.0, x0)] * ratios.shape[0]      # best (cost, f0, first OP) per J/S
-
-    by_class: dict[str, float] = {}      # best cost per class shape (for the plausible set)
-
-    def keep(c, Sv, Jv, Rv, F, xs0):
-        names = stiction_classes(Sv, Jv)
-        for name in np.unique(names[names != "none"]):
-            cm = float(c[names == name].min())
-            if cm < by_class.get(str(name), np.inf):
-                by_class[str(name)] = cm
-        for key, sel in (("free", np.ones(c.shape[0], bool)), ("deadband", Rv == 0.0),
-                         ("no_offset", Rv == 1.0)):
-            cm = np.where(sel, c, np.inf)
-            i = int(np.argmin(cm))
-            if cm[i] < best[key][0]:
-                best[key] = (float(c[i]), float(Sv[i]), float(Jv[i]), int(F), float(xs0 - x0))
-        for k, r in enumerate(ratios):
-            sel = Rv == r
-            if sel.any():
-                ck = float(c[sel].min())
-                if ck < per_ratio[k][0]:
-                    per_ratio[k] = (ck, F, xs0)
-
-    # stage 1: the fit's structure, every starting point
-    for dl in CLASS_TEST_DELTAS:
-        for F in (1.0, -1.0):
-            m = Fg == F
-            prob.x = np.ascontiguousarray(x.copy())
-            prob.x[0] = min(max(x0 + F * dl * max(S0, fit.J_pct), 0.0), 100.0)
-            c = prob.sse(Sg[m], Jg[m], Fg[m], cfg)[0][:, 0] * scale
-            keep(c, Sg[m], Jg[m], Rg[m], F, float(prob.x[0]))
-    # stage 2: per J/S ratio, its best start, with nearby structures (the lags and the dead time
-    # trade off against J, so a shape is not rejected for want of its own structure: dead time
-    # +-1 sample, lags x0.8 and x1.25)
-    if CLASS_TEST_STRUCTURES:
-        d = int(round(p.delay_s / ts_s))
-        ent = [(p.kind, p.tau_s, p.tau2_s, dd) for dd in sorted({max(1, d - 1), d, d + 1})]
-        ent += [(p.kind, p.tau_s * f, p.tau2_s * f, d) for f in (0.8, 1.25)]
-        scfg = _make_configs(ent, ts_s)
-        Ss = S_set
-        for k, r in enumerate(ratios):
-            _, F, xs0 = per_ratio[k]
-            prob.x = np.ascontiguousarray(x.copy())
-            prob.x[0] = xs0
-            c = prob.sse(Ss, Ss * r, np.full(Ss.shape[0], F), scfg)[0].min(axis=1) * scale
-            keep(c, Ss, Ss * r, np.full(Ss.shape[0], r), F, xs0)
-    nu = max((fit.n_eff if math.isfinite(fit.n_eff) else n) - 2.0, 1.0)
-    c_free = best["free"][0]
-    bound = c_free * (1.0 + CLASS_TEST_CHI2 / nu)
-    out: dict[str, Any] = {"cost_fit": c_fit, "cost_free": c_free, "bound": bound,
-                           "cost_deadband": best["deadband"][0], "cost_no_offset": best["no_offset"][0],
-                           "free_S_pct": best["free"][1], "free_J_pct": best["free"][2]}
-    # every class shape the data do not reject, best first (the reported class is one of them)
-    out["plausible"] = sorted((k for k, v in by_class.items() if v <= bound), key=by_class.get)
-    ok = [k for k in ("deadband", "no_offset") if best[k][0] <= bound]
-    pick = min(ok, key=lambda k: best[k][0]) if ok else "free"
-    c, S, J, F, dl = best[pick]
-    out.update({"cls": None if pick == "free" else pick, "S_pct": S, "J_pct": J, "f0": F,
-                "delta_pct": dl, "cost": c})
-    return out
-
-
 def _op_noise_pct(op: np.ndarray) -> float:
     """OP's sample-to-sample noise, % of span: a robust sd of its first differences over sqrt(2).
 
@@ -500,7 +366,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         Fit the valve directly on OP -> MV when the record has a stem position.
     class_test : bool
         Test the special shapes J = 0 (deadband) and J = S (no offset) against the free (S, J)
-        fit and report the restricted fit when the data do not reject it (`_class_test`).
+        fit and report the restricted fit when the data do not reject it (`diagnose.search.class_test`).
     integrating : bool, optional
         Whether the process is integrating (a level loop); by default the fitted structure, or a
         level tag (``LIC``), decides. Some evidence tests read different signals for each kind.
@@ -581,8 +447,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             rmse, r2 = fit.rmse, fit.r2
             ins = (1.0 - fit.cost / linear.cost) if linear.cost > 0 else 0.0
         if class_test and valve_fit is None and S >= S_MIN_PCT:
-            ctest = _class_test(op, pv, ts, fit, float(fit_opts.get("burn_frac", 0.05)),
-                                fit_opts.get("gain_sign"))
+            ctest = search.class_test(op, pv, ts, fit, float(fit_opts.get("burn_frac", 0.05)),
+                                      fit_opts.get("gain_sign"))
             if ctest["cls"] is not None or ctest["cost"] < ctest["cost_fit"]:
                 # the verdict's evidence stays that of the fit (no credit for the extra freedom)
                 S, J = ctest["S_pct"], ctest["J_pct"]

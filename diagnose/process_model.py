@@ -8,48 +8,29 @@ Discrete time, sample period ``ts_s``, input ``u`` the valve stem position in % 
     foptd / soptd:  pv[k] = bias + gain * z[k]     (z = z1 or z2, starting at u[0]: steady state)
     integrating:    pv[k] = bias + gain * ts_s * sum_{i<=k} (z1[i] - u_balance)
 
-This is the zero-order-hold discretisation the closed-loop simulator (`diagnose.simulate`) uses, so
-a model identified from a simulated loop can be compared with the simulator's parameters directly.
-``gain`` is PV units per % of valve travel (integrating: PV units per second per %).
+The closed-loop simulator (`diagnose.simulate`) steps the same model one sample at a time
+(`ProcessModel.stepper`), so a model identified from a simulated loop can be compared with the
+simulator's parameters directly. ``gain`` is PV units per % of valve travel (integrating: PV units
+per second per %).
+
+`ProcessModel` is the one description of a linear process: the fit's result, the simulator's plant,
+the candidates of the fit's structure search (unit gain, zero bias) and the process part of
+`stiction explain`'s augmented model.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from . import kernels
 from .errors import DataError
-from .native import njit  # numba.njit, deferred; runs the C twin when there is one (diagnose/native)
 
 KINDS = ("foptd", "soptd", "integrating")
-
-
-@njit(cache=True, nogil=True)
-def _lag_filter(u, a1, a2, d, integ, ts_s):  # pragma: no cover - compiled
-    """z (see module docstring) for one input; ``a2 < 0`` means first order."""
-    n = u.shape[0]
-    z = np.empty(n)
-    u0 = u[0]
-    z1 = u0
-    z2 = u0
-    acc = 0.0
-    for k in range(n):
-        kd = k - d
-        ud = u[kd] if kd >= 0 else u0
-        z1 = a1 * z1 + (1.0 - a1) * ud
-        if a2 >= 0.0:
-            z2 = a2 * z2 + (1.0 - a2) * z1
-        else:
-            z2 = z1
-        if integ:
-            acc += ts_s * z2
-            z[k] = acc
-        else:
-            z[k] = z2
-    return z
 
 
 def lag_coefficient(tau_s: float, ts_s: float) -> float:
@@ -101,7 +82,7 @@ class ProcessModel:
         a1 = lag_coefficient(self.tau_s, ts_s)
         a2 = lag_coefficient(self.tau2_s, ts_s) if self.kind == "soptd" else -1.0
         d = int(round(self.delay_s / ts_s))
-        return _lag_filter(u, a1, a2, d, self.kind == "integrating", float(ts_s))
+        return kernels.lag_filter(u, a1, a2, d, self.kind == "integrating", float(ts_s))
 
     def simulate(self, u_pct, ts_s: float) -> np.ndarray:
         """PV for valve position ``u_pct`` (% of span), starting at steady state at ``u_pct[0]``."""
@@ -112,6 +93,15 @@ class ProcessModel:
             t = ts_s * np.arange(1, z.shape[0] + 1)
             return self.bias + self.gain * (z - ub * t)
         return self.bias + self.gain * z
+
+    def stepper(self) -> "ProcessStepper":
+        """A stateful copy that runs this process one sample at a time (the simulator's plant)."""
+        return ProcessStepper(self)
+
+    def structure_key(self, ts_s: float) -> tuple:
+        """(kind, tau_s, tau2_s, delay in samples): the process structure, gain and bias aside."""
+        return (self.kind, float(self.tau_s), float(self.tau2_s) if self.kind == "soptd" else 0.0,
+                int(round(self.delay_s / ts_s)))
 
     @property
     def time_constant_s(self) -> float:
@@ -126,3 +116,49 @@ class ProcessModel:
         if self.kind == "integrating":
             out["u_balance_pct"] = None if self.u_balance_pct is None else float(self.u_balance_pct)
         return out
+
+
+class ProcessStepper:
+    """A `ProcessModel` run one sample at a time: ``reset(u0_pct, ts_s) -> pv``, ``step(u_pct) -> pv``.
+
+    The closed-loop simulator's process protocol (`diagnose.simulate.Process`). It starts at steady
+    state at ``u0_pct`` (integrating: PV at ``bias``, balanced at ``u_balance_pct`` or ``u0_pct``)
+    and follows the discretisation of the module docstring sample for sample.
+    """
+
+    def __init__(self, model: ProcessModel) -> None:
+        self.model = model
+
+    def reset(self, u0_pct: float, ts_s: float) -> float:
+        m = self.model
+        if not ts_s > 0:
+            raise DataError(f"ts_s must be > 0 seconds, got {ts_s}")
+        self._ts = float(ts_s)
+        self._a1 = lag_coefficient(m.tau_s, ts_s)
+        self._a2 = lag_coefficient(m.tau2_s, ts_s)
+        d = int(round(m.delay_s / ts_s))
+        self._buf = deque([float(u0_pct)] * d)
+        if m.kind == "integrating":
+            self._ub = float(u0_pct) if m.u_balance_pct is None else float(m.u_balance_pct)
+            self._uf = float(u0_pct)
+            self._pv = float(m.bias)
+            return self._pv
+        self._x1 = self._x2 = m.gain * u0_pct
+        return m.bias + (self._x2 if m.kind == "soptd" else self._x1)
+
+    def step(self, u_pct: float) -> float:
+        m = self.model
+        if self._buf:
+            self._buf.append(u_pct)
+            u = self._buf.popleft()
+        else:
+            u = u_pct
+        if m.kind == "integrating":
+            self._uf = self._a1 * self._uf + (1.0 - self._a1) * u
+            self._pv += self._ts * m.gain * (self._uf - self._ub)
+            return self._pv
+        self._x1 = self._a1 * self._x1 + (1.0 - self._a1) * m.gain * u
+        if m.kind == "soptd":
+            self._x2 = self._a2 * self._x2 + (1.0 - self._a2) * self._x1
+            return m.bias + self._x2
+        return m.bias + self._x1

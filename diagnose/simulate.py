@@ -4,7 +4,8 @@ Everything is pluggable through two small protocols:
 
 * a valve has ``reset(x0_pct) -> y`` and ``step(x_pct) -> y`` (stem position, % of span);
   `diagnose.stiction_model.StictionValve` and `LinearValve` are two;
-* a process has ``reset(u0_pct, ts_s) -> pv`` and ``step(u_pct) -> pv`` (engineering units).
+* a process is a `diagnose.process_model.ProcessModel` (stepped by its `ProcessStepper`), or anything
+  with ``reset(u0_pct, ts_s) -> pv`` and ``step(u_pct) -> pv`` (engineering units).
 
 Loads (disturbances) are added to the process output in PV units before measurement noise; the
 recorded MV is the valve's true output. The simulator is used by tests, by the NARX-SP training
@@ -14,13 +15,13 @@ and by the missing-physics proofs, which plug in valves and processes of their o
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
 import numpy as np
 
 from .errors import DataError
+from .process_model import ProcessModel
 from .record import LoopRecord
 from .stiction_model import StictionValve
 
@@ -43,110 +44,6 @@ class LinearValve:
 
     def step(self, x_pct: float) -> float:
         return min(max(float(x_pct), 0.0), 100.0)
-
-
-class _DeadTime:
-    def __init__(self, delay_s: float, ts_s: float, u0: float) -> None:
-        self.d = max(0, int(round(delay_s / ts_s)))
-        self.buf = deque([u0] * self.d)
-
-    def push(self, u: float) -> float:
-        if self.d == 0:
-            return u
-        self.buf.append(u)
-        return self.buf.popleft()
-
-
-@dataclass
-class FOPTD:
-    """First-order plus dead time: ``tau dPV/dt = -(PV - bias) + gain * u(t - delay)``.
-
-    Parameters
-    ----------
-    gain : float
-        PV units per % of valve travel (negative for a reverse-acting process).
-    tau_s : float
-        Time constant, seconds.
-    delay_s : float
-        Dead time, seconds (rounded to whole samples).
-    bias : float
-        PV with the valve shut.
-    """
-
-    gain: float = 1.0
-    tau_s: float = 20.0
-    delay_s: float = 2.0
-    bias: float = 0.0
-
-    def reset(self, u0_pct: float, ts_s: float) -> float:
-        if self.tau_s <= 0:
-            raise DataError(f"FOPTD tau_s must be > 0, got {self.tau_s}")
-        self._a = math.exp(-ts_s / self.tau_s)
-        self._dt = _DeadTime(self.delay_s, ts_s, u0_pct)
-        self._x = self.gain * u0_pct
-        return self.bias + self._x
-
-    def step(self, u_pct: float) -> float:
-        u = self._dt.push(u_pct)
-        self._x = self._a * self._x + (1.0 - self._a) * self.gain * u
-        return self.bias + self._x
-
-
-@dataclass
-class SOPTD:
-    """Second-order (two lags in series) plus dead time."""
-
-    gain: float = 1.0
-    tau1_s: float = 20.0
-    tau2_s: float = 5.0
-    delay_s: float = 2.0
-    bias: float = 0.0
-
-    def reset(self, u0_pct: float, ts_s: float) -> float:
-        if self.tau1_s <= 0 or self.tau2_s <= 0:
-            raise DataError("SOPTD time constants must be > 0")
-        self._a1 = math.exp(-ts_s / self.tau1_s)
-        self._a2 = math.exp(-ts_s / self.tau2_s)
-        self._dt = _DeadTime(self.delay_s, ts_s, u0_pct)
-        self._x1 = self._x2 = self.gain * u0_pct
-        return self.bias + self._x2
-
-    def step(self, u_pct: float) -> float:
-        u = self._dt.push(u_pct)
-        self._x1 = self._a1 * self._x1 + (1.0 - self._a1) * self.gain * u
-        self._x2 = self._a2 * self._x2 + (1.0 - self._a2) * self._x1
-        return self.bias + self._x2
-
-
-@dataclass
-class Integrating:
-    """Integrating process (a level): ``dPV/dt = gain * (u(t - delay) - u_balance)``.
-
-    ``gain`` is PV units per second per % of valve travel; ``u_balance`` the valve position at which
-    in- and outflow balance (taken as the starting valve position when None). An optional lag
-    ``tau_s`` filters the input.
-    """
-
-    gain: float = 0.01
-    delay_s: float = 2.0
-    tau_s: float = 0.0
-    u_balance: float | None = None
-    bias: float = 50.0
-
-    def reset(self, u0_pct: float, ts_s: float) -> float:
-        self._ts = ts_s
-        self._ub = u0_pct if self.u_balance is None else self.u_balance
-        self._a = math.exp(-ts_s / self.tau_s) if self.tau_s > 0 else 0.0
-        self._dt = _DeadTime(self.delay_s, ts_s, u0_pct)
-        self._uf = u0_pct
-        self._pv = self.bias
-        return self._pv
-
-    def step(self, u_pct: float) -> float:
-        u = self._dt.push(u_pct)
-        self._uf = self._a * self._uf + (1.0 - self._a) * u
-        self._pv += self._ts * self.gain * (self._uf - self._ub)
-        return self._pv
 
 
 @dataclass
@@ -232,7 +129,7 @@ def simulate_loop(
     *,
     n: int,
     ts_s: float,
-    process: Process,
+    process: ProcessModel | Process,
     controller: PIDController,
     valve: Valve | None = None,
     op0_pct: float = 50.0,
@@ -272,6 +169,8 @@ def simulate_loop(
     if not ts_s > 0:
         raise DataError(f"ts_s must be > 0 seconds, got {ts_s}")
     valve = LinearValve() if valve is None else valve
+    if isinstance(process, ProcessModel):
+        process = process.stepper()
     total = n + warmup
     rng = np.random.default_rng(seed)
     pv_true0 = process.reset(op0_pct, ts_s)
@@ -305,16 +204,15 @@ def simulate_loop(
 
 
 def make_process(kind: str, *, gain: float, tau_s: float, delay_s: float, tau2_s: float | None = None,
-                 bias: float = 0.0) -> Process:
-    """Build a process by name: ``foptd``, ``soptd`` or ``integrating``."""
-    if kind == "foptd":
-        return FOPTD(gain=gain, tau_s=tau_s, delay_s=delay_s, bias=bias)
-    if kind == "soptd":
-        return SOPTD(gain=gain, tau1_s=tau_s, tau2_s=tau2_s if tau2_s is not None else tau_s / 4,
-                     delay_s=delay_s, bias=bias)
-    if kind == "integrating":
-        return Integrating(gain=gain, delay_s=delay_s, tau_s=tau_s, bias=bias)
-    raise DataError(f"unknown process kind {kind!r}; use foptd, soptd or integrating")
+                 bias: float = 0.0) -> ProcessModel:
+    """A process by name: ``foptd``, ``soptd`` (second lag ``tau2_s``, default ``tau_s / 4``) or
+    ``integrating`` (``tau_s``: a lag on its input; ``bias``: PV at the start)."""
+    if kind not in ("foptd", "soptd", "integrating"):
+        raise DataError(f"unknown process kind {kind!r}; use foptd, soptd or integrating")
+    if kind != "integrating" and not tau_s > 0:
+        raise DataError(f"{kind} tau_s must be > 0 seconds, got {tau_s}")
+    tau2 = (tau2_s if tau2_s is not None else tau_s / 4) if kind == "soptd" else 0.0
+    return ProcessModel(kind=kind, gain=gain, tau_s=tau_s, delay_s=delay_s, bias=bias, tau2_s=tau2)
 
 
 def sticky_loop(S_pct: float, J_pct: float, *, n: int = 3000, ts_s: float = 1.0, gain: float = 1.0,

@@ -6,11 +6,13 @@ direction of the last motion ``f`` explicitly and captures the stuck point only 
 valve stops or reverses, so noise on a stuck valve's input does not re-capture it. It equals Kano's
 model sample for sample. See docs/model.md.
 
-Two implementations that must agree exactly:
+The valve step itself is written once, in C (``diagnose/csrc/valve_step.h``, run through
+`diagnose.kernels`); this module is its public face:
 
-* `StictionValve` / `stiction_reference`: one valve, plain Python, the specification.
-* `stiction_batch`: N candidate (S, J, f0) sets over one input series in one compiled call, what the
-  fitting stage runs thousands of times.
+* `StictionValve`: one valve stepped one sample at a time (the simulator's valve);
+* `simulate_valve`: one valve over an input series;
+* `stiction_batch`: many candidate (S, J, f0) over one input series in one call, what the fitting
+  stage runs thousands of times.
 """
 
 from __future__ import annotations
@@ -19,23 +21,22 @@ import math
 
 import numpy as np
 
+from . import kernels
 from .errors import DataError
-from .native import njit  # numba.njit, deferred; runs the C twin when there is one (diagnose/native)
 
 SPAN_LO = 0.0
 SPAN_HI = 100.0
 
 
-def _clip(v: float) -> float:
-    return SPAN_LO if v < SPAN_LO else (SPAN_HI if v > SPAN_HI else v)
-
-
-def _sign(v: float) -> float:
-    return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+def _check_sj(S_pct: float, J_pct: float, f0: int) -> None:
+    if not (S_pct >= 0 and J_pct >= 0 and math.isfinite(S_pct) and math.isfinite(J_pct)):
+        raise DataError(f"S and J must be finite and >= 0 % of span, got S={S_pct}, J={J_pct}")
+    if f0 not in (1, -1):
+        raise DataError(f"starting direction f0 must be +1 or -1, got {f0!r}")
 
 
 class StictionValve:
-    """One sticky valve, stepped one sample at a time (the reference implementation).
+    """One sticky valve, stepped one sample at a time.
 
     Parameters
     ----------
@@ -54,54 +55,35 @@ class StictionValve:
     """
 
     def __init__(self, S_pct: float, J_pct: float, f0: int = 1) -> None:
-        if not (S_pct >= 0 and J_pct >= 0 and math.isfinite(S_pct) and math.isfinite(J_pct)):
-            raise DataError(f"S and J must be finite and >= 0 % of span, got S={S_pct}, J={J_pct}")
-        if f0 not in (1, -1):
-            raise DataError(f"starting direction f0 must be +1 or -1, got {f0!r}")
+        _check_sj(S_pct, J_pct, f0)
         self.S_pct = float(S_pct)
         self.J_pct = float(J_pct)
         self.f0 = int(f0)
+        self._valve = kernels.ValveState()
+        self._valve.params[:] = (self.S_pct, self.J_pct, self.S_pct, self.J_pct)
         self.reset(0.0)
 
     def reset(self, x0_pct: float) -> float:
         """Put the valve at rest at input ``x0_pct``; returns the stem position."""
-        x0 = _clip(float(x0_pct))
-        self.x_prev = x0
-        self.v_prev = 0.0
-        self.y = x0
-        self.x_ss = x0
-        self.stuck = True
-        self.f = float(self.f0)
+        self.y = self._valve.start(x0_pct, self.f0)
         return self.y
 
     def step(self, x_pct: float) -> float:
         """Advance one sample with input ``x_pct``; returns the stem position in % of span."""
-        S, J = self.S_pct, self.J_pct
-        x = _clip(float(x_pct))
-        v = x - self.x_prev
-        # Only a moving valve can stop: noise on a stuck valve's input does not move x_ss.
-        if (not self.stuck) and (v == 0.0 or _sign(v) != _sign(self.v_prev)):
-            self.stuck = True
-            self.x_ss = self.x_prev
-        if not self.stuck:
-            y = x - self.f * (S - J) / 2.0
-        elif -self.f * (x - self.x_ss) > S:          # reversal: the input must beat S
-            self.f = -self.f
-            self.stuck = False
-            y = x - self.f * (S - J) / 2.0
-        elif self.f * (x - self.x_ss) > J:           # same direction after a stop: beat J
-            self.stuck = False
-            y = x - self.f * (S - J) / 2.0
-        else:
-            y = self.y
-        self.y = _clip(y)
-        self.x_prev = x
-        self.v_prev = v
+        self.y = self._valve.step(x_pct)
         return self.y
 
+    @property
+    def stuck(self) -> bool:
+        return self._valve.stuck
 
-def stiction_reference(x_pct, S_pct: float, J_pct: float, f0: int = 1, *,
-                       return_state: bool = False):
+    @property
+    def f(self) -> float:
+        """Direction of the last motion (+1 / -1)."""
+        return self._valve.direction
+
+
+def simulate_valve(x_pct, S_pct: float, J_pct: float, f0: int = 1, *, return_state: bool = False):
     """Run one valve over an input series.
 
     Parameters
@@ -123,65 +105,26 @@ def stiction_reference(x_pct, S_pct: float, J_pct: float, f0: int = 1, *,
         Only with ``return_state``.
     """
     x = np.asarray(x_pct, dtype=float)
+    if not return_state:
+        _check_sj(S_pct, J_pct, f0)
+        return stiction_batch(x, [S_pct], [J_pct], [f0])[0]
     n = x.shape[0]
     y = np.empty(n)
     stuck = np.empty(n, dtype=bool)
     direction = np.empty(n)
     if n == 0:
-        return (y, stuck, direction) if return_state else y
+        return y, stuck, direction
     valve = StictionValve(S_pct, J_pct, f0)
     y[0] = valve.reset(x[0])
     stuck[0], direction[0] = valve.stuck, valve.f
     for k in range(1, n):
         y[k] = valve.step(x[k])
         stuck[k], direction[k] = valve.stuck, valve.f
-    if return_state:
-        return y, stuck, direction
-    return y
+    return y, stuck, direction
 
 
-@njit(cache=True, nogil=True, boundscheck=False)
-def _batch_kernel(x, S, J, f0, out):  # pragma: no cover - compiled
-    m = S.shape[0]
-    n = x.shape[0]
-    for i in range(m):
-        s = S[i]
-        j = J[i]
-        # f is +-1, so f * half equals f * (s - j) / 2 exactly, as in the reference.
-        half = (s - j) / 2.0
-        f = f0[i]
-        xp = min(max(x[0], 0.0), 100.0)
-        up = False          # direction of the previous increment (only read while moving)
-        yp = xp
-        xss = xp
-        stuck = True
-        out[i, 0] = yp
-        for k in range(1, n):
-            xk = min(max(x[k], 0.0), 100.0)
-            v = xk - xp
-            up_k = v > 0.0
-            # While moving the previous increment is never 0, so "sign changed" is up != up_k.
-            if not stuck and (v == 0.0 or up_k != up):
-                stuck = True
-                xss = xp
-            if stuck:
-                d = xk - xss
-                if -f * d > s:
-                    f = -f
-                    stuck = False
-                    yp = min(max(xk - f * half, 0.0), 100.0)
-                elif f * d > j:
-                    stuck = False
-                    yp = min(max(xk - f * half, 0.0), 100.0)
-            else:
-                yp = min(max(xk - f * half, 0.0), 100.0)
-            out[i, k] = yp
-            xp = xk
-            up = up_k
-    return out
-
-
-def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, out: np.ndarray | None = None) -> np.ndarray:
+def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, start_pct=None, stuck_at_pct=None,
+                   out: np.ndarray | None = None) -> np.ndarray:
     """Run many candidate valves over one input series in one compiled call.
 
     Parameters
@@ -192,13 +135,21 @@ def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, out: np.ndarray | None = None) 
         Candidate stiction parameters, % of span.
     f0 : int or array_like of {+1, -1}, shape (m,)
         Starting direction per candidate.
+    start_pct : float or array_like, shape (m,), optional
+        The stem position at the first sample, % of span: the valve is stuck there after a motion
+        in direction ``f0`` (the input then stood at ``start + f0 (S - J) / 2``). None or NaN: at
+        rest at the first input.
+    stuck_at_pct : float or array_like, shape (m,), optional
+        With ``start_pct``: the input at which the valve stuck (None or NaN: where a valve moving in
+        direction ``f0`` stops, ``start + f0 (S - J) / 2``).
     out : ndarray, shape (m, n), optional
         Preallocated output (saves an allocation inside fitting loops).
 
     Returns
     -------
     ndarray, shape (m, n)
-        Stem position of each candidate, % of span; equal to `stiction_reference` bit for bit.
+        Stem position of each candidate, % of span; equal to stepping `StictionValve` sample by
+        sample.
     """
     x = np.ascontiguousarray(x_pct, dtype=np.float64)
     S = np.atleast_1d(np.asarray(S_pct, dtype=np.float64))
@@ -214,12 +165,13 @@ def stiction_batch(x_pct, S_pct, J_pct, f0=1, *, out: np.ndarray | None = None) 
     m, n = S.shape[0], x.shape[0]
     if out is None:
         out = np.empty((m, n))
-    elif out.shape != (m, n):
-        raise DataError(f"out has shape {out.shape}, expected {(m, n)}")
-    if n == 0:
-        return out
-    return _batch_kernel(x, np.ascontiguousarray(S), np.ascontiguousarray(J),
-                         np.ascontiguousarray(f), out)
+    elif out.shape != (m, n) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise DataError(f"out must be a C-contiguous float64 array of shape {(m, n)}, got {out.shape}")
+    zero = np.zeros(m)
+    nan = np.full(m, np.nan)
+    y0 = nan if start_pct is None else np.broadcast_to(np.asarray(start_pct, dtype=np.float64), (m,))
+    xs0 = nan if stuck_at_pct is None else np.broadcast_to(np.asarray(stuck_at_pct, dtype=np.float64), (m,))
+    return kernels.valve_run(x, S, J, S, J, zero, zero, f, zero, y0, xs0, 1.0, out)
 
 
 def stiction_class(S_pct: float, J_pct: float, *, tol_pct: float | None = None) -> str:

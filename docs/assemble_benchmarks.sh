@@ -15,19 +15,12 @@ assembled from a fragment `docs/_bench_<area>.md` that the benchmark scripts wri
 
 ## Stiction model kernel (issue 2)
 
-`python benchmarks/bench_stiction_model.py` (native C path) and
-`STICTION_NATIVE=0 python benchmarks/bench_stiction_model.py` (numba path), 2000 candidates x
-10 000 samples, one core, load average 1.3:
-
-| path | candidate-samples per second | pure-Python loop, same run | speed-up | batch == reference |
-|---|---|---|---|---|
-| native (C via ctypes) | 249 M | 0.96 M | 258x | yes |
-| numba | 182 M | 0.84 M | 217x | yes |
-
-Targets: >= 50 M candidate-samples/s on one core and >= 50x the pure-Python loop: met on both paths.
+Measured with the single compiled kernel (issue 24): see "One engine" below
+(`python benchmarks/bench_stiction_model.py`: 189 / 328 / 682 M candidate-samples per second on
+the baseline / AVX2 / AVX-512 variants, 155-559x the pure-Python loop; targets >= 50 M and >= 50x).
 
 HDR
-for f in fit speed narx connectors service physics; do
+for f in engine fit speed narx connectors service physics; do
   if [ -f docs/_bench_$f.md ]; then
     # demote any top-level heading of the fragment to a second-level one
     sed -e 's/^# /## /' docs/_bench_$f.md

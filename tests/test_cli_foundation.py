@@ -8,7 +8,7 @@ import pytest
 
 from connectors.historian import read_wide
 from diagnose.service.cli import COMMANDS, main
-from diagnose.stiction_model import stiction_reference
+from diagnose.stiction_model import simulate_valve
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ def test_simulate_writes_a_loop_with_the_true_mv(tmp_path, capsys):
     assert rec.name == "FIC9" and rec.n == 800 and rec.ts_s == pytest.approx(1.0)
     assert rec.mv is not None and rec.sp is not None
     # MV in the file is the valve model driven by the file's OP (6 significant digits in the file)
-    assert np.abs(rec.mv - stiction_reference(rec.op, 3.0, 1.0, 1)).max() < 0.2
+    assert np.abs(rec.mv - simulate_valve(rec.op, 3.0, 1.0, 1)).max() < 0.2
     assert "wrote" in capsys.readouterr().err
 
 

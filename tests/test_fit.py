@@ -1,40 +1,38 @@
-"""Hammerstein fit: process models, recovery of S and J, the direct valve fit, bad input."""
+"""Hammerstein fit: process models, recovery of S and J, search windows, bad input, the estimator."""
 
 import numpy as np
 import pytest
 
 from diagnose.errors import DataError, NotFittedError
-from diagnose.fit import (ErrorSurface, HammersteinFit, StictionEstimator, ValveFit, fit_hammerstein,
-                          fit_valve)
+from diagnose.fit import ErrorSurface, HammersteinFit, StictionEstimator, fit_hammerstein
 from diagnose.process_model import ProcessModel
-from diagnose.simulate import FOPTD, SOPTD, Integrating, sticky_loop
+from diagnose.simulate import sticky_loop
 from diagnose.stiction_model import stiction_batch, stiction_class
 
 
 def _open_loop(process, u, ts_s):
+    process = process.stepper()
     out = [process.reset(u[0], ts_s)]
     for v in u[1:]:
         out.append(process.step(v))
     return np.asarray(out)
 
 
-@pytest.mark.parametrize("model,sim", [
-    (ProcessModel("foptd", gain=1.7, tau_s=12.0, delay_s=3.0, bias=2.0),
-     FOPTD(gain=1.7, tau_s=12.0, delay_s=3.0, bias=2.0)),
-    (ProcessModel("soptd", gain=-0.8, tau_s=20.0, delay_s=2.0, bias=5.0, tau2_s=5.0),
-     SOPTD(gain=-0.8, tau1_s=20.0, tau2_s=5.0, delay_s=2.0, bias=5.0)),
+@pytest.mark.parametrize("model", [
+    ProcessModel("foptd", gain=1.7, tau_s=12.0, delay_s=3.0, bias=2.0),
+    ProcessModel("soptd", gain=-0.8, tau_s=20.0, delay_s=2.0, bias=5.0, tau2_s=5.0),
 ])
-def test_process_model_equals_the_simulator(model, sim):
+def test_process_model_simulation_equals_the_simulators_stepper(model):
     rng = np.random.default_rng(3)
     u = 50 + np.cumsum(rng.normal(0, 1, 400))
-    np.testing.assert_allclose(model.simulate(u, 1.0), _open_loop(sim, u, 1.0), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(model.simulate(u, 1.0), _open_loop(model, u, 1.0), rtol=0, atol=1e-9)
 
 
 def test_integrating_model_equals_the_simulator_up_to_a_constant():
     rng = np.random.default_rng(4)
     u = 40 + np.cumsum(rng.normal(0, 0.5, 300))
     model = ProcessModel("integrating", gain=0.02, tau_s=4.0, delay_s=2.0, bias=50.0, u_balance_pct=40.0)
-    ref = _open_loop(Integrating(gain=0.02, delay_s=2.0, tau_s=4.0, u_balance=40.0, bias=50.0), u, 1.0)
+    ref = _open_loop(model, u, 1.0)
     diff = model.simulate(u, 1.0) - ref
     assert np.ptp(diff) < 1e-9
 
@@ -107,34 +105,6 @@ def test_train_mask_holds_out_the_rest(sticky):
     held = fit.heldout_cost(rec.op, rec.pv, ~train)
     assert np.isfinite(held) and held > 0
     assert fit.S_pct == pytest.approx(4.0, rel=0.15)
-
-
-def test_fit_valve_on_op_mv_is_exact_on_exact_data():
-    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.01, seed=1)
-    vf = fit_valve(rec.op, rec.mv, rec.ts_s)
-    assert isinstance(vf, ValveFit)
-    assert vf.S_pct == pytest.approx(3.0, abs=0.1)
-    assert vf.J_pct == pytest.approx(1.0, abs=0.15)
-    assert vf.rmse < 0.1
-    assert vf.gain == pytest.approx(1.0, abs=0.05)
-    assert vf.simulate(rec.op).shape == rec.op.shape
-
-
-def test_fit_valve_keeps_the_actuator_lag_within_max_lag_s():
-    # a 4 s actuator lag after the friction: the local refinements scale lags freely, and used to
-    # return lags above the bound the caller asked for
-    rec = sticky_loop(3.0, 1.0, n=2000, noise_std=0.05, load_walk_std=0.01, seed=1)
-    a = np.exp(-1.0 / 4.0)
-    stem = np.empty_like(rec.mv)
-    stem[0] = rec.mv[0]
-    for k in range(1, stem.shape[0]):
-        stem[k] = a * stem[k - 1] + (1.0 - a) * rec.mv[k]
-    free = fit_valve(rec.op, stem, rec.ts_s, max_lag_s=10.0)
-    assert free.lag_s == pytest.approx(4.0, rel=0.1)
-    for bound in (0.0, 2.0):
-        vf = fit_valve(rec.op, stem, rec.ts_s, max_lag_s=bound)
-        assert vf.lag_s <= bound + 1e-12
-        assert vf.rmse > free.rmse
 
 
 @pytest.mark.parametrize("op,pv,match", [
@@ -211,22 +181,30 @@ def test_refinements_keep_J_within_the_OP_range():
     # and the cost can keep falling as J grows (J = 26 % on 13 % of OP travel, with a quarter of
     # the gain, was seen on a simulated loop): even on a cost that always prefers a larger J, the
     # refinements stop at the bound they keep S under (1.2 x OP's range)
-    from diagnose.fit import _Best, _nelder_mead_refine, _zoom
-    from diagnose.output_error import _make_configs
+    import dataclasses
+
+    from diagnose.objective import Candidate
+    from diagnose.search import ModelSpace, PolishConfig, ZoomConfig, nelder_mead, resolve, zoom
 
     class JHungry:
-        def sse(self, S, J, F, cfg):
+        ts_s = 1.0
+
+        def score(self, S, J, F, grid):
             S, J = np.asarray(S, float), np.asarray(J, float)
             c = (S - 3.0) ** 2 + 1.0 / (1.0 + J)
             return c[:, None], np.ones((S.shape[0], 1))
 
-    cfg = _make_configs([("foptd", 15.0, 0.0, 3)], 1.0)
-    start = _Best(3.0, 6.0, 1.0, cfg, 1.0 / 7.0)
+        def score_table(self, valves, structs):
+            return self.score(valves[0], valves[1], valves[2], None)
+
+    lim = resolve(np.linspace(45.0, 52.5, 200), 1.0, ModelSpace(structure=("foptd", 15.0, 0.0, 3.0)), 12, 12)
     cap = 9.0
-    for res in (_zoom(JHungry(), start, rounds=6, span=0.5, S_max_pct=cap),
-                _nelder_mead_refine(JHungry(), start, 1.0, fixed=True, S_max_pct=cap)):
-        assert res.J > 6.0                          # the cost did pull J up ...
-        assert res.J <= cap + 1e-9                  # ... to the bound at most
+    lim = dataclasses.replace(lim, S_cap=cap)
+    start = Candidate(3.0, 6.0, 1.0, ("foptd", 15.0, 0.0, 3), 1.0 / 7.0)
+    for res in (zoom(JHungry(), start, lim, ZoomConfig(rounds=6, span=0.5)),
+                nelder_mead(JHungry(), start, lim, PolishConfig())):
+        assert res.J_pct > 6.0                      # the cost did pull J up ...
+        assert res.J_pct <= cap + 1e-9              # ... to the bound at most
 
 
 def _benchmark_case(seed: int, name: str, n: int):
@@ -260,7 +238,8 @@ def test_a_long_record_is_refined_from_its_own_starting_state():
 
 
 def test_extra_search_windows_are_the_records_thirds_at_most_2000_samples():
-    from diagnose.fit import WINDOW_MAX_SAMPLES, _extra_windows
+    from diagnose.search import WINDOW_MAX_SAMPLES
+    from diagnose.search import search_windows as _extra_windows
     ones = np.ones
     assert _extra_windows(3000, 3, ones(3000)) == [(0, 1000), (1000, 1000), (2000, 1000)]
     assert _extra_windows(10000, 3, ones(10000)) == [(0, 2000), (4000, 2000), (8000, 2000)]

@@ -170,21 +170,20 @@ def test_a_backlash_on_a_slow_process_is_found_by_its_likelihood_ratio():
     assert not healthy.stiction and healthy.stiction_probability < healthy.verdict.threshold
 
 
-def test_class_test_finds_the_needle_in_S(monkeypatch):
+def test_class_test_finds_the_needle_in_S():
     """With J > 0 the cost is a needle in S: started from an S 7 % off, the fine scan lands within
     0.5 % of the true S at a far lower cost than the coarse grid alone."""
     import dataclasses
 
-    import diagnose.identify as ident
     from diagnose.fit import fit_hammerstein
+    from diagnose.search import ClassTestConfig, class_test
 
     rec = sticky_loop(5.0, 5.0, n=2000, gain=1.5, tau_s=30.0, delay_s=5.0, noise_std=0.05,
                       load_walk_std=0.01, seed=3)
     fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s, gain_sign=1)
     off = dataclasses.replace(fit, S_pct=fit.S_pct * 1.07, J_pct=fit.J_pct * 1.07)
-    fine = ident._class_test(rec.op, rec.pv, rec.ts_s, off, gain_sign=1)
-    monkeypatch.setattr(ident, "CLASS_TEST_FINE_S", 0)
-    coarse = ident._class_test(rec.op, rec.pv, rec.ts_s, off, gain_sign=1)
+    fine = class_test(rec.op, rec.pv, rec.ts_s, off, gain_sign=1)
+    coarse = class_test(rec.op, rec.pv, rec.ts_s, off, gain_sign=1, cfg=ClassTestConfig(fine_S=0))
     assert abs(fine["S_pct"] - 5.0) < 0.025
     assert fine["cost"] < 0.8 * coarse["cost"]
     assert fine["cls"] == "no_offset"

@@ -22,7 +22,7 @@ from diagnose.narx.networks import NETWORKS, PAPER_NETWORKS, NarxNetwork, NarxSP
 from diagnose.narx import protocol
 from diagnose.narx.protocol import CASES, long_signal, make_dataset
 from diagnose.service.cli import main
-from diagnose.stiction_model import stiction_reference
+from diagnose.stiction_model import simulate_valve
 
 torch.set_num_threads(1)
 
@@ -84,7 +84,7 @@ def test_model_mode_long_run_on_unseen_input():
     ds = make_dataset(3.0, 1.0)
     net = NarxSP(seed=0, **SMALL_SP).fit(ds.x_train, ds.y_train, ds.x_val, ds.y_val)
     x = long_signal(10_000)
-    y = stiction_reference(x, 3.0, 1.0, 1)
+    y = simulate_valve(x, 3.0, 1.0, 1)
     assert rmse_pct(y, net.free_run(x, y[:2])) <= 0.1
 
 
@@ -98,7 +98,7 @@ TINY = {"ff": dict(epochs=60), "cascade": dict(epochs=60), "elman": dict(epochs=
 def test_every_network_type_shares_the_interface(kind):
     assert set(PAPER_NETWORKS) <= set(NETWORKS)
     x = 50 + 8 * np.sin(2 * np.pi * np.arange(400) / 80)
-    y = stiction_reference(x, 3.0, 1.0, 1)
+    y = simulate_valve(x, 3.0, 1.0, 1)
     net = make_network(kind, seed=0, **TINY[kind])
     with pytest.raises(NotFittedError, match="fit"):
         net.free_run(x)
@@ -169,7 +169,7 @@ def test_bank_free_run_tracks_the_plant_on_a_new_input():
     bank = load_bank()
     sel = bank.select(3.0, 1.0)
     x = long_signal(5000)
-    y = stiction_reference(x, 3.0, 1.0, 1)
+    y = simulate_valve(x, 3.0, 1.0, 1)
     yh = bank.free_run(sel, x, y[:2])
     assert rmse_pct(y, yh) <= 0.1
     # without the measured start the valve is assumed at rest at op[0]
@@ -199,7 +199,7 @@ def test_cli_bank_train_writes_a_loadable_bank(tmp_path, capsys):
     state = torch.load(tmp_path / "narxsp_S3_J1.pt", weights_only=True)
     bank = bank_from_manifest(manifest, {"narxsp_S3_J1": state})
     x = protocol.test_signal()
-    y = stiction_reference(x, 3.0, 1.0, 1)
+    y = simulate_valve(x, 3.0, 1.0, 1)
     assert rmse_pct(y, bank.free_run(bank.select(3, 1), x, y[:2])) <= 0.05
     assert main(["bank", "train", "--cases", "3-1", "--out", str(tmp_path)]) == 1
     assert "error: --cases" in capsys.readouterr().err
@@ -235,11 +235,11 @@ def test_conditional_network_learns_the_plane():
     cases = []
     for S, J in [(1.0, 0.0), (3.0, 1.0), (2.0, 2.0), (1.0, 3.0), (5.0, 2.0)]:
         x = bank_train_signal(1500)
-        cases.append((S, J, x, stiction_reference(x, S, J, 1)))
+        cases.append((S, J, x, simulate_valve(x, S, J, 1)))
     net = ConditionalNarxSP(epochs=60).fit(cases)
     # an unseen plant between the training cases
     x = protocol.test_signal()
-    y = stiction_reference(x, 2.5, 1.5, 1)
+    y = simulate_valve(x, 2.5, 1.5, 1)
     assert rmse_pct(y, net.free_run(2.5, 1.5, x, y[:2])) <= 0.1
     with pytest.raises(NotFittedError):
         ConditionalNarxSP().free_run(1.0, 1.0, x)

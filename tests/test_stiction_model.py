@@ -1,10 +1,13 @@
-"""The two-parameter stiction model: class signatures, the revised-form rules, batch == reference."""
+"""The two-parameter stiction model: class signatures, the revised-form rules, and the compiled valve
+step against Kano's model written apart from it (tests/kano.py), at every instruction-set variant."""
 
 import numpy as np
 import pytest
 
 from diagnose.errors import DataError
-from diagnose.stiction_model import StictionValve, stiction_batch, stiction_class, stiction_reference
+from diagnose import kernels
+from diagnose.stiction_model import StictionValve, simulate_valve, stiction_batch, stiction_class
+from kano import kano_valve
 
 N = 4000
 T = np.arange(N)
@@ -17,7 +20,7 @@ def _steady(y):
 
 @pytest.mark.parametrize("S", [1.0, 3.0, 6.0])
 def test_deadband_width_is_S(S):
-    y = stiction_reference(SLOW_SINE, S, 0.0, 1)
+    y = simulate_valve(SLOW_SINE, S, 0.0, 1)
     x = SLOW_SINE
     # While moving the valve trails the input by S/2 ...
     moving = np.flatnonzero(np.diff(y) != 0) + 1
@@ -33,7 +36,7 @@ def test_deadband_width_is_S(S):
 @pytest.mark.parametrize("S,J,cls", [(3.0, 1.0, "undershoot"), (4.0, 4.0, "no_offset"), (1.0, 3.0, "overshoot"),
                                      (5.0, 0.0, "deadband")])
 def test_peak_offset_by_class(S, J, cls):
-    y = _steady(stiction_reference(SLOW_SINE, S, J, 1))
+    y = _steady(simulate_valve(SLOW_SINE, S, J, 1))
     x = _steady(SLOW_SINE)
     offset = y.max() - x.max()           # (J - S) / 2 for every class
     assert offset == pytest.approx((J - S) / 2, abs=0.02)
@@ -51,12 +54,12 @@ def test_stop_without_reversal_needs_J_and_reversal_needs_S():
     S, J = 4.0, 1.5
     # ramp up (moving), hold (stop), ramp up again: only J is needed
     up = np.concatenate([np.linspace(50, 60, 101), np.full(20, 60.0), 60 + 0.01 * np.arange(1, 400)])
-    y = stiction_reference(up, S, J, 1)
+    y = simulate_valve(up, S, J, 1)
     k = 121 + int(np.flatnonzero(np.diff(y[120:]) != 0)[0])
     assert up[k] - 60.0 > J and up[k - 1] - 60.0 <= J
     # ramp up, then down: a reversal needs S
     rev = np.concatenate([np.linspace(50, 60, 101), 60 - 0.01 * np.arange(1, 800)])
-    y = stiction_reference(rev, S, J, 1)
+    y = simulate_valve(rev, S, J, 1)
     k = 101 + int(np.flatnonzero(np.diff(y[100:]) != 0)[0])
     assert 60.0 - rev[k] > S and 60.0 - rev[k - 1] <= S
 
@@ -67,7 +70,7 @@ def test_noise_on_a_stuck_valve_does_not_recapture_the_stuck_point():
     # the valve moves up to 60 and stops; then the input creeps up with noise that reverses often
     creep = 60 + 0.004 * np.arange(1, 1500) + rng.normal(0, 0.15, 1499)
     x = np.concatenate([np.linspace(50, 60, 100), [60.0], creep])   # the repeated 60 is the stop
-    y, stuck, _ = stiction_reference(x, S, J, 1, return_state=True)
+    y, stuck, _ = simulate_valve(x, S, J, 1, return_state=True)
     k = 101 + int(np.flatnonzero(np.diff(y[100:]) != 0)[0])
     # the breakaway is measured from the original stuck point 60, not from a noisy recapture
     assert x[k] - 60.0 > J
@@ -79,13 +82,12 @@ def test_noise_on_a_stuck_valve_does_not_recapture_the_stuck_point():
 
 def test_saturation_clips_input_and_output():
     x = np.concatenate([np.linspace(50, 120, 200), np.linspace(120, -20, 300)])
-    y = stiction_reference(x, 2.0, 5.0, 1)
+    y = simulate_valve(x, 2.0, 5.0, 1)
     assert y.min() >= 0.0 and y.max() <= 100.0
     assert y.max() == 100.0 and y.min() == 0.0
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_batch_equals_reference_on_random_inputs(seed):
+def _inputs(seed):
     rng = np.random.default_rng(seed)
     n = 3000
     kind = seed % 3
@@ -101,10 +103,40 @@ def test_batch_equals_reference_on_random_inputs(seed):
     S[:4] = [0, 3, 3, 1]
     J[:4] = [0, 0, 3, 3]   # none, deadband, no offset, overshoot
     f0 = rng.choice([-1, 1], m)
+    return x, S, J, f0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_batch_equals_kanos_model_on_random_inputs(seed):
+    x, S, J, f0 = _inputs(seed)
     batch = stiction_batch(x, S, J, f0)
-    for i in range(m):
-        ref = stiction_reference(x, S[i], J[i], int(f0[i]))
-        assert np.array_equal(batch[i], ref), (i, S[i], J[i], f0[i])
+    for i in range(S.shape[0]):
+        ref = kano_valve(x, S[i], J[i], int(f0[i]))
+        np.testing.assert_allclose(batch[i], ref, rtol=0, atol=1e-12, err_msg=f"{i} {S[i]} {J[i]} {f0[i]}")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_batch_and_stepped_valve_are_the_same_kernel_bit_for_bit(seed):
+    x, S, J, f0 = _inputs(seed)
+    batch = stiction_batch(x, S, J, f0)
+    for i in range(0, S.shape[0], 7):
+        v = StictionValve(S[i], J[i], int(f0[i]))
+        stepped = np.array([v.reset(x[0])] + [v.step(u) for u in x[1:]])
+        assert np.array_equal(batch[i], stepped)
+
+
+def test_every_instruction_set_variant_gives_the_same_numbers():
+    # the library picks the widest vector variant the CPU has; results must not depend on it
+    x, S, J, f0 = _inputs(1)
+    outs = []
+    try:
+        for level in range(kernels.max_isa_level() + 1):
+            kernels.set_isa(level)
+            outs.append(stiction_batch(x, S, J, f0))
+    finally:
+        kernels.set_isa(None)
+    for o in outs[1:]:
+        assert np.array_equal(o, outs[0])
 
 
 def test_batch_validates_arguments():
@@ -118,8 +150,8 @@ def test_batch_validates_arguments():
 
 def test_starting_direction_matters():
     x = 50 - 0.01 * np.arange(1000)      # the input falls from the start
-    y_up = stiction_reference(x, 3.0, 1.0, +1)   # last motion up: falling is a reversal, needs S
-    y_dn = stiction_reference(x, 3.0, 1.0, -1)   # last motion down: needs only J
+    y_up = simulate_valve(x, 3.0, 1.0, +1)   # last motion up: falling is a reversal, needs S
+    y_dn = simulate_valve(x, 3.0, 1.0, -1)   # last motion down: needs only J
     first_up = int(np.flatnonzero(np.diff(y_up))[0]) + 1
     first_dn = int(np.flatnonzero(np.diff(y_dn))[0]) + 1
     assert 50 - x[first_up] > 3.0 and 50 - x[first_dn] > 1.0

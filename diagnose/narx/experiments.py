@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from ..stiction_model import stiction_reference
+from ..stiction_model import simulate_valve
 from .metrics import cdc_pct, direction_agreement_pct, rmse_pct
 from .protocol import CASES, SCORE_FROM, long_signal, make_dataset, test_signal
 
@@ -115,7 +115,7 @@ def _robustness(table, seed=0) -> list[dict]:
         net, _ = train_case("narxsp", Sb, Jb, seed)
         x = test_signal()
         for St, Jt, verdict in tests:
-            y = stiction_reference(x, St, Jt, 1)
+            y = simulate_valve(x, St, Jt, 1)
             ev = evaluate(net, x, y)
             rows.append({"base_class": BASE_CLASS[(Sb, Jb)], "base_S": Sb, "base_J": Jb,
                          "test_S": float(St), "test_J": float(Jt),
@@ -141,7 +141,7 @@ def model_mode(n: int = 10_000, S_pct: float = 3.0, J_pct: float = 1.0, seed: in
     net, _ = train_case("narxsp", S_pct, J_pct, seed)
     model = net.to_model_mode()
     x = long_signal(n)
-    y = stiction_reference(x, S_pct, J_pct, 1)
+    y = simulate_valve(x, S_pct, J_pct, 1)
     model.free_run(x[:100], y[:2])          # compile/warm
     t0 = time.perf_counter()
     free = model.free_run(x, y[:2])

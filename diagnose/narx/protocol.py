@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..stiction_model import stiction_reference
+from ..stiction_model import simulate_valve
 
 #: The paper's four classes as the protocol fixes them: (S, J) in % of span.
 CASES: dict[str, tuple[float, float]] = {
@@ -107,5 +107,5 @@ def make_dataset(S_pct: float, J_pct: float, *, scale: float = 1.0, bank: bool =
               test_signal(scale=scale)]
     else:
         xs = [train_signal(scale=scale), validation_signal(scale=scale), test_signal(scale=scale)]
-    ys = [stiction_reference(x, S_pct, J_pct, 1) for x in xs]
+    ys = [simulate_valve(x, S_pct, J_pct, 1) for x in xs]
     return Dataset(float(S_pct), float(J_pct), xs[0], ys[0], xs[1], ys[1], xs[2], ys[2], float(scale))

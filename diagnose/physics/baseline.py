@@ -44,7 +44,7 @@ def _global_sj(stage: Stage, struct: Structure, span: float, step: float = 0.025
     return global_sj(stage, struct, span, step)
 
 
-def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
+def grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
                    template: Structure | None = None, coarse: list | None = None) -> Structure:
     """Global search of the plain model: coarse (S, J, f0) x FOPTD dynamics grid, then a fine global
     (S, J, f0) grid and the dynamics in turn. ``template`` carries extra physics held fixed during
@@ -69,7 +69,7 @@ def _grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int =
 
 
 def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = None) -> list:
-    """The coarse (S, J, f0) x FOPTD dynamics grid of `_grid_baseline`: the best candidate of each
+    """The coarse (S, J, f0) x FOPTD dynamics grid of `grid_baseline`: the best candidate of each
     of the ``n_starts`` best dynamics, as (training SSE, Structure), cheapest first. ``template``
     carries extra physics held fixed (e.g. a load period)."""
     x = stage.x
@@ -93,26 +93,20 @@ def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = 
 
 
 def _from_fit_module(stage: Stage) -> Baseline | None:
-    try:
-        from .. import fit as fitmod  # the fitting stage (issue 3)
-    except ImportError:
-        return None
+    from ..fit import fit_hammerstein
+    from ..valve_fit import fit_valve
     train = stage.train
     try:
-        if stage.name == "loop" and hasattr(fitmod, "fit_hammerstein"):
-            res = fitmod.fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train,
-                                         gain_sign=stage.gain_sign or None)
+        if stage.name == "loop":
+            res = fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train, gain_sign=stage.gain_sign or None)
             struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(res.f0), res.process)
             stem_hat, y_hat = res.simulate(stage.x)
             return Baseline(struct, np.asarray(y_hat, float), np.asarray(stem_hat, float),
                             "fit_hammerstein")
-        if stage.name == "valve" and hasattr(fitmod, "fit_valve"):
+        if stage.name == "valve":
             # the plain valve: fit_valve's (S, J, f0); its own actuator lag and dead time, when it
             # fits them, are left out here (they are what the actuator_lag hypothesis tests)
-            try:
-                res = fitmod.fit_valve(stage.x, stage.y, stage.ts_s, train=train)
-            except TypeError:
-                res = fitmod.fit_valve(stage.x[train], stage.y[train], stage.ts_s)
+            res = fit_valve(stage.x, stage.y, stage.ts_s, train=train)
             struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(getattr(res, "f0", 1)),
                                      IDENTITY)
             stem = stems(stage, [struct])[0]
@@ -134,7 +128,7 @@ def make_baseline(stage: Stage, given: Structure | None = None, *, use_fit_modul
         b = _from_fit_module(stage)
         if b is not None:
             return b
-    struct = _grid_baseline(stage)
+    struct = grid_baseline(stage)
     struct, _ = refine_plain(stage, struct)
     stem = stems(stage, [struct])[0]
     y_hat, _ = _linear_fit(stage, struct, stem, stage.n)

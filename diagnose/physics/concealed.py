@@ -14,7 +14,8 @@ import numpy as np
 
 from ..errors import DataError
 from ..record import LoopRecord
-from ..simulate import FOPTD, random_walk, simc_pi, simulate_loop, sinusoid
+from ..process_model import ProcessModel
+from ..simulate import random_walk, simc_pi, simulate_loop, sinusoid
 from .locate import limit_cycle_period, slips_and_reversals
 from .plant import AugmentedValve, CharacteristicProcess
 
@@ -128,7 +129,7 @@ def _draw(effect: str, seed: int, n: int, ts_s: float, with_mv: bool, name: str 
         u0 = float(rng.uniform(30.0, 70.0))
         u_lv = np.full(n, u0)
     valve_kw: dict[str, Any] = {}
-    process: Any = FOPTD(gain=gain, tau_s=tau, delay_s=delay, bias=0.0)
+    process: Any = ProcessModel("foptd", gain=gain, tau_s=tau, delay_s=delay, bias=0.0)
     sp = gain * u_lv
     load = random_walk(n, gain * 0.004, np.random.default_rng(seed + 1), leak=0.005)
     if effect == "actuator_lag":
@@ -171,7 +172,7 @@ def _draw(effect: str, seed: int, n: int, ts_s: float, with_mv: bool, name: str 
         valve_kw = {}
         S, J = truth["S_pct"], truth["J_pct"]
         if effect == "valve_characteristic":
-            process = FOPTD(gain=gain, tau_s=tau, delay_s=delay, bias=0.0)
+            process = ProcessModel("foptd", gain=gain, tau_s=tau, delay_s=delay, bias=0.0)
             sp = gain * u_lv
         if effect == "external_disturbance":
             load = random_walk(n, gain * 0.004, np.random.default_rng(seed + 1), leak=0.005)

@@ -32,8 +32,8 @@ import numpy as np
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
 from ..record import LoopRecord
-from .baseline import Baseline, _grid_baseline, make_baseline
-from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, _fine_valve, get
+from .baseline import Baseline, grid_baseline, make_baseline
+from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, fine_valve, get
 from .locate import Mismatch, locate, slips_and_reversals
 from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
                     refine_plain, rmse)
@@ -278,7 +278,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     # baseline came from elsewhere) from the grid, whichever trains better
     ref, ref_sse = refine_plain(stage, base.structure)
     if base.source != "grid":
-        alt = _grid_baseline(stage, start=ref)
+        alt = grid_baseline(stage, start=ref)
         alt_ref, alt_sse = refine_plain(stage, alt, rounds=1)
         if alt_sse < ref_sse:
             ref, ref_sse = alt_ref, alt_sse
@@ -302,7 +302,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         ref, ref_sse = best_of(stage, [ref])
     if stage.name == "valve":
         # OP -> MV: the cost is sharp in S; every valve-stage hypothesis gets the same fine polish
-        ref = _fine_valve(stage, ref)
+        ref = fine_valve(stage, ref)
         ref, ref_sse = best_of(stage, [ref])
     ref_hat, ref_stem, _ = predict(stage, ref)
     # a leading stretch the plain model still cannot follow at all (far above the rest) is not
@@ -340,7 +340,7 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
             if c < best_sse:
                 best_ref, best_sse = r, c
     if stage.name == "valve" and best_ref is not ref:
-        best_ref = _fine_valve(stage, best_ref)
+        best_ref = fine_valve(stage, best_ref)
         best_sse = best_of(stage, [best_ref])[1]
     if best_sse < ref_sse * (1.0 - 1e-6):
         ref, ref_sse = best_ref, best_sse

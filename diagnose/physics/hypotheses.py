@@ -171,7 +171,7 @@ def _polish(stage: Stage, struct: Structure, one_round, rounds: int = 2, tol: fl
     return best
 
 
-def _fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Structure:
+def fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Structure:
     """Fine polish of a symmetric valve on the valve stage (OP -> MV), where the output-error cost
     is V-shaped and sharp: 1 % off in S moves every slip by a sample or two and can cost ten times
     the noise, and the grids step S by 3 %.
@@ -250,7 +250,7 @@ def _extra_scale(extra: str | None, e0: float, em: float) -> tuple[dict, float]:
 
 def _fine_asym(stage: Stage, struct: Structure) -> Structure:
     """Fine polish of an asymmetric valve (on the loop stage with the dynamics held), as
-    `_fine_valve` for a symmetric one: both S scaled together in 0.5 % steps over +-6 %, then each
+    `fine_valve` for a symmetric one: both S scaled together in 0.5 % steps over +-6 %, then each
     side's S in 0.5 % steps over +-6 % with its J/S over the whole range, then 0.1 % and 1 % steps,
     then the initial state; twice. The one-direction scans step S by 1-2 %, and 1 % off in S moves
     every slip."""
@@ -408,7 +408,7 @@ class ActuatorLag(PhysicsHypothesis):
         best, _ = refit_dynamics(stage, best, rounds=1)
         best, _ = refine_sj(stage, best, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
         if stage.name == "valve":
-            best = _fine_valve(stage, best, "tau_lag_s")
+            best = fine_valve(stage, best, "tau_lag_s")
         return best
 
     def _params(self, struct, reference, stage, coef):
@@ -740,8 +740,8 @@ class ExternalDisturbance(PhysicsHypothesis):
                 # the plain fit bent its valve and process to follow the load through OP (its S and
                 # dynamics can be far off): search the valve and the dynamics globally with the load
                 # for the period that helps most (from the plain fit and from the coarse grid)
-                from .baseline import _grid_baseline
-                starts.append(_grid_baseline(stage, start=st, n_starts=3, template=st, coarse=coarse))
+                from .baseline import grid_baseline
+                starts.append(grid_baseline(stage, start=st, n_starts=3, template=st, coarse=coarse))
             for st in starts:
                 st, _ = refit_dynamics(stage, st, rounds=1)
                 st = global_sj(stage, st)
@@ -847,7 +847,7 @@ class TimeVaryingFriction(PhysicsHypothesis):
             centres.add(round(context.baseline.S_up_pct, 6))
         best = self._grid(stage, reference, centres, T)
         if stage.name == "valve":
-            return _fine_valve(stage, best, "dS_pct_per_s")
+            return fine_valve(stage, best, "dS_pct_per_s")
         cost = best_of(stage, [best])[1]
 
         def restart(st: Structure, around: set) -> None:

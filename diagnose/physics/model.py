@@ -24,11 +24,11 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from numba import njit
 
+from .. import kernels
 from ..errors import DataError
 from ..process_model import ProcessModel
-from .valve import _aug_start, _aug_step, augmented_valve, characteristic
+from .valve import augmented_valve, characteristic
 
 IDENTITY = ProcessModel(kind="foptd", gain=1.0, tau_s=0.0, delay_s=0.0, bias=0.0)
 
@@ -215,139 +215,12 @@ def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.nd
     return np.column_stack(cols) if cols else np.zeros((n, 0))
 
 
-@njit(cache=True, nogil=True, boundscheck=False)
-def _fused_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ, ts_s, E,
-                  y, w, sgn, out):  # pragma: no cover - compiled
-    """Training SSE of many candidate augmented models in one pass per candidate: the augmented
-    valve (`valve._aug_step`, the step `valve._aug_kernel` runs), the installed characteristic, the lags, dead time
-    and optional integrator, and the weighted least squares of [z, 1, E...] -- without holding
-    any (candidates x samples) matrix. ``sgn`` (+1, -1; 0 free) is the sign the coefficient of z
-    must have; a fit with the other sign is refit with that coefficient 0."""
-    m = S_up.shape[0]
-    n = x.shape[0]
-    q = E.shape[1]
-    p = 2 + q
-    A = np.zeros((p, p))
-    b = np.zeros(p)
-    col = np.empty(p)
-    maxd = 0
-    for i in range(m):
-        if d[i] > maxd:
-            maxd = d[i]
-    ring = np.empty(maxd + 1)
-    for i in range(m):
-        for r in range(p):
-            b[r] = 0.0
-            for c in range(p):
-                A[r, c] = 0.0
-        yy = 0.0
-        f = f0[i]
-        a = a_lag[i]
-        c_i = cc[i]
-        lin = abs(c_i) < 1e-9
-        den = math.expm1(c_i) if not lin else 1.0
-        di = d[i]
-        L = di + 1
-        sup0 = S_up[i]
-        sdn0 = S_dn[i]
-        jup0 = J_up[i]
-        jdn0 = J_dn[i]
-        dsi = dS[i]
-        dji = dJ[i]
-        drift = dsi != 0.0 or dji != 0.0
-        su = max(sup0, 0.0)
-        sd = max(sdn0, 0.0)
-        ju = max(jup0, 0.0)
-        jd = max(jdn0, 0.0)
-        a1i = a1[i]
-        a2i = a2[i]
-        second = a2i >= 0.0
-        ig = integ[i]
-        xp, yp, xss = _aug_start(x[0], su, ju, sd, jd, f, y0[i], xs0[i])
-        up = False
-        stuck = True
-        zv = yp
-        u0 = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
-        for j in range(L):
-            ring[j] = u0
-        z1 = u0
-        z2 = u0
-        acc = 0.0
-        wpos = 0           # ring slot of sample k
-        for k in range(n):
-            if k > 0:
-                if drift:
-                    t = k * ts_s
-                    su = max(sup0 + dsi * t, 0.0)
-                    sd = max(sdn0 + dsi * t, 0.0)
-                    ju = max(jup0 + dji * t, 0.0)
-                    jd = max(jdn0 + dji * t, 0.0)
-                xp, up, stuck, xss, f, yp = _aug_step(x[k], xp, up, stuck, xss, f, yp, su, sd, ju, jd)
-                zv = a * zv + (1.0 - a) * yp
-                uk = zv if lin else 100.0 * math.expm1(c_i * zv / 100.0) / den
-            else:
-                uk = u0
-            # dead time: ring buffer of the last d + 1 inputs (slot wpos holds sample k, the next
-            # slot sample k - d)
-            if di == 0:
-                ud = uk
-            else:
-                ring[wpos] = uk
-                wpos += 1
-                if wpos == L:
-                    wpos = 0
-                ud = ring[wpos] if k >= di else u0
-            z1 = a1i * z1 + (1.0 - a1i) * ud
-            if second:
-                z2 = a2i * z2 + (1.0 - a2i) * z1
-            else:
-                z2 = z1
-            if ig:
-                acc += ts_s * z2
-                zk = acc
-            else:
-                zk = z2
-            wk = w[k]
-            if wk == 0.0:
-                continue
-            yk = y[k]
-            if q == 0:
-                A[0, 0] += wk * zk * zk
-                A[0, 1] += wk * zk
-                A[1, 1] += wk
-                b[0] += wk * zk * yk
-                b[1] += wk * yk
-                yy += wk * yk * yk
-                continue
-            col[0] = zk
-            col[1] = 1.0
-            for j in range(q):
-                col[2 + j] = E[k, j]
-            for r in range(p):
-                b[r] += wk * col[r] * yk
-                for c in range(p):
-                    A[r, c] += wk * col[r] * col[c]
-            yy += wk * yk * yk
-        if q == 0:
-            A[1, 0] = A[0, 1]
-        for r in range(p):
-            A[r, r] += 1e-9 * (A[r, r] + 1e-12)
-        coef = np.linalg.solve(A, b)
-        if sgn != 0.0 and coef[0] * sgn < 0.0:
-            sub = np.linalg.solve(np.ascontiguousarray(A[1:, 1:]), np.ascontiguousarray(b[1:]))
-            coef[0] = 0.0
-            for r in range(1, p):
-                coef[r] = sub[r - 1]
-        sse = yy - 2.0 * (coef @ b) + coef @ (A @ coef)
-        out[i] = max(sse, 0.0)
-    return out
-
-
 def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     """Training sum of squared errors of each structure (simulated through the training part).
 
-    One fused compiled pass per candidate (valve, characteristic, lags, least squares): memory does
-    not grow with the number of candidates times the record length.
+    One fused compiled pass per candidate (`diagnose.kernels.fused_sse`: the valve step,
+    characteristic, lags, least squares): memory does not grow with the number of candidates times
+    the record length.
     """
     n = stage.n_fit
     structs = list(structs)
@@ -378,12 +251,10 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
         d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
         E = np.ascontiguousarray(_extra_columns(sub[0], ts, n, integ))
-        res = np.empty(m)
-        c = lambda j: np.ascontiguousarray(P[:, j])  # noqa: E731
-        _fused_kernel(x, c(0), c(1), c(2), c(3), c(4), c(5), c(6), np.ascontiguousarray(a_lag), c(12), c(13), c(8),
-                      np.ascontiguousarray(a1), np.ascontiguousarray(a2), d, np.full(m, integ, np.bool_),
-                      ts, E, yv, tr, float(stage.gain_sign), res)
-        out[idx] = res
+        params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
+                                  P[:, 12], P[:, 13]])
+        out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, np.full(m, integ, np.bool_), ts, E, yv, tr,
+                                     float(stage.gain_sign))
     return out
 
 

@@ -5,23 +5,17 @@ process has ``reset(u0_pct, ts_s)`` and ``step(u_pct)``), so ``simulate_loop(val
 produces a record whose plant has the effect while the baseline model does not. A sinusoidal
 external load needs no part: pass ``load=diagnose.simulate.sinusoid(...)`` to `simulate_loop`.
 
-`AugmentedValve` is the step-by-step reference of `diagnose.physics.valve.augmented_valve` (the
-compiled kernel the hypotheses fit); the tests check that both agree sample for sample.
+`AugmentedValve` steps the same compiled valve step as `diagnose.physics.valve.augmented_valve` (the
+kernel the hypotheses fit) one sample at a time; the tests check that both agree sample for sample.
 """
 
 from __future__ import annotations
 
 import math
 
+from .. import kernels
 from ..errors import DataError
-
-
-def _clip(v: float) -> float:
-    return 0.0 if v < 0.0 else (100.0 if v > 100.0 else v)
-
-
-def _sign(v: float) -> float:
-    return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+from ..process_model import ProcessModel
 
 
 class AugmentedValve:
@@ -66,15 +60,11 @@ class AugmentedValve:
         self.reset(0.0)
 
     def reset(self, x0_pct: float) -> float:
-        x0 = _clip(float(x0_pct))
         self.k = 0
-        self.x_prev = x0
-        self.v_prev = 0.0
-        self.y = x0
-        self.z = x0
-        self.x_ss = x0
-        self.stuck = True
-        self.f = float(self.f0)
+        self._valve = kernels.ValveState()
+        self._valve.params[:] = self._sj()
+        self.y = self._valve.start(x0_pct, self.f0)
+        self.z = self.y
         return self.z
 
     def _sj(self) -> tuple[float, float, float, float]:
@@ -84,29 +74,11 @@ class AugmentedValve:
 
     def step(self, x_pct: float) -> float:
         self.k += 1
-        su, ju, sd, jd = self._sj()
-        x = _clip(float(x_pct))
-        v = x - self.x_prev
-        if (not self.stuck) and (v == 0.0 or _sign(v) != _sign(self.v_prev)):
-            self.stuck = True
-            self.x_ss = self.x_prev
-        moving = not self.stuck
-        if self.stuck:
-            s_new = sd if self.f > 0 else su
-            j_same = ju if self.f > 0 else jd
-            if -self.f * (x - self.x_ss) > s_new:
-                self.f = -self.f
-                self.stuck = False
-                moving = True
-            elif self.f * (x - self.x_ss) > j_same:
-                self.stuck = False
-                moving = True
-        if moving:
-            half = ((su - ju) if self.f > 0 else (sd - jd)) / 2.0
-            self.y = _clip(x - self.f * half)
+        if self.dS or self.dJ:
+            self._valve.params[:] = self._sj()
+        self.y = self._valve.step(x_pct)
+        # the actuator lag after the friction element
         self.z = self.a * self.z + (1.0 - self.a) * self.y
-        self.x_prev = x
-        self.v_prev = v
         return self.z
 
 
@@ -145,8 +117,9 @@ class CharacteristicProcess:
 
     Parameters
     ----------
-    process : Process
-        Any `diagnose.simulate` process (FOPTD, SOPTD, Integrating).
+    process : ProcessModel or Process
+        The process behind the valve (a `diagnose.process_model.ProcessModel`, or any object with
+        the simulator's ``reset``/``step``).
     R : float
         Rangeability (R > 1); the loop gain at the stem grows as ``ln R * flow``.
     """
@@ -154,7 +127,7 @@ class CharacteristicProcess:
     def __init__(self, process, R: float) -> None:
         if not R > 1:
             raise DataError(f"rangeability R must be > 1, got {R}")
-        self.process = process
+        self.process = process.stepper() if isinstance(process, ProcessModel) else process
         self.R = float(R)
 
     def reset(self, u0_pct: float, ts_s: float) -> float:

@@ -1,6 +1,7 @@
 """The augmented valve: the two-parameter stiction model with the physics it leaves out.
 
-One compiled kernel runs many candidate valves over one input series. Each candidate has
+The compiled valve (`diagnose.kernels.valve_run`, the one valve step of diagnose/csrc) runs many
+candidate valves over one input series. Each candidate has
 
 * separate stiction for the two directions of motion: ``S_up, J_up`` (opening, f = +1) and
   ``S_dn, J_dn`` (closing, f = -1), % of span;
@@ -21,80 +22,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .. import kernels
 from ..errors import DataError
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _aug_start(x0, su, ju, sd, jd, f, y0, xs0):  # pragma: no cover - compiled
-    """Valve state at the first sample: (input, stem, stick point). NaN ``y0``: stuck at the first
-    input; else stuck at ``y0`` after a motion in direction f, i.e. where the input was
-    ``y0 + f (S_f - J_f) / 2`` (or at ``xs0`` when given)."""
-    xp = min(max(x0, 0.0), 100.0)
-    yp = xp
-    xss = xp
-    if not math.isnan(y0):
-        yp = min(max(y0, 0.0), 100.0)
-        h0 = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-        xss = yp + f * h0
-        if not math.isnan(xs0):
-            xss = xs0
-    return xp, yp, xss
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _aug_step(xk, xp, up, stuck, xss, f, yp, su, sd, ju, jd):  # pragma: no cover - compiled
-    """One sample of the augmented valve (before the actuator lag): the new state
-    (input, direction of the increment, stuck, stick point, direction of motion, stem)."""
-    xk = min(max(xk, 0.0), 100.0)
-    v = xk - xp
-    up_k = v > 0.0
-    if not stuck and (v == 0.0 or up_k != up):
-        stuck = True
-        xss = xp
-    if stuck:
-        d = xk - xss
-        # reversal into direction -f must beat S of that direction
-        s_new = sd if f > 0 else su
-        j_same = ju if f > 0 else jd
-        if -f * d > s_new:
-            f = -f
-            stuck = False
-        elif f * d > j_same:
-            stuck = False
-        if not stuck:
-            half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-            yp = min(max(xk - f * half, 0.0), 100.0)
-    else:
-        half = ((su - ju) if f > 0 else (sd - jd)) / 2.0
-        yp = min(max(xk - f * half, 0.0), 100.0)
-    return xk, up_k, stuck, xss, f, yp
-
-
-@njit(cache=True, nogil=True, boundscheck=False)
-def _aug_kernel(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s, out):  # pragma: no cover
-    m = S_up.shape[0]
-    n = x.shape[0]
-    for i in range(m):
-        f = f0[i]
-        a = a_lag[i]
-        xp, yp, xss = _aug_start(x[0], max(S_up[i], 0.0), max(J_up[i], 0.0), max(S_dn[i], 0.0),
-                                 max(J_dn[i], 0.0), f, y0[i], xs0[i])
-        up = False
-        stuck = True
-        z = yp
-        out[i, 0] = z
-        for k in range(1, n):
-            t = k * ts_s
-            su = max(S_up[i] + dS[i] * t, 0.0)
-            sd = max(S_dn[i] + dS[i] * t, 0.0)
-            ju = max(J_up[i] + dJ[i] * t, 0.0)
-            jd = max(J_dn[i] + dJ[i] * t, 0.0)
-            xp, up, stuck, xss, f, yp = _aug_step(x[k], xp, up, stuck, xss, f, yp, su, sd, ju, jd)
-            z = a * z + (1.0 - a) * yp
-            out[i, k] = z
-    return out
 
 
 def _param(v, m: int) -> np.ndarray:
@@ -154,9 +84,8 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
         raise DataError("tau_lag_s must be finite and >= 0 seconds")
     a = np.where(tau_ > 0, np.exp(-ts_s / np.where(tau_ > 0, tau_, 1.0)), 0.0)
     out = np.empty((m, x.shape[0]))
-    if x.shape[0]:
-        _aug_kernel(x, S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, np.ascontiguousarray(a), y0_,
-                    xs0_, float(ts_s), out)
+    kernels.valve_run(x, S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, np.ascontiguousarray(a), y0_, xs0_,
+                      float(ts_s), out)
     return out[0] if scalar else out
 
 

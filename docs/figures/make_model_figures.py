@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from diagnose.stiction_model import stiction_reference
+from diagnose.stiction_model import simulate_valve
 
 CASES = [("none", 0.0, 0.0), ("deadband", 4.0, 0.0), ("undershoot", 4.0, 1.5),
          ("no_offset", 4.0, 4.0), ("overshoot", 2.0, 4.0)]
@@ -22,7 +22,7 @@ def main() -> None:
     x = 50 + 10 * np.sin(2 * np.pi * t / 1000)
     fig, axes = plt.subplots(1, len(CASES), figsize=(15, 3.2), sharex=True, sharey=True)
     for ax, (name, S, J) in zip(axes, CASES):
-        y = stiction_reference(x, S, J, 1)
+        y = simulate_valve(x, S, J, 1)
         k = slice(1000, None)
         ax.plot(x[k], x[k], color="0.8", lw=1, label="ideal valve")
         ax.plot(x[k], y[k], color="C3", lw=1.5, label="sticky valve")

@@ -1,0 +1,473 @@
+/*
+ * Compiled kernels of the stiction diagnostics (diagnose/kernels.py loads them with ctypes).
+ *
+ * Built by pip when the package is installed (setup.py: portable flags, no -march=native, no
+ * fused multiply-add, no fast-math). The vectorised kernels are compiled three times from
+ * kernels_lanes.h, for the x86-64 baseline (SSE2, 2 lanes), AVX2 (4 lanes) and AVX-512 (8 lanes),
+ * and the widest one the CPU supports is chosen when the library loads; lanes perform the same IEEE
+ * operations at every width, so every CPU returns the same numbers. Elsewhere (ARM) only the
+ * baseline is built.
+ *
+ * The valve step (valve_step.h) is the only implementation of the stiction model: every kernel
+ * here, the simulator's valves and the Python classes (via valve_step1) run it.
+ *
+ * Arrays are C-contiguous float64 (int64 for delays, one byte per bool); the Python side checks
+ * shapes before calling. min/max follow Python's builtins: max(a, b) = b > a ? b : a.
+ */
+#if !defined(__GNUC__)
+#error "the stiction kernels need GCC or clang (vector extensions)"
+#endif
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define KERNELS_ABI 3
+
+static inline double nmax(double a, double b) { return b > a ? b : a; }
+static inline double nmin(double a, double b) { return b < a ? b : a; }
+static inline double clip100(double v) { return nmin(nmax(v, 0.0), 100.0); }
+
+/* Closed-form SSE and gain of one (candidate, structure) from its normal-equation sums. */
+static inline void finish_one(double szz, double szy, const double *szq, const double *Qty, int64_t K,
+                              double yyp, double gfix, double *sse, double *gain)
+{
+    double zzp = szz;
+    double zyp = szy;
+    for (int64_t j = 0; j < K; j++) {
+        zzp -= szq[j] * szq[j];
+        zyp -= szq[j] * Qty[j];
+    }
+    if (gfix == gfix) {
+        *sse = yyp - 2.0 * gfix * zyp + gfix * gfix * nmax(zzp, 0.0);
+        *gain = gfix;
+    } else if (zzp > 1e-10 * (szz + 1e-300) && zzp > 1e-300) {
+        *sse = yyp - zyp * zyp / zzp;
+        *gain = zyp / zzp;
+    } else {
+        *sse = yyp;
+        *gain = 0.0;
+    }
+}
+
+/* ---- the augmented model of `stiction explain`: after the valve ------------------------------ */
+
+/* Solve A c = b (p x p, row-major, A and b overwritten) by Gaussian elimination with partial
+ * pivoting; returns 0, or -1 for a singular matrix. */
+static int solve_small(double *A, double *b, int p, double *c)
+{
+    for (int col = 0; col < p; col++) {
+        int piv = col;
+        for (int r = col + 1; r < p; r++)
+            if (fabs(A[r * p + col]) > fabs(A[piv * p + col]))
+                piv = r;
+        if (A[piv * p + col] == 0.0)
+            return -1;
+        if (piv != col) {
+            for (int cc = 0; cc < p; cc++) {
+                double t = A[col * p + cc];
+                A[col * p + cc] = A[piv * p + cc];
+                A[piv * p + cc] = t;
+            }
+            double t = b[col];
+            b[col] = b[piv];
+            b[piv] = t;
+        }
+        for (int r = col + 1; r < p; r++) {
+            double fct = A[r * p + col] / A[col * p + col];
+            for (int cc = col; cc < p; cc++)
+                A[r * p + cc] -= fct * A[col * p + cc];
+            b[r] -= fct * b[col];
+        }
+    }
+    for (int r = p - 1; r >= 0; r--) {
+        double s = b[r];
+        for (int cc = r + 1; cc < p; cc++)
+            s -= A[r * p + cc] * c[cc];
+        c[r] = s / A[r * p + r];
+    }
+    return 0;
+}
+
+#define FUSED_MAXP 16
+
+/*
+ * The training SSE of one augmented model from its (lagged) stem zv[0..n): the installed
+ * characteristic c (100 (e^(c u/100) - 1) / (e^c - 1), c = 0 linear), the dead time d (samples,
+ * a ring buffer of d + 1 slots in `ring`), the lags a1, a2 (< 0: first order), an optional
+ * integrator, and the weighted least squares of y on [z, 1, E] (E: n x q extra columns; a ridge of
+ * 1e-9 of each diagonal term keeps a singular design solvable). sgn (+1, -1; 0 free) is the sign
+ * the coefficient of z must have: a fit with the other sign is refit with that coefficient 0.
+ */
+static double fused_rest(const double *zv, int64_t n, double c_i, double a1i, double a2i, int64_t di, int ig,
+                         double ts_s, const double *E, int64_t q, const double *y, const double *w, double sgn,
+                         double *ring)
+{
+    int p = 2 + (int)q;
+    double A[FUSED_MAXP * FUSED_MAXP], b[FUSED_MAXP], col[FUSED_MAXP], coef[FUSED_MAXP];
+    double Aw[FUSED_MAXP * FUSED_MAXP], bw[FUSED_MAXP], sub[FUSED_MAXP];
+    for (int r = 0; r < p; r++) {
+        b[r] = 0.0;
+        for (int c2 = 0; c2 < p; c2++)
+            A[r * p + c2] = 0.0;
+    }
+    double yy = 0.0;
+    int lin = fabs(c_i) < 1e-9;
+    double den = lin ? 1.0 : expm1(c_i);
+    int64_t L = di + 1;
+    int second = a2i >= 0.0;
+    double u0 = lin ? zv[0] : 100.0 * expm1(c_i * zv[0] / 100.0) / den;
+    for (int64_t j = 0; j < L; j++)
+        ring[j] = u0;
+    double z1 = u0, z2 = u0, acc = 0.0;
+    int64_t wpos = 0;           /* ring slot of sample k */
+    for (int64_t k = 0; k < n; k++) {
+        double uk = k == 0 ? u0 : (lin ? zv[k] : 100.0 * expm1(c_i * zv[k] / 100.0) / den);
+        double ud;
+        /* dead time: ring buffer of the last d + 1 inputs (slot wpos holds sample k, the next slot
+         * sample k - d) */
+        if (di == 0) {
+            ud = uk;
+        } else {
+            ring[wpos] = uk;
+            wpos++;
+            if (wpos == L)
+                wpos = 0;
+            ud = k >= di ? ring[wpos] : u0;
+        }
+        z1 = a1i * z1 + (1.0 - a1i) * ud;
+        if (second)
+            z2 = a2i * z2 + (1.0 - a2i) * z1;
+        else
+            z2 = z1;
+        double zk;
+        if (ig) {
+            acc += ts_s * z2;
+            zk = acc;
+        } else {
+            zk = z2;
+        }
+        double wk = w[k];
+        if (wk == 0.0)
+            continue;
+        double yk = y[k];
+        if (q == 0) {
+            A[0] += wk * zk * zk;
+            A[1] += wk * zk;
+            A[3] += wk;
+            b[0] += wk * zk * yk;
+            b[1] += wk * yk;
+            yy += wk * yk * yk;
+            continue;
+        }
+        col[0] = zk;
+        col[1] = 1.0;
+        for (int64_t j = 0; j < q; j++)
+            col[2 + j] = E[k * q + j];
+        for (int r = 0; r < p; r++) {
+            b[r] += wk * col[r] * yk;
+            for (int c2 = 0; c2 < p; c2++)
+                A[r * p + c2] += wk * col[r] * col[c2];
+        }
+        yy += wk * yk * yk;
+    }
+    if (q == 0)
+        A[2] = A[1];
+    for (int r = 0; r < p; r++)
+        A[r * p + r] += 1e-9 * (A[r * p + r] + 1e-12);
+    memcpy(Aw, A, sizeof(double) * (size_t)(p * p));
+    memcpy(bw, b, sizeof(double) * (size_t)p);
+    if (solve_small(Aw, bw, p, coef) != 0)
+        return yy;
+    if (sgn != 0.0 && coef[0] * sgn < 0.0) {
+        int ps = p - 1;
+        for (int r = 0; r < ps; r++) {
+            bw[r] = b[r + 1];
+            for (int c2 = 0; c2 < ps; c2++)
+                Aw[r * ps + c2] = A[(r + 1) * p + c2 + 1];
+        }
+        if (solve_small(Aw, bw, ps, sub) != 0)
+            return yy;
+        coef[0] = 0.0;
+        for (int r = 1; r < p; r++)
+            coef[r] = sub[r - 1];
+    }
+    double cb = 0.0, cac = 0.0;
+    for (int r = 0; r < p; r++) {
+        cb += coef[r] * b[r];
+        double s = 0.0;
+        for (int c2 = 0; c2 < p; c2++)
+            s += A[r * p + c2] * coef[c2];
+        cac += coef[r] * s;
+    }
+    return nmax(yy - 2.0 * cb + cac, 0.0);
+}
+
+/* ---- the vectorised kernels, once per instruction set ---------------------------------------- */
+
+#define LANES 2
+#define SFX base
+#define KATTR
+#include "kernels_lanes.h"
+#undef LANES
+#undef SFX
+#undef KATTR
+
+#if defined(__x86_64__)
+#define HAVE_X86_VARIANTS 1
+#define LANES 4
+#define SFX avx2
+#define KATTR __attribute__((target("avx2")))
+#include "kernels_lanes.h"
+#undef LANES
+#undef SFX
+#undef KATTR
+
+#define LANES 8
+#define SFX avx512
+#define KATTR __attribute__((target("avx512f")))
+#include "kernels_lanes.h"
+#undef LANES
+#undef SFX
+#undef KATTR
+#endif
+
+/* ---- the scalar valve: one lane ---------------------------------------------------------------- */
+
+typedef double vec1 __attribute__((vector_size(8)));
+typedef long long mask1 __attribute__((vector_size(8)));
+#define VSTEP valve_step_1
+#define VT vec1
+#define MT mask1
+#define VATTR
+#include "valve_step.h"
+#undef VSTEP
+#undef VT
+#undef MT
+#undef VATTR
+
+/*
+ * One sample of one valve, for stepping from Python (the simulator). state = [x_prev, up (0/1),
+ * stuck (0/1), x_ss, f, y]; params = [S_up, J_up, S_dn, J_dn] (already drifted, >= 0).
+ * Returns the new stem position.
+ */
+double valve_step1(double *state, const double *params, double x)
+{
+    double xk = clip100(x);
+    double xp = state[0];
+    double v = xk - xp;
+    int up_k = v > 0.0;
+    int up = state[1] != 0.0;
+    mask1 stuck = {state[2] != 0.0 ? -1 : 0};
+    vec1 xss = {state[3]}, f = {state[4]}, yp = {state[5]};
+    vec1 su = {params[0]}, ju = {params[1]}, sd = {params[2]}, jd = {params[3]};
+    valve_step_1(xk, xp, v == 0.0 || up_k != up, &stuck, &xss, &f, &yp, su, ju, sd, jd);
+    state[0] = xk;
+    state[1] = up_k;
+    state[2] = stuck[0] ? 1.0 : 0.0;
+    state[3] = xss[0];
+    state[4] = f[0];
+    state[5] = yp[0];
+    return yp[0];
+}
+
+/* The start state of valve_step1: at rest at the first input x0, or stuck at y0 (not NaN) after a
+ * motion in direction f0, where the input stood at xs0 (NaN: y0 + f0 (S_f0 - J_f0) / 2). */
+double valve_start1(double *state, const double *params, double x0, double f0, double y0, double xs0)
+{
+    double xp = clip100(x0), y = xp, s = xp;
+    if (!isnan(y0)) {
+        y = clip100(y0);
+        double h0 = (f0 > 0 ? (params[0] - params[1]) : (params[2] - params[3])) / 2.0;
+        s = isnan(xs0) ? y + f0 * h0 : xs0;
+    }
+    state[0] = xp;
+    state[1] = 0.0;
+    state[2] = 1.0;
+    state[3] = s;
+    state[4] = f0;
+    state[5] = y;
+    return y;
+}
+
+/* ---- process filters --------------------------------------------------------------------------- */
+
+/* Unit-gain lags (+ integrator) of u -> z, starting at steady state at u[0]; a2 < 0: first order;
+ * d: dead time in samples (u before the record = u[0]). */
+void lag_filter(const double *u, int64_t n, double a1, double a2, int64_t d, int integ, double ts_s,
+                double *z)
+{
+    if (n <= 0)
+        return;
+    double u0 = u[0];
+    double z1 = u0;
+    double z2 = u0;
+    double acc = 0.0;
+    for (int64_t k = 0; k < n; k++) {
+        int64_t kd = k - d;
+        double ud = kd >= 0 ? u[kd] : u0;
+        z1 = a1 * z1 + (1.0 - a1) * ud;
+        if (a2 >= 0.0)
+            z2 = a2 * z2 + (1.0 - a2) * z1;
+        else
+            z2 = z1;
+        if (integ) {
+            acc += ts_s * z2;
+            z[k] = acc;
+        } else {
+            z[k] = z2;
+        }
+    }
+}
+
+/* The noise prefilter (1 - q^-1) / (1 - a q^-1) down each column of v (n x m, leading dim ldv),
+ * starting at rest at the first sample. */
+void hp_filter_2d(const double *v, int64_t n, int64_t m, int64_t ldv, double a, double *out)
+{
+    if (n <= 0)
+        return;
+    for (int64_t j = 0; j < m; j++) {
+        double acc = 0.0;
+        double prev = v[j];
+        for (int64_t k = 0; k < n; k++) {
+            double vk = v[k * ldv + j];
+            acc = a * acc + vk - prev;
+            prev = vk;
+            out[k * m + j] = acc;
+        }
+    }
+}
+
+/* ---- dispatch ------------------------------------------------------------------------------------ */
+
+typedef void (*valve_run_fn)(const double *, int64_t, int64_t, const double *, const double *,
+                             const double *, const double *, const double *, const double *,
+                             const double *, const double *, const double *, const double *, double,
+                             double *, int64_t);
+typedef int (*score_fn)(const double *, int64_t, const double *, int64_t, const double *, int64_t, double, double,
+                        const double *, const double *, const double *, int64_t, const double *, double,
+                        double *, double);
+
+static const valve_run_fn VALVE_RUN[] = {
+    valve_run_base,
+#ifdef HAVE_X86_VARIANTS
+    valve_run_avx2, valve_run_avx512,
+#endif
+};
+static const score_fn SCORE[] = {
+    score_base,
+#ifdef HAVE_X86_VARIANTS
+    score_avx2, score_avx512,
+#endif
+};
+typedef int (*fused_fn)(const double *, int64_t, int64_t, const double *, const double *, const double *,
+                        const double *, const double *, const double *, const double *, const double *,
+                        const double *, const double *, const double *, const double *, const double *,
+                        const int64_t *, const uint8_t *, double, const double *, int64_t, const double *,
+                        const double *, double, double *);
+static const fused_fn FUSED[] = {
+    fused_base,
+#ifdef HAVE_X86_VARIANTS
+    fused_avx2, fused_avx512,
+#endif
+};
+static const char *const ISA_NAMES[] = {"baseline (2 lanes)", "avx2 (4 lanes)", "avx512 (8 lanes)"};
+
+static int max_isa = -1;
+static int cur_isa = 0;
+
+static int detect_isa(void)
+{
+#ifdef HAVE_X86_VARIANTS
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx512f"))
+        return 2;
+    if (__builtin_cpu_supports("avx2"))
+        return 1;
+#endif
+    return 0;
+}
+
+static void ensure_isa(void)
+{
+    if (max_isa < 0) {
+        max_isa = detect_isa();
+        cur_isa = max_isa;
+    }
+}
+
+/* The variant for a call with `jobs` independent jobs: a narrower one when the jobs would leave
+ * most lanes of the widest idle (all variants give the same numbers). */
+static inline int isa_for(int64_t jobs)
+{
+    int lvl = cur_isa;
+    if (lvl > 0 && jobs <= 2)
+        lvl = 0;
+    else if (lvl > 1 && jobs <= 4)
+        lvl = 1;
+    return lvl;
+}
+
+int kernels_abi(void) { return KERNELS_ABI; }
+
+/* The instruction-set variant in use (0 baseline, 1 AVX2, 2 AVX-512) and the widest supported. */
+int kernels_isa(void) { ensure_isa(); return cur_isa; }
+int kernels_max_isa(void) { ensure_isa(); return max_isa; }
+const char *kernels_isa_name(int level) { return ISA_NAMES[level < 0 ? 0 : (level > 2 ? 2 : level)]; }
+
+/* Use a narrower variant (for tests that compare variants); returns the level in use. */
+int kernels_set_isa(int level)
+{
+    ensure_isa();
+    cur_isa = level < 0 ? 0 : (level > max_isa ? max_isa : level);
+    return cur_isa;
+}
+
+void valve_run(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+               const double *f0, const double *a_lag, const double *y0, const double *xs0, double ts,
+               double *out, int64_t ld)
+{
+    ensure_isa();
+    VALVE_RUN[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts, out, ld);
+}
+
+int score(const double *x, int64_t n, const double *valves, int64_t m, const double *structs, int64_t P,
+          double ts, double ahp, const double *w, const double *yw, const double *Qw, int64_t K,
+          const double *Qty, double yyp, double *out, double gfix)
+{
+    ensure_isa();
+    return SCORE[isa_for(m * P)](x, n, valves, m, structs, P, ts, ahp, w, yw, Qw, K, Qty, yyp, out, gfix);
+}
+
+/*
+ * Training SSE of m candidate augmented models (`stiction explain`): the valve (valve_step.h, per
+ * direction S and J drifting linearly in time, actuator lag a_lag, start y0 / xs0), run LANES
+ * candidates at a time, then per candidate `fused_rest`. Returns 0, or -1 when memory runs out or
+ * q is too large.
+ */
+int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+              const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+              const double *f0, const double *a_lag, const double *y0, const double *xs0,
+              const double *cc, const double *a1, const double *a2, const int64_t *d,
+              const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
+              const double *w, double sgn, double *out)
+{
+    ensure_isa();
+    return FUSED[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+                             ts_s, E, q, y, w, sgn, out);
+}
+
+/* ---- a Python module, so that pip builds and installs this file as an extension ---------------- */
+
+static struct PyModuleDef kernels_module = {
+    PyModuleDef_HEAD_INIT,
+    .m_name = "_kernels",
+    .m_doc = "Compiled kernels of the stiction diagnostics; loaded with ctypes by diagnose.kernels.",
+    .m_size = -1,
+};
+
+PyMODINIT_FUNC PyInit__kernels(void) { return PyModule_Create(&kernels_module); }

@@ -1,0 +1,311 @@
+/*
+ * The vectorised kernels for one instruction set: included by kernels.c once per variant with
+ * LANES (doubles per vector), SFX (name suffix) and KATTR (target attribute) defined.
+ *
+ * Lanes run independent jobs (candidate valves, or candidate x process-structure pairs) over the
+ * same input, each lane doing exactly the operations the scalar model prescribes, so a job's result
+ * is the same whatever the width and whichever other jobs share its vector.
+ */
+#define V_(a, b) a##b
+#define V(a, b) V_(a, b)
+#define VT V(vec, SFX)
+#define MT V(mask, SFX)
+
+typedef double VT __attribute__((vector_size(8 * LANES)));
+typedef long long MT __attribute__((vector_size(8 * LANES)));
+
+#define VSTEP V(valve_step_, SFX)
+#define VATTR KATTR
+#include "valve_step.h"
+#undef VSTEP
+#undef VATTR
+
+/* clip each lane to >= 0 (S and J are never negative, also while drifting) */
+static inline __attribute__((always_inline)) KATTR VT V(nonneg_, SFX)(VT v)
+{
+    VT z = (VT){0.0};
+    return (VT)(((MT)z & (z > v)) | ((MT)v & ~(z > v)));
+}
+
+/*
+ * Up to LANES candidate valves over x[0..n): candidate g has stiction (su, ju) opening and (sd, jd)
+ * closing, drift (ds, dj) per second, starting direction f, actuator lag pole a (0: none) and start
+ * state y0 / xs0 (NaN: at rest at the first input), and writes its (lagged) stem to rows[g][0..n).
+ */
+static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double *su_, const double *ju_,
+                                        const double *sd_, const double *jd_, const double *ds_,
+                                        const double *dj_, const double *f_, const double *a_,
+                                        const double *y0_, const double *xs0_, double ts, double **rows)
+{
+    VT su0, ju0, sd0, jd0, ds, dj, f, a, yp, xss, z;
+    int drift = 0, lag = 0;
+    for (int g = 0; g < LANES; g++) {
+        su0[g] = su_[g]; ju0[g] = ju_[g]; sd0[g] = sd_[g]; jd0[g] = jd_[g];
+        ds[g] = ds_[g]; dj[g] = dj_[g]; f[g] = f_[g]; a[g] = a_[g];
+        if (ds_[g] != 0.0 || dj_[g] != 0.0)
+            drift = 1;
+        if (a_[g] != 0.0)
+            lag = 1;
+    }
+    VT su = V(nonneg_, SFX)(su0), ju = V(nonneg_, SFX)(ju0);
+    VT sd = V(nonneg_, SFX)(sd0), jd = V(nonneg_, SFX)(jd0);
+    double xp = clip100(x[0]);
+    for (int g = 0; g < LANES; g++) {
+        double y = xp, s = xp;
+        if (!isnan(y0_[g])) {
+            /* stuck at y0 after a motion in direction f: the input stood at y0 + f (S_f - J_f) / 2 */
+            y = clip100(y0_[g]);
+            double h0 = (f[g] > 0 ? (su[g] - ju[g]) : (sd[g] - jd[g])) / 2.0;
+            s = y + f[g] * h0;
+            if (!isnan(xs0_[g]))
+                s = xs0_[g];
+        }
+        yp[g] = y;
+        xss[g] = s;
+    }
+    z = yp;
+    for (int g = 0; g < LANES; g++)
+        rows[g][0] = z[g];
+    MT stuck = (MT){0} - 1;
+    int up = 0;
+    for (int64_t k = 1; k < n; k++) {
+        if (drift) {
+            double t = (double)k * ts;
+            su = V(nonneg_, SFX)(su0 + ds * t);
+            sd = V(nonneg_, SFX)(sd0 + ds * t);
+            ju = V(nonneg_, SFX)(ju0 + dj * t);
+            jd = V(nonneg_, SFX)(jd0 + dj * t);
+        }
+        double xk = clip100(x[k]);
+        double v = xk - xp;
+        int up_k = v > 0.0;
+
+        V(valve_step_, SFX)(xk, xp, v == 0.0 || up_k != up, &stuck, &xss, &f, &yp, su, ju, sd, jd);
+        z = lag ? a * z + (1.0 - a) * yp : yp;
+        for (int g = 0; g < LANES; g++)
+            rows[g][k] = z[g];
+        xp = xk;
+        up = up_k;
+    }
+}
+
+/* m candidate valves (arrays of m) -> out (m rows, leading dimension ld); see valve_lanes. */
+KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+                              const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+                              const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                              double ts, double *out, int64_t ld)
+{
+    if (n <= 0)
+        return;
+    for (int64_t i0 = 0; i0 < m; i0 += LANES) {
+        double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
+        double y[LANES], s[LANES];
+        double *rows[LANES];
+        for (int g = 0; g < LANES; g++) {
+            int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last valve */
+            su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
+            ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; y[g] = y0[i]; s[g] = xs0[i];
+            rows[g] = out + i * ld;
+        }
+        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, y, s, ts, rows);
+    }
+}
+
+/*
+ * Output-error scoring of every (valve candidate i, process structure p).
+ *
+ * valves is 5 x m: rows S, J, F (starting direction) and the start state y0, xs0 of valve_lanes
+ * (NaN: at rest at x[0]); structs is 4 x P: rows a1, a2 (lag poles, a2 < 0: first order), the dead
+ * time in samples and the integrator flag; out is 2 x m x P: the SSE, then the gain (row-major).
+ * The valve of candidate i drives the unit-gain structure p, taken relative to the valve's first
+ * position; the noise prefilter (ahp >= 0) follows; the weighted normal-equation sums against the
+ * data yw and the orthonormal load basis Qw (n x K) give the SSE after the load and the gain are
+ * solved (closed form in finish_one; gfix: a fixed gain, NaN: free).
+ * The m * P jobs run LANES at a time in (i, p) order. Returns 0, or -1 when memory runs out.
+ */
+KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64_t m, const double *structs,
+                         int64_t P, double ts, double ahp, const double *w, const double *yw, const double *Qw,
+                         int64_t K, const double *Qty, double yyp, double *out, double gfix)
+{
+    const double *S = valves, *J = valves + m, *F = valves + 2 * m, *Y0 = valves + 3 * m, *XS0 = valves + 4 * m;
+    const double *a1 = structs, *a2 = structs + P, *dd = structs + 2 * P, *integ = structs + 3 * P;
+    double *sse = out, *gain = out + m * P;
+    if (m <= 0 || P <= 0)
+        return 0;
+    /* each lane's valve output relative to its first sample, after dmax zeros (the input before
+     * the record, seen through the longest dead time): the process loop reads it without a branch */
+    int64_t dmax = 0;
+    for (int64_t p = 0; p < P; p++)
+        if ((int64_t)dd[p] > dmax)
+            dmax = (int64_t)dd[p];
+    int64_t nb = (n > 0 ? n : 1) + dmax;
+    double *ubuf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
+    double *szq = (double *)malloc(sizeof(double) * (size_t)(K > 0 ? K : 1));
+    VT sq[K > 0 ? K : 1];
+    if (ubuf == NULL || szq == NULL) {
+        free(ubuf);
+        free(szq);
+        return -1;
+    }
+    int64_t owner[LANES];       /* candidate whose valve output buffer b holds */
+    for (int b = 0; b < LANES; b++) {
+        owner[b] = -1;
+        for (int64_t k = 0; k < nb; k++)
+            ubuf[b * nb + k] = 0.0;
+    }
+    int hp = ahp >= 0.0;
+    int64_t njobs = m * P;
+    for (int64_t t0 = 0; t0 < njobs; t0 += LANES) {
+        int64_t ci[LANES], pi[LANES];
+        const double *ug_ptr[LANES];
+        for (int g = 0; g < LANES; g++) {
+            int64_t t = t0 + g < njobs ? t0 + g : njobs - 1;     /* pad the last group */
+            ci[g] = t / P;
+            pi[g] = t % P;
+        }
+        /* valve outputs: keep buffers of candidates still needed, fill the others */
+        int used[LANES] = {0};
+        int buf_of[LANES];
+        for (int g = 0; g < LANES; g++) {
+            buf_of[g] = -1;
+            for (int b = 0; b < LANES; b++)
+                if (owner[b] == ci[g]) {
+                    buf_of[g] = b;
+                    used[b] = 1;
+                }
+        }
+        int nneed = 0;
+        int64_t need_i[LANES];
+        double *need_u[LANES];
+        for (int g = 0; g < LANES; g++) {
+            if (buf_of[g] >= 0)
+                continue;
+            int b = 0;
+            while (used[b])
+                b++;
+            int64_t i = ci[g];
+            owner[b] = i;
+            used[b] = 1;
+            need_i[nneed] = i;
+            need_u[nneed] = ubuf + b * nb + dmax;
+            nneed++;
+            for (int h = g; h < LANES; h++)
+                if (ci[h] == i)
+                    buf_of[h] = b;
+        }
+        if (nneed > 0 && n > 0) {
+            /* the new candidates' valves in one pass (spare lanes repeat the first) */
+            double s4[LANES], j4[LANES], f4[LANES], zr[LANES], y4[LANES], x4[LANES];
+            double *o4[LANES];
+            for (int g = 0; g < LANES; g++) {
+                int h = g < nneed ? g : 0;
+                s4[g] = S[need_i[h]];
+                j4[g] = J[need_i[h]];
+                f4[g] = F[need_i[h]];
+                y4[g] = Y0[need_i[h]];
+                x4[g] = XS0[need_i[h]];
+                zr[g] = 0.0;
+                o4[g] = need_u[h];
+            }
+            V(valve_lanes_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, y4, x4, ts, o4);
+            for (int h = 0; h < nneed; h++) {
+                double *row = need_u[h];
+                double first = row[0];
+                for (int64_t k = 0; k < n; k++)
+                    row[k] -= first;
+            }
+        }
+        VT A1, B1, A2, B2, I, N;
+        for (int g = 0; g < LANES; g++) {
+            int64_t p = pi[g];
+            ug_ptr[g] = ubuf + buf_of[g] * nb + dmax - (int64_t)dd[p];
+            A1[g] = a1[p];
+            B1[g] = 1.0 - A1[g];
+            A2[g] = nmax(a2[p], 0.0);
+            B2[g] = 1.0 - A2[g];
+            I[g] = integ[p] != 0.0 ? ts : 0.0;
+            N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
+        }
+        VT z1 = {0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
+        VT ahpv = z1 + ahp;
+        for (int64_t j = 0; j < K; j++)
+            sq[j] = z1;
+        for (int64_t k = 0; k < n; k++) {
+            VT ug;
+            for (int g = 0; g < LANES; g++)
+                ug[g] = ug_ptr[g][k];
+            z1 = A1 * z1 + B1 * ug;
+            z2 = A2 * z2 + B2 * z1;
+            ac += I * z2;
+            VT v = N * z2 + ac;
+            if (hp) {
+                fh = ahpv * fh + v - pr;
+                pr = v;
+                v = fh;
+            }
+            double wk = w[k];
+            if (wk != 0.0) {
+                double yk = yw[k];
+                sz += wk * v * v;
+                sy += yk * v;
+                const double *qrow = Qw + k * K;
+                for (int64_t j = 0; j < K; j++)
+                    sq[j] += qrow[j] * v;
+            }
+        }
+        for (int g = 0; g < LANES && t0 + g < njobs; g++) {
+            for (int64_t j = 0; j < K; j++)
+                szq[j] = sq[j][g];
+            int64_t at = ci[g] * P + pi[g];
+            finish_one(sz[g], sy[g], szq, Qty, K, yyp, gfix, &sse[at], &gain[at]);
+        }
+    }
+    free(ubuf);
+    free(szq);
+    return 0;
+}
+
+/* fused_sse for this instruction set: the valves of LANES candidates at a time, then fused_rest. */
+KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+                         const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+                         const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                         const double *cc, const double *a1, const double *a2, const int64_t *d,
+                         const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
+                         const double *w, double sgn, double *out)
+{
+    if (2 + q > FUSED_MAXP)
+        return -1;
+    if (m <= 0 || n <= 0)
+        return 0;
+    int64_t maxd = 0;
+    for (int64_t i = 0; i < m; i++)
+        if (d[i] > maxd)
+            maxd = d[i];
+    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * n + maxd + 1));
+    if (buf == NULL)
+        return -1;
+    double *ring = buf + LANES * n;
+    for (int64_t i0 = 0; i0 < m; i0 += LANES) {
+        double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
+        double yv[LANES], sv[LANES];
+        double *rows[LANES];
+        for (int g = 0; g < LANES; g++) {
+            int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last valve */
+            su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
+            ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
+            rows[g] = buf + g * n;
+        }
+        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+        for (int g = 0; g < LANES && i0 + g < m; g++) {
+            int64_t i = i0 + g;
+            out[i] = fused_rest(rows[g], n, cc[i], a1[i], a2[i], d[i], integ[i] != 0, ts_s, E, q, y, w, sgn, ring);
+        }
+    }
+    free(buf);
+    return 0;
+}
+
+#undef VT
+#undef MT
+#undef V
+#undef V_

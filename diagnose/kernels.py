@@ -1,0 +1,226 @@
+"""The compiled kernels (diagnose/csrc, built by pip as the extension ``diagnose._kernels``).
+
+The stiction model's valve step is written once, in C (``diagnose/csrc/valve_step.h``); every
+kernel below runs it: many candidate valves over one input (`valve_run`), the output-error scoring
+of valve x process candidates (`score`), the augmented model of `stiction explain` (`fused_sse`),
+and one sample at a time for the simulator (`ValveState`). The library carries vector variants
+for the x86-64 baseline, AVX2 and AVX-512 and uses the widest the CPU supports (`isa`); every
+variant returns the same numbers.
+
+These are thin wrappers: they check shapes and pass pointers. The public, documented entry points
+are `diagnose.stiction_model`, `diagnose.process_model`, `diagnose.objective` and
+`diagnose.physics.valve`.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+
+import numpy as np
+
+from .errors import StictionError
+
+ABI = 3
+
+
+class KernelsMissingError(StictionError, ImportError):
+    """The compiled kernels are not built (the package was not installed with pip)."""
+
+
+def _load() -> ctypes.CDLL:
+    spec = importlib.util.find_spec("diagnose._kernels")
+    if spec is None or spec.origin is None:
+        raise KernelsMissingError("the compiled kernels (diagnose._kernels) are missing: install the package "
+                                  "with `pip install -e .` (or run scripts/setup.sh), which builds them")
+    lib = ctypes.CDLL(spec.origin)
+    if lib.kernels_abi() != ABI:
+        raise KernelsMissingError(f"the compiled kernels at {spec.origin} are out of date (ABI "
+                                  f"{lib.kernels_abi()}, expected {ABI}): reinstall with `pip install -e .`")
+    return lib
+
+
+_P = ctypes.c_void_p
+_I = ctypes.c_int64
+_D = ctypes.c_double
+_C = ctypes.c_int
+_lib = _load()
+for _name, _args, _res in (
+    ("valve_run", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I], None),
+    ("score", [_P, _I, _P, _I, _P, _I, _D, _D, _P, _P, _P, _I, _P, _D, _P, _D], _C),
+    ("fused_sse", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I, _P,
+                   _P, _D, _P], _C),
+    ("valve_step1", [_P, _P, _D], _D),
+    ("valve_start1", [_P, _P, _D, _D, _D, _D], _D),
+    ("lag_filter", [_P, _I, _D, _D, _I, _C, _D, _P], None),
+    ("hp_filter_2d", [_P, _I, _I, _I, _D, _P], None),
+    ("kernels_isa", [], _C),
+    ("kernels_max_isa", [], _C),
+    ("kernels_set_isa", [_C], _C),
+    ("kernels_isa_name", [_C], ctypes.c_char_p),
+):
+    _fn = getattr(_lib, _name)
+    _fn.argtypes = _args
+    _fn.restype = _res
+
+
+def isa() -> str:
+    """The instruction-set variant the vector kernels use, e.g. ``"avx512 (8 lanes)"``."""
+    return _lib.kernels_isa_name(_lib.kernels_isa()).decode()
+
+
+def set_isa(level: int | None) -> str:
+    """Use variant ``level`` (0 baseline, 1 AVX2, 2 AVX-512; None: the widest the CPU has), capped
+    at what the CPU supports; returns the variant now in use. For tests and benchmarks."""
+    _lib.kernels_set_isa(_lib.kernels_max_isa() if level is None else int(level))
+    return isa()
+
+
+def max_isa_level() -> int:
+    return int(_lib.kernels_max_isa())
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _ptr(a: np.ndarray) -> int:
+    return a.__array_interface__["data"][0]
+
+
+def valve_run(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s: float,
+              out: np.ndarray) -> np.ndarray:
+    """m candidate valves over the input x (all parameter arrays of length m) into out (m, n).
+
+    Per candidate: stiction opening (S_up, J_up) and closing (S_dn, J_dn), % of span; linear drift
+    dS, dJ per second; starting direction f0; actuator lag pole a_lag (0: none); start state y0 /
+    xs0 (NaN: at rest at x[0]). out must be C-contiguous float64 of shape (m, n).
+    """
+    x = _f64(x)
+    arrs = [_f64(a) for a in (S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0)]
+    m, n = arrs[0].shape[0], x.shape[0]
+    if any(a.shape != (m,) for a in arrs) or out.shape != (m, n) or out.dtype != np.float64 \
+            or not out.flags.c_contiguous or not out.flags.writeable:
+        raise ValueError("valve_run: inconsistent shapes")
+    if m and n:
+        _lib.valve_run(_ptr(x), n, m, *(_ptr(a) for a in arrs), float(ts_s), _ptr(out), n)
+    return out
+
+
+class ScoreData:
+    """The record side of `score`, prepared once: the valve input x, the weights w, the weighted data
+    yw, the weighted orthonormal load basis Qw (n x K) and Qty, the residual sum of squares after the
+    basis yyp, the noise prefilter's pole ahp (< 0: none), the sample period and a fixed gain (NaN:
+    free). Holds its arrays (read-only) and their addresses, so a call passes pointers only."""
+
+    __slots__ = ("x", "w", "yw", "Qw", "Qty", "yyp", "ahp", "ts_s", "gfix", "n", "K", "_args")
+
+    def __init__(self, x, w, yw, Qw, Qty, yyp: float, ahp: float, ts_s: float, gfix: float) -> None:
+        self.x, self.w, self.yw, self.Qw, self.Qty = (_f64(a) for a in (x, w, yw, Qw, Qty))
+        self.n = self.x.shape[0]
+        self.K = self.Qw.shape[1]
+        if not (self.w.shape[0] == self.yw.shape[0] == self.Qw.shape[0] == self.n and self.Qty.shape[0] == self.K):
+            raise ValueError("ScoreData: inconsistent shapes")
+        self.yyp, self.ahp, self.ts_s, self.gfix = float(yyp), float(ahp), float(ts_s), float(gfix)
+        self._args = (_ptr(self.x), self.n, _ptr(self.w), _ptr(self.yw), _ptr(self.Qw), self.K, _ptr(self.Qty))
+
+
+def score(data: ScoreData, valves: np.ndarray, structs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Output-error SSE and gain, each (m, P), of m valve candidates x P process structures.
+
+    ``valves`` is (5, m): S, J, f0 and the start state y0, xs0 (NaN: at rest at the first input;
+    see `valve_run`); ``structs`` is (4, P): lag poles a1, a2 (< 0: first order), dead
+    time in samples, integrator (0/1); both C-contiguous float64. See ``score`` in
+    diagnose/csrc/kernels_lanes.h; `diagnose.objective.Objective` prepares the arguments.
+    """
+    m = valves.shape[1]
+    P = structs.shape[1]
+    if valves.shape[0] != 5 or structs.shape[0] != 4 or valves.dtype != np.float64 or structs.dtype != np.float64 \
+            or not valves.flags.c_contiguous or not structs.flags.c_contiguous:
+        raise ValueError("score: valves must be (5, m) and structs (4, P), C-contiguous float64")
+    out = np.empty((2, m, P))
+    if m and P:
+        x, n, w, yw, Qw, K, Qty = data._args
+        rc = _lib.score(x, n, _ptr(valves), m, _ptr(structs), P, data.ts_s, data.ahp, w, yw, Qw, K, Qty, data.yyp,
+                        _ptr(out), data.gfix)
+        if rc != 0:
+            raise MemoryError("score: out of memory")
+    return out[0], out[1]
+
+
+def fused_sse(x, params: np.ndarray, cc, a1, a2, d, integ, ts_s: float, E, y, w, sgn: float) -> np.ndarray:
+    """Training SSE of m augmented models (see ``fused_sse`` in diagnose/csrc/kernels.c).
+
+    ``params`` is (m, 10): S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0.
+    """
+    x, y, w, E = _f64(x), _f64(y), _f64(w), _f64(E)
+    cols = [np.ascontiguousarray(params[:, j], dtype=np.float64) for j in range(10)]
+    cc, a1, a2 = _f64(cc), _f64(a1), _f64(a2)
+    d = np.ascontiguousarray(d, dtype=np.int64)
+    ib = np.ascontiguousarray(integ, dtype=np.bool_).view(np.uint8)
+    m, n = cols[0].shape[0], x.shape[0]
+    q = E.shape[1]
+    if y.shape[0] != n or w.shape[0] != n or E.shape[0] != n or any(a.shape[0] != m for a in (cc, a1, a2, d, ib)):
+        raise ValueError("fused_sse: inconsistent shapes")
+    out = np.empty(m)
+    if m and n:
+        rc = _lib.fused_sse(_ptr(x), n, m, *(_ptr(c) for c in cols), _ptr(cc), _ptr(a1), _ptr(a2), _ptr(d),
+                            _ptr(ib), float(ts_s), _ptr(E), q, _ptr(y), _ptr(w), float(sgn), _ptr(out))
+        if rc != 0:
+            raise MemoryError("fused_sse: out of memory or too many extra columns")
+    return out
+
+
+def lag_filter(u, a1: float, a2: float, d: int, integ: bool, ts_s: float) -> np.ndarray:
+    """Unit-gain lags (a2 < 0: first order), dead time d samples and optional integrator of u."""
+    u = _f64(u)
+    if int(d) < 0:
+        raise ValueError("lag_filter: the dead time must be >= 0 samples")
+    z = np.empty(u.shape[0])
+    if u.shape[0]:
+        _lib.lag_filter(_ptr(u), u.shape[0], float(a1), float(a2), int(d), 1 if integ else 0, float(ts_s),
+                        _ptr(z))
+    return z
+
+
+def hp_filter(v, a: float) -> np.ndarray:
+    """``(1 - q^-1) / (1 - a q^-1)`` along axis 0 (1-D or 2-D), starting at rest at the first sample."""
+    arr = _f64(v)
+    one = arr.ndim == 1
+    if one:
+        arr = arr[:, None]
+    n, m = arr.shape
+    out = np.empty((n, m))
+    if n and m:
+        _lib.hp_filter_2d(_ptr(arr), n, m, m, float(a), _ptr(out))
+    return out[:, 0] if one else out
+
+
+class ValveState:
+    """One valve stepped one sample at a time (the simulator's valves), by the compiled step.
+
+    ``params`` (S_up, J_up, S_dn, J_dn) can be changed between steps (a drifting valve).
+    """
+
+    __slots__ = ("state", "params", "_sp", "_pp")
+
+    def __init__(self) -> None:
+        self.state = np.zeros(6)
+        self.params = np.zeros(4)
+        self._sp = ctypes.c_void_p(self.state.ctypes.data)
+        self._pp = ctypes.c_void_p(self.params.ctypes.data)
+
+    def start(self, x0_pct: float, f0: float, y0_pct: float = float("nan"),
+              xs0_pct: float = float("nan")) -> float:
+        return _lib.valve_start1(self._sp, self._pp, float(x0_pct), float(f0), float(y0_pct), float(xs0_pct))
+
+    def step(self, x_pct: float) -> float:
+        return _lib.valve_step1(self._sp, self._pp, float(x_pct))
+
+    @property
+    def stuck(self) -> bool:
+        return bool(self.state[2])
+
+    @property
+    def direction(self) -> float:
+        return float(self.state[4])

@@ -1,0 +1,716 @@
+"""Search strategies over an `diagnose.objective.Objective`: small named functions, each with a frozen
+config, each returning scored `Candidate` objects and never changing the objective.
+
+* `linear_fit`: the best process structure for a valve without stiction (S = J = 0);
+* `best_structure`, `polish_structure`: a valve's process structure from a grid, then finer lags;
+* `coarse_structures`, `global_grid`: (S, J/S) x a coarse set of lags and dead times: the distinct
+  best starts;
+* `dense_grid`: a dense (S, J/S, f0) grid at a few structures (the valley in S and J is narrow);
+* `shape_profile`: every class shape (J/S) picks its own structure, then gets the dense grid;
+* `nelder_mead`: local polish of (S, J, lags) by `scipy.optimize.minimize(method="Nelder-Mead")`;
+* `refine`: rounds of structure polish and Nelder-Mead;
+* `shape_bands`: the best candidate of each class band (deadband, undershoot, no offset, overshoot)
+  over J/S, S and every dead time near the best lags, each refined with its own structure;
+* `zoom`: a shrinking local (S, J, f0) grid (the cost is piecewise constant in S and J: a grid cannot
+  stall where a simplex can);
+* `noise_model`: the noise prefilter with the lowest prediction-error cost;
+* `start_state`: the valve's unknown state at the record's start, as a nuisance parameter;
+* `widest_window`, `search_windows`: where in a record to search;
+* `class_test`: the special shapes J = 0 and J = S against the free fit, the start state free.
+
+`diagnose.fit` composes them into the Hammerstein fit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .objective import MIN_SAMPLES, Candidate, Objective, ProcessGrid, burn_in, score_weights
+from .process_model import lag_coefficient
+from .stiction_model import stiction_classes
+
+#: J/S ratios of the global grid (deadband, undershoot, no offset, overshoot).
+DEFAULT_J_RATIOS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.3, 1.6, 2.0)
+#: Dead times (samples) of the global (S, J) grid's structures, besides the linear model's.
+GLOBAL_DELAYS = (0, 2, 5, 12)
+#: J/S ratios whose best valve picks its own process structure (one per class shape)
+PROFILE_RATIOS = (0.0, 0.5, 1.0, 1.5, 2.0)
+#: S relative to the best fit's, profiled with J/S and the dead time (`shape_bands`)
+PROFILE_S_FACTORS = (0.8, 0.9, 1.0, 1.1, 1.2)
+#: Refinements keep S and J at or below this multiple of the S grid's end (OP's 0.5-99.5 % range):
+#: a valve that sticks and slips both ways needs OP to travel more than S; a larger S can only fit by
+#: never reversing (a ratchet that follows a drift).
+S_CAP_FACTOR = 1.2
+#: Noise-model time constants (samples) tried by `noise_model`; None is pure output error.
+NOISE_CANDIDATES = (2.0, 5.0, 10.0, 20.0, 50.0, None)
+NAN = float("nan")
+#: First stuck points tried by `start_state`, as multiples of max(S, J) around OP's first sample
+START_DELTAS = (-1.0, -0.5, 0.5, 1.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# the model space
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ModelSpace:
+    """The model family searched.
+
+    kinds : process structures (``foptd``, ``soptd``, ``integrating``);
+    max_delay_s / min_delay_s : dead times (defaults: a tenth of the record, at most 60 samples / one
+    sample: logged PV cannot respond to the OP logged at the same instant, and allowing it lets the
+    fit explain PV through the controller);
+    tau_range_s : lags (default half a sample to a quarter of the record);
+    S_max_pct : largest S of the grid (default OP's robust range);
+    structure : (kind, tau_s, tau2_s, delay_s) to fix the process instead of searching it.
+    """
+
+    kinds: tuple = ("foptd", "soptd", "integrating")
+    max_delay_s: float | None = None
+    min_delay_s: float | None = None
+    tau_range_s: tuple | None = None
+    S_max_pct: float | None = None
+    structure: tuple | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Limits:
+    """A `ModelSpace` resolved on one record: dead-time range (samples), lag bound, the (S, J) grid
+    of the global search and the error surface, the cap of S and J, and the full process grid."""
+
+    ts_s: float
+    n: int
+    kinds: tuple
+    dmin: int
+    dmax: int
+    tau_range_s: tuple | None
+    tau_max_s: float
+    S_grid: np.ndarray
+    J_grid: np.ndarray
+    S_cap: float
+    structure: tuple | None
+    process: ProcessGrid
+
+    @property
+    def fixed(self) -> bool:
+        return self.structure is not None
+
+    def grid(self, keys) -> ProcessGrid:
+        return ProcessGrid.of(keys, self.ts_s, self.tau_max_s)
+
+
+def s_grid(x: np.ndarray, n_S: int, S_max_pct: float | None) -> np.ndarray:
+    """S values of a grid: denser at small S, up to OP's robust range (or ``S_max_pct``)."""
+    if S_max_pct is None:
+        lo, hi = np.percentile(x, [0.5, 99.5])
+        S_max_pct = float(min(max(hi - lo, 0.2), 100.0))
+    k = np.arange(1, n_S + 1) / n_S
+    return S_max_pct * k ** 1.4
+
+
+def process_keys(ts_s: float, n: int, kinds, dmin: int, dmax: int,
+                 tau_range_s: tuple[float, float] | None = None) -> list:
+    """The full process grid: 11 lags (geometric) x dead times (0-4 samples, then geometric to the
+    maximum) x kinds (SOPTD with tau2 = tau / 3 and tau2 = tau; the integrator's input lag tau / 4)."""
+    span_s = n * ts_s
+    lo, hi = tau_range_s if tau_range_s is not None else (0.5 * ts_s, max(span_s / 4.0, 2 * ts_s))
+    taus = np.geomspace(max(lo, 1e-9), max(hi, lo * 1.01), 11)
+    delays = sorted(set([0, 1, 2, 3, 4] + [int(round(v)) for v in np.geomspace(5, max(dmax, 5), 8)]))
+    delays = [dd for dd in delays if dmin <= dd <= dmax] or [max(dmin, 0)]
+    keys = []
+    for dd in delays:
+        for t in taus:
+            if "foptd" in kinds:
+                keys.append(("foptd", float(t), 0.0, dd))
+            if "soptd" in kinds:
+                keys.append(("soptd", float(t), float(t) / 3.0, dd))
+                keys.append(("soptd", float(t), float(t), dd))
+            if "integrating" in kinds:
+                keys.append(("integrating", float(t) / 4.0, 0.0, dd))
+    return keys
+
+
+def resolve(x: np.ndarray, ts_s: float, space: ModelSpace, n_S: int, n_J: int) -> Limits:
+    """The `Limits` of ``space`` on a record with valve input ``x``."""
+    n = x.shape[0]
+    dmax = int(round((space.max_delay_s if space.max_delay_s is not None
+                      else min(n * ts_s / 10.0, 60 * ts_s)) / ts_s))
+    dmax = max(0, min(dmax, n // 5))
+    dmin = int(round((space.min_delay_s if space.min_delay_s is not None else ts_s) / ts_s))
+    dmin = min(max(dmin, 0), dmax)
+    tau_max = max(space.tau_range_s[1], 0.0) if space.tau_range_s is not None else math.inf
+    S_grid = s_grid(x, n_S, space.S_max_pct)
+    J_grid = np.concatenate([[0.0], 1.5 * S_grid[-1] * (np.arange(1, n_J) / (n_J - 1)) ** 1.4])
+    if space.structure is not None:
+        k_, t1_, t2_, d_ = space.structure
+        keys = [(k_, t1_, t2_, int(round(d_ / ts_s)))]
+        fixed = keys[0]
+    else:
+        keys = process_keys(ts_s, n, space.kinds, dmin, dmax, space.tau_range_s)
+        fixed = None
+    return Limits(float(ts_s), n, tuple(space.kinds), dmin, dmax, space.tau_range_s, tau_max, S_grid, J_grid,
+                  S_CAP_FACTOR * float(S_grid[-1]), fixed, ProcessGrid.of(keys, ts_s, tau_max))
+
+
+# --------------------------------------------------------------------------------------------------
+# process structure
+# --------------------------------------------------------------------------------------------------
+
+def best_structure(obj: Objective, S: float, J: float, f0: float, grid: ProcessGrid) -> Candidate:
+    """The structure of ``grid`` that fits the valve (S, J, f0) best."""
+    sse, _ = obj.score([S], [J], [f0], grid)
+    p = int(np.argmin(sse[0]))
+    return Candidate(float(S), float(J), float(f0), grid.keys[p], float(sse[0, p]))
+
+
+#: Lag factors of `polish_structure` (the dead time also moves by one sample each way).
+POLISH_LAG_FACTORS = tuple(2.0 ** np.arange(-1.0, 1.01, 0.25))
+
+
+def polish_structure(obj: Objective, cand: Candidate, lim: Limits) -> Candidate:
+    """Finer lags (x 2^(-1..1) in quarter octaves) and +-1 sample of dead time around the candidate's
+    structure; the candidate itself when the structure is fixed or nothing is better."""
+    if lim.fixed:
+        return cand
+    kind, tau, tau2, dd = cand.structure
+    keys = []
+    for f in POLISH_LAG_FACTORS:
+        for ddd in sorted({max(lim.dmin, dd - 1), dd, max(lim.dmin, min(lim.dmax, dd + 1))}):
+            keys.append((kind, tau * f, tau2 * f if kind == "soptd" else 0.0, ddd))
+    best = best_structure(obj, cand.S_pct, cand.J_pct, cand.f0, lim.grid(keys))
+    return best if best.sse < cand.sse else cand
+
+
+def linear_fit(obj: Objective, lim: Limits) -> Candidate:
+    """The valve without stiction (S = J = 0): the best structure of the full grid, polished."""
+    return polish_structure(obj, best_structure(obj, 0.0, 0.0, 1.0, lim.process), lim)
+
+
+def noise_model(obj: Objective, cand: Candidate, lim: Limits,
+                candidates_samples=NOISE_CANDIDATES) -> float | None:
+    """The noise prefilter (``hp_tau_s`` in seconds, None: plain output error) under which
+    ``cand`` has the lowest prediction-error cost (the filters are monic, so the costs of different
+    noise models compare directly)."""
+    grid = cand.grid(obj.ts_s, lim.tau_max_s)
+    costs = []
+    for hp in candidates_samples:
+        o = obj.with_noise(None if hp is None else hp * obj.ts_s)
+        sse, _ = o.score([cand.S_pct], [cand.J_pct], [cand.f0], grid)
+        costs.append(float(sse[0, 0]) * o.y_std ** 2)
+    best = candidates_samples[int(np.argmin(costs))]
+    return None if best is None else best * obj.ts_s
+
+
+# --------------------------------------------------------------------------------------------------
+# global and dense grids
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class GridConfig:
+    """The global grid: ``n_S`` values of S (`s_grid`) x ``J_ratios`` (J/S) x a coarse set of 6
+    lags and the dead times `GLOBAL_DELAYS`; ``n_starts`` distinct best starts are kept (S or J
+    apart by more than 20 % of S). ``both_f0``: score both starting directions (the valve fit: on
+    clean data f0 matters for long)."""
+
+    n_S: int = 12
+    n_J: int = 12
+    J_ratios: tuple = DEFAULT_J_RATIOS
+    n_starts: int = 3
+    both_f0: bool = False
+
+
+def coarse_structures(lim: Limits, linear: Candidate) -> ProcessGrid:
+    """The global grid's structures: FOPTD at 6 lags (geometric, one sample to an eighth of the
+    record) x the dead times `GLOBAL_DELAYS` and the linear model's, plus the integrator at those
+    dead times (when searched); the linear model's structure alone when the structure is fixed."""
+    if lim.fixed:
+        return lim.grid([linear.structure])
+    ts = lim.ts_s
+    t_lo, t_hi = lim.tau_range_s if lim.tau_range_s is not None else (ts, max(lim.n * ts / 8.0, 2 * ts))
+    taus = np.geomspace(t_lo, max(t_hi, 1.01 * t_lo), 6)
+    d_lin = int(linear.structure[3])
+    dset = sorted({max(lim.dmin, dd) for dd in GLOBAL_DELAYS + (d_lin,) if dd <= lim.dmax})
+    keys = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
+    if "integrating" in lim.kinds:
+        keys += [("integrating", float(ts), 0.0, dd) for dd in dset]
+    return lim.grid(keys)
+
+
+def global_grid(obj: Objective, lim: Limits, cfg: GridConfig, grid: ProcessGrid
+                ) -> tuple[list[Candidate], np.ndarray]:
+    """Distinct best starts of the global (S, J/S, f0) grid at the structures of ``grid``.
+
+    Returns the starts (best first) and each structure's best cost over the valves.
+    """
+    ratios = np.asarray(cfg.J_ratios, float)
+    f_set = [1.0, -1.0] if cfg.both_f0 else [1.0]
+    Sg, Rg, Fg = np.meshgrid(lim.S_grid, ratios, f_set, indexing="ij")
+    Sg, Jg, Fg = Sg.ravel(), (Sg * Rg).ravel(), Fg.ravel()
+    sse, _ = obj.score(Sg, Jg, Fg, grid)
+    order = np.argsort(sse.min(axis=1))
+    starts: list[Candidate] = []
+    for i in order:
+        p = int(np.argmin(sse[i]))
+        c = Candidate(float(Sg[i]), float(Jg[i]), float(Fg[i]), grid.keys[p], float(sse[i, p]))
+        if all(abs(c.S_pct - s.S_pct) > 0.2 * c.S_pct or abs(c.J_pct - s.J_pct) > 0.2 * max(c.S_pct, 1e-9)
+               for s in starts):
+            starts.append(c)
+        if len(starts) >= cfg.n_starts:
+            break
+    return starts, sse.min(axis=0)
+
+
+@dataclass(frozen=True)
+class DenseConfig:
+    """The dense grid: ``n_S`` values of S x ``n_ratios`` J/S in 0..2 x both starting directions,
+    at the structures of the starts, the linear model and the ``extra_structures`` best coarse
+    structures. ``profile_ratios``: J/S values whose best valve picks its own structure
+    (`shape_profile`; empty: off)."""
+
+    n_S: int = 36
+    n_ratios: int = 17
+    extra_structures: int = 0
+    profile_ratios: tuple = PROFILE_RATIOS
+
+
+def dense_valves(lim: Limits, cfg: DenseConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The dense grid's (S, J, f0) as three flat arrays."""
+    S_dense = s_grid(np.zeros(1), cfg.n_S, float(lim.S_grid[-1]))
+    Sd, Rd, Fd = np.meshgrid(S_dense, np.linspace(0.0, 2.0, cfg.n_ratios), [1.0, -1.0], indexing="ij")
+    return Sd.ravel(), (Sd * Rd).ravel(), Fd.ravel()
+
+
+def dense_grid(obj: Objective, lim: Limits, cfg: DenseConfig, keys: list
+               ) -> tuple[list[Candidate], np.ndarray]:
+    """The dense (S, J, f0) grid at each structure of ``keys``: the best valve of each, and the
+    whole cost table (valves x structures) for `shape_profile`."""
+    Sd, Jd, Fd = dense_valves(lim, cfg)
+    grid = lim.grid(keys)
+    sse, _ = obj.score(Sd, Jd, Fd, grid)
+    out = []
+    for p in range(len(grid)):
+        i = int(np.argmin(sse[:, p]))
+        out.append(Candidate(float(Sd[i]), float(Jd[i]), float(Fd[i]), grid.keys[p], float(sse[i, p])))
+    return out, sse
+
+
+def shape_profile(obj: Objective, lim: Limits, cfg: DenseConfig, sse_dense: np.ndarray, dense_keys: list
+                  ) -> list[Candidate]:
+    """Every valve shape gets its own process: the lags and the dead time trade off against J, so a
+    structure picked for one shape can hide the right one. For each profiled J/S, the best valve of
+    the dense grid picks its structure from the full process grid (polished); structures not yet in
+    ``dense_keys`` get the dense grid too, and the best valve near each profiled J/S is returned."""
+    if lim.fixed or not cfg.profile_ratios:
+        return []
+    Sd, Jd, Fd = dense_valves(lim, cfg)
+    Rdv = Jd / np.maximum(Sd, 1e-12)
+    keys = list(dense_keys)
+    new = []
+    for r in cfg.profile_ratios:
+        sel = np.abs(Rdv - r) < 1e-6
+        if not sel.any():
+            continue
+        sub = np.where(sel[:, None], sse_dense, np.inf)
+        i, _p = np.unravel_index(int(np.argmin(sub)), sub.shape)
+        c = polish_structure(obj, best_structure(obj, float(Sd[i]), float(Jd[i]), float(Fd[i]), lim.process), lim)
+        if c.structure not in keys:
+            keys.append(c.structure)
+            new.append(c.structure)
+    out = []
+    if new:
+        grid = lim.grid(new)
+        sse, _ = obj.score(Sd, Jd, Fd, grid)
+        for p in range(len(grid)):
+            for r in cfg.profile_ratios:
+                col = np.where(np.abs(Rdv - r) < 0.07, sse[:, p], np.inf)
+                i = int(np.argmin(col))
+                if np.isfinite(col[i]):
+                    out.append(Candidate(float(Sd[i]), float(Jd[i]), float(Fd[i]), grid.keys[p], float(col[i])))
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# local polish
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PolishConfig:
+    """Nelder-Mead on (S, J, log lag) (dead time and lag ratio fixed; both starting directions
+    scored at every point, the better counts): at most ``max_iter`` iterations, stopping when the
+    simplex's costs agree within ``tol`` (relative). ``rounds`` alternations of structure polish and
+    Nelder-Mead per `refine`; ``n_refine`` best candidates refined."""
+
+    max_iter: int = 60
+    tol: float = 1e-3
+    rounds: int = 2
+    n_refine: int = 3
+
+
+def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig, *,
+                lags: bool = True) -> Candidate:
+    """Polish S, J (and the lags, when ``lags`` and the structure is not fixed) of one candidate by
+    `scipy.optimize.minimize` (Nelder-Mead). S and J stay at or below ``lim.S_cap``."""
+    from scipy.optimize import minimize
+
+    kind, t1, t2, d = cand.structure
+    tau0 = max(float(t1), 1e-6)
+    ratio2 = float(t2) / tau0 if kind == "soptd" else 0.0
+    scale = max(cand.S_pct, 0.05)
+    free_lags = lags and not lim.fixed
+    S_cap = lim.S_cap
+    ts = obj.ts_s
+    tau_max = lim.tau_max_s
+    integ = 1.0 if kind == "integrating" else 0.0
+
+    def unpack(v):
+        S = min(abs(v[0]) * scale, S_cap)
+        J = min(abs(v[1]) * scale, S_cap)
+        tau = tau0 * math.exp(v[2]) if free_lags else tau0
+        return S, J, tau
+
+    def scored(v):
+        # the kernel's tables built directly: this runs thousands of times per fit
+        S, J, tau = unpack(v)
+        t1_ = min(tau, tau_max)
+        a2 = lag_coefficient(min(tau * ratio2, tau_max), ts) if kind == "soptd" else -1.0
+        structs = np.array([[lag_coefficient(t1_, ts)], [a2], [float(d)], [integ]])
+        valves = np.array([[S, S], [J, J], [1.0, -1.0], [NAN, NAN], [NAN, NAN]])
+        sse, _ = obj.score_table(valves, structs)
+        return sse[:, 0], S, J, (kind, t1_, min(tau * ratio2, tau_max) if kind == "soptd" else 0.0, d)
+
+    def cost(v):
+        return float(scored(v)[0].min())
+
+    x0 = np.array([cand.S_pct / scale, cand.J_pct / scale, 0.0])
+    steps = np.array([0.15, 0.15 + 0.1 * (cand.J_pct < 1e-9), 0.3])
+    if not free_lags:
+        x0, steps = x0[:2], steps[:2]
+    f0 = cost(x0)
+    simplex = np.vstack([x0, x0 + np.diag(steps)])
+    res = minimize(cost, x0, method="Nelder-Mead",
+                   options={"initial_simplex": simplex, "maxiter": cfg.max_iter, "xatol": math.inf,
+                            "fatol": cfg.tol * (abs(f0) + 1e-12)})
+    if float(res.fun) >= cand.sse:
+        return cand
+    sse, S, J, key = scored(res.x)
+    k = int(np.argmin(sse))
+    return Candidate(S, J, (1.0, -1.0)[k], key, float(sse[k]))
+
+
+def refine(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig) -> Candidate:
+    """``cfg.rounds`` rounds of Nelder-Mead, each after the first preceded by a structure polish."""
+    for rnd in range(cfg.rounds):
+        if rnd > 0:
+            cand = polish_structure(obj, cand, lim)
+        cand = nelder_mead(obj, cand, lim, cfg)
+    return cand
+
+
+@dataclass(frozen=True)
+class BandConfig:
+    """`shape_bands`: S at ``S_factors`` x the best S, J/S at ``ratios``, both f0, at lags x
+    ``lag_factors`` and every dead time of the full grid or within ``delay_span`` samples of the
+    best's."""
+
+    S_factors: tuple = PROFILE_S_FACTORS
+    ratios: tuple = DEFAULT_J_RATIOS
+    lag_factors: tuple = (0.5, 1.0, 2.0)
+    delay_span: int = 3
+
+
+def shape_bands(obj: Objective, top: Candidate, lim: Limits, cfg: BandConfig) -> list[Candidate]:
+    """J, S and the dead time trade off (a larger J looks like a longer delay, a larger S like a
+    slower process): the best candidate of each class band (deadband, undershoot, no offset,
+    overshoot) over J/S, S and the dead times near the best lags, so that no shape loses for want of
+    the structure that suits it. Unrefined; `refine` each."""
+    if lim.fixed or top.S_pct <= 0:
+        return []
+    Sp = np.unique(np.minimum(top.S_pct * np.asarray(cfg.S_factors), lim.S_cap))
+    Sm, Rm, Fm = np.meshgrid(Sp, np.asarray(cfg.ratios, float), [1.0, -1.0], indexing="ij")
+    Sm, Rm, Fm = Sm.ravel(), Rm.ravel(), Fm.ravel()
+    Jm = Sm * Rm
+    k0, t0, t2, d_top = top.structure
+    r2 = float(t2) / max(float(t0), 1e-12)
+    d_set = sorted({int(v) for v in lim.process.d}
+                   | {dd for dd in range(d_top - cfg.delay_span, d_top + cfg.delay_span + 1)
+                      if lim.dmin <= dd <= lim.dmax})
+    keys = [(kd, t0 * f, t0 * f * r2 if kd == "soptd" else 0.0, dd)
+            for kd in sorted({k0, "foptd"} & set(lim.kinds) | {k0}) for f in cfg.lag_factors for dd in d_set]
+    grid = lim.grid(keys)
+    sse, _ = obj.score(Sm, Jm, Fm, grid)
+    bands = [Rm == 0.0, (Rm > 0.0) & (Rm < 0.85), (Rm >= 0.85) & (Rm <= 1.15), Rm > 1.15]
+    out = []
+    for sel in bands:
+        if not sel.any():
+            continue
+        sub = np.where(sel[:, None], sse, np.inf)
+        i, p = np.unravel_index(int(np.argmin(sub)), sub.shape)
+        out.append(Candidate(float(Sm[i]), float(Jm[i]), float(Fm[i]), grid.keys[int(p)], float(sub[i, p])))
+    return out
+
+
+@dataclass(frozen=True)
+class ZoomConfig:
+    """`zoom`: ``rounds`` local (S, J, f0) grids of ``size`` x ``size`` x 2 over +-``span`` of S (of
+    max(J, S/2) for J), shrinking by 4 each round."""
+
+    rounds: int = 2
+    size: int = 9
+    span: float = 0.06
+
+
+def zoom(obj: Objective, cand: Candidate, lim: Limits, cfg: ZoomConfig) -> Candidate:
+    """Local (S, J, f0) grid around the candidate at its structure, shrinking each round.
+
+    The cost is piecewise constant in S and J (the valve path changes only when a threshold
+    crosses an input sample), which can stall a simplex; a grid cannot stall."""
+    grid = cand.grid(obj.ts_s, lim.tau_max_s)
+    dS = cfg.span * max(cand.S_pct, 0.05)
+    dJ = cfg.span * max(cand.J_pct, 0.5 * cand.S_pct, 0.05)
+    cap = max(lim.S_cap, 1e-6)
+    for _ in range(cfg.rounds):
+        Sl = np.unique(np.clip(cand.S_pct + dS * np.linspace(-1, 1, cfg.size), 1e-6, cap))
+        Jl = np.unique(np.clip(cand.J_pct + dJ * np.linspace(-1, 1, cfg.size), 0.0, cap))
+        Sm, Jm, Fm = np.meshgrid(Sl, Jl, [1.0, -1.0], indexing="ij")
+        sse, _ = obj.score(Sm.ravel(), Jm.ravel(), Fm.ravel(), grid)
+        i = int(np.argmin(sse[:, 0]))
+        if sse[i, 0] < cand.sse:
+            cand = cand.with_valve(Sm.ravel()[i], Jm.ravel()[i], Fm.ravel()[i], sse[i, 0])
+        dS /= 4.0
+        dJ /= 4.0
+    return cand
+
+
+def profile_intervals(obj: Objective, cand: Candidate, lim: Limits, bound_sse: float, *, span: float = 0.15,
+                      steps: int = 121) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The ranges of S (J fixed) and of J (S fixed) whose cost stays within ``bound_sse``, scanned in
+    ``steps`` steps over +-``span`` of S (of max(S, J) for J) around the candidate, both starting
+    directions, at its structure; each widened by half a step and holding the candidate.
+
+    On exact data the cost is zero on a flat cell around the truth (every (S, J) in it gives the same
+    valve path) and the F-test bound collapses to it: this scan is fine enough to find the cell,
+    where a coarse grid finds a single point."""
+    grid = cand.grid(obj.ts_s, lim.tau_max_s)
+    u = np.linspace(-span, span, steps)
+    hS = span * max(cand.S_pct, 1e-6) / (steps - 1)
+    hJ = span * max(cand.S_pct, cand.J_pct, 1e-6) / (steps - 1)
+    S_scan = np.unique(np.clip(cand.S_pct * (1.0 + u), 0.0, lim.S_cap))
+    J_scan = np.unique(np.clip(cand.J_pct + max(cand.S_pct, cand.J_pct) * u, 0.0, lim.S_cap))
+    out = []
+    for scan, fixed, h, centre in ((S_scan, "J", hS, cand.S_pct), (J_scan, "S", hJ, cand.J_pct)):
+        m = scan.shape[0]
+        S = np.concatenate([scan, scan]) if fixed == "J" else np.full(2 * m, cand.S_pct)
+        J = np.full(2 * m, cand.J_pct) if fixed == "J" else np.concatenate([scan, scan])
+        F = np.repeat([1.0, -1.0], m)
+        sse, _ = obj.score(S, J, F, grid)
+        inside = scan[np.minimum(sse[:m, 0], sse[m:, 0]) <= bound_sse]
+        lo = float(inside.min()) - 0.5 * h if inside.size else centre
+        hi = float(inside.max()) + 0.5 * h if inside.size else centre
+        out.append((max(0.0, min(lo, centre)), max(hi, centre)))
+    return out[0], out[1]
+
+
+# --------------------------------------------------------------------------------------------------
+# the valve's start state and where to search
+# --------------------------------------------------------------------------------------------------
+
+def start_state(obj: Objective, cand: Candidate, burn: int, lim: Limits) -> tuple[float | None, float]:
+    """The valve's first stuck point (None: OP's first sample) and starting direction that fit
+    ``cand`` best on ``obj``.
+
+    A valve's state at the start of a record is unknown: started on the wrong side, or stuck at the
+    wrong point, a model valve can stay stuck in the middle of the plant's limit cycle for the whole
+    record. Tried: stuck at OP's first sample (both directions), near it (`START_DELTAS` x max(S, J)),
+    or at an extreme of OP's travel in the burn-in, where a valve in a limit cycle waits for the
+    next reversal."""
+    F0 = cand.f0
+    x_first = float(obj.x[0])
+    starts: list[tuple[float | None, float]] = [(None, F0)]
+    if cand.S_pct > 0:
+        head = obj.x[: max(burn, 2)]
+        pts = [x_first + dl * max(cand.S_pct, cand.J_pct) for dl in START_DELTAS] + \
+              [float(head.min()), float(head.max())]
+        starts += [(None, -F0)] + [(min(max(p, 0.0), 100.0), Fv) for p in pts for Fv in (F0, -F0)]
+    grid = cand.grid(obj.ts_s, lim.tau_max_s)
+    costs = []
+    for x0, Fv in starts:
+        sse, _ = obj.with_start(x0).score([cand.S_pct], [cand.J_pct], [Fv], grid)
+        costs.append(float(sse[0, 0]))
+    return starts[int(np.argmin(costs))]
+
+
+#: Longest and shortest extra search window (`search_windows`), samples: a window shorter than this
+#: is not searched (with three windows, records under 1500 samples have none).
+WINDOW_MAX_SAMPLES = 2000
+WINDOW_MIN_SAMPLES = 500
+
+
+def widest_window(x: np.ndarray, m: int, scored: np.ndarray | None = None) -> int:
+    """Start of the ``m``-sample window in which OP covers the widest robust range (the earliest of
+    equals): the part of a long record that shows the valve the most. With a training mask
+    ``scored``, the range of the scored samples times their share of the window counts."""
+    n = x.shape[0]
+    if n <= m:
+        return 0
+    starts = np.unique(np.r_[np.arange(0, n - m + 1, max(1, m // 4)), n - m])
+    values = []
+    for i in starts:
+        xs = x[i:i + m] if scored is None else x[i:i + m][scored[i:i + m]]
+        if xs.shape[0] < MIN_SAMPLES:
+            values.append(-1.0)
+            continue
+        span = float(np.percentile(xs, 99.5) - np.percentile(xs, 0.5))
+        values.append(span if scored is None else span * xs.shape[0] / m)
+    return int(starts[int(np.argmax(values))])
+
+
+def search_windows(n: int, k: int, w: np.ndarray) -> list[tuple[int, int]]:
+    """(start, length) of ``k`` equal windows spread evenly over ``n`` samples (at most
+    `WINDOW_MAX_SAMPLES` long), leaving out windows too short or with too few scored samples."""
+    if k <= 0:
+        return []
+    m = min(n // k, WINDOW_MAX_SAMPLES)
+    if m < WINDOW_MIN_SAMPLES or m >= n:
+        return []           # too short to search, or the whole record (searched anyway)
+    starts = [int(round(i * (n - m) / (k - 1))) if k > 1 else (n - m) // 2 for i in range(k)]
+    return [(i0, m) for i0 in starts if np.count_nonzero(w[i0:i0 + m]) >= WINDOW_MIN_SAMPLES // 2]
+
+
+# --------------------------------------------------------------------------------------------------
+# the class test
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ClassTestConfig:
+    """The class test's grids.
+
+    chi2 : 95 % quantile of chi-square with two degrees of freedom: the joint (S, J) region that also
+        gives the reported intervals (a restriction, J = 0 or J = S, is accepted inside it).
+    S_rel, J_ratios, deltas : local grid: S relative to the fit's, J/S, and the valve's first stuck
+        point relative to OP's first sample in units of max(S, J).
+    fine_S, fine_ratios, fine_near : a fine scan of S (``fine_S`` values over +-10 % of the fit's
+        S at ``fine_ratios``; 0: off) and the neighbours of its best S added to the grid (with J > 0
+        the cost is a needle in S).
+    structures : the second stage at nearby process structures (dead time +-1 sample, lags x0.8
+        and x1.25).
+    """
+
+    chi2: float = 5.991
+    S_rel: tuple = tuple(1.0 + np.array([-0.1, -0.05, -0.02, 0.0, 0.02, 0.05, 0.1]))
+    J_ratios: tuple = tuple(np.linspace(0.0, 2.0, 17))
+    deltas: tuple = tuple(np.linspace(-1.0, 1.0, 5))
+    fine_S: int = 201
+    fine_ratios: tuple = (0.5, 1.0, 1.5)
+    fine_near: tuple = (-0.003, -0.0015, 0.0, 0.0015, 0.003)
+    structures: bool = True
+
+
+def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: float = 0.05,
+               gain_sign: float | None = None, cfg: ClassTestConfig = ClassTestConfig()) -> dict[str, Any]:
+    """Re-examine J with the valve's initial stuck point free, and test the special shapes.
+
+    A real valve at the start of a record is stuck wherever its history left it, and a sticky valve
+    keeps that memory until OP makes an excursion larger than S (in noisy closed loops this can take
+    thousands of samples): with the wrong starting point even the true (S, J) scores badly. Here the
+    starting stuck point is a nuisance parameter, ``x_ss = OP[0] + delta`` (OP[0]: the fit's own first
+    stuck point, ``start_op_pct``, where it chose one), both starting directions, at the fitted process
+    structure, over a local grid of S (plus the best S of a fine scan and its close neighbours) and
+    J/S in 0..2; then, per J/S, its best start at nearby structures. The special shapes J = 0
+    (deadband) and J = S (no offset) are accepted when their best cost lies within the chi-square
+    bound ``cost_free (1 + chi2 / nu)`` of the free fit (``nu`` = the fit's effective residuals - 2).
+
+    ``fit`` is a `diagnose.fit.HammersteinFit`.
+
+    Returns
+    -------
+    dict
+        ``cost_fit`` (the fit as it was), ``cost_free``, ``cost_deadband``, ``cost_no_offset``
+        (PV units squared per scored sample), ``bound``, ``plausible`` (every class shape inside the
+        bound, best first), and the chosen ``cls`` (a restriction, or None), ``S_pct``, ``J_pct``,
+        ``f0``, ``delta_pct``, ``cost``.
+    """
+    x = np.asarray(op, dtype=float) + fit.op_offset_pct
+    w = score_weights(x.shape[0], None, burn_in(x, burn_frac))
+    if fit.start_op_pct is not None:
+        x[0] = fit.start_op_pct      # the fit's own starting point is the reference
+    n = x.shape[0]
+    obj = Objective(x, np.asarray(pv, dtype=float), ts_s, w, fit.load_order, fit.hp_tau_s, None,
+                    float(np.sign(gain_sign)) if gain_sign else None)
+    p = fit.process
+    d = int(round(p.delay_s / ts_s))
+    grid = ProcessGrid.of([(p.kind, p.tau_s, p.tau2_s, d)], ts_s)
+    scale = obj.y_std ** 2 / max(1, obj.n_scored)
+    c_fit = float(obj.score([fit.S_pct], [fit.J_pct], [float(fit.f0)], grid)[0][0, 0]) * scale
+    S0 = fit.S_pct
+    S_set = S0 * np.asarray(cfg.S_rel)
+    if cfg.fine_S:
+        # stage 0: with J > 0 the cost is a needle in S (a stopped valve must beat J to move on,
+        # and whether each noisy OP excursion does flips whole stretches of the simulation):
+        # scan S finely at a few shapes and add the best S and its close neighbours to the grid
+        Sf = S0 * (1.0 + np.linspace(-0.1, 0.1, cfg.fine_S))
+        Sm, Rm, Fm = np.meshgrid(Sf, np.asarray(cfg.fine_ratios), [1.0, -1.0], indexing="ij")
+        cf = obj.score(Sm.ravel(), (Sm * Rm).ravel(), Fm.ravel(), grid)[0][:, 0]
+        S_star = float(Sm.ravel()[int(np.argmin(cf))])
+        S_set = np.unique(np.concatenate([S_set, S_star * (1.0 + np.asarray(cfg.fine_near))]))
+    ratios = np.asarray(cfg.J_ratios)
+    Sg, Rg, Fg = np.meshgrid(S_set, ratios, [1.0, -1.0], indexing="ij")
+    Sg, Rg, Fg = Sg.ravel(), Rg.ravel(), Fg.ravel()
+    Jg = Sg * Rg
+    x0 = float(x[0])
+    best = {"free": (c_fit, S0, fit.J_pct, fit.f0, 0.0), "deadband": (np.inf,), "no_offset": (np.inf,)}
+    per_ratio = [(np.inf, 1.0, x0)] * ratios.shape[0]      # best (cost, f0, first OP) per J/S
+    by_class: dict[str, float] = {}      # best cost per class shape (for the plausible set)
+
+    def keep(c, Sv, Jv, Rv, F, xs0):
+        names = stiction_classes(Sv, Jv)
+        for name in np.unique(names[names != "none"]):
+            cm = float(c[names == name].min())
+            if cm < by_class.get(str(name), np.inf):
+                by_class[str(name)] = cm
+        for key, sel in (("free", np.ones(c.shape[0], bool)), ("deadband", Rv == 0.0),
+                         ("no_offset", Rv == 1.0)):
+            cm = np.where(sel, c, np.inf)
+            i = int(np.argmin(cm))
+            if cm[i] < best[key][0]:
+                best[key] = (float(c[i]), float(Sv[i]), float(Jv[i]), int(F), float(xs0 - x0))
+        for k, r in enumerate(ratios):
+            sel = Rv == r
+            if sel.any():
+                ck = float(c[sel].min())
+                if ck < per_ratio[k][0]:
+                    per_ratio[k] = (ck, F, xs0)
+
+    # stage 1: the fit's structure, every starting point
+    for dl in cfg.deltas:
+        for F in (1.0, -1.0):
+            m = Fg == F
+            xs0 = min(max(x0 + F * dl * max(S0, fit.J_pct), 0.0), 100.0)
+            c = obj.with_start(xs0).score(Sg[m], Jg[m], Fg[m], grid)[0][:, 0] * scale
+            keep(c, Sg[m], Jg[m], Rg[m], F, xs0)
+    # stage 2: per J/S ratio, its best start, with nearby structures (the lags and the dead time
+    # trade off against J, so a shape is not rejected for want of its own structure)
+    if cfg.structures:
+        keys = [(p.kind, p.tau_s, p.tau2_s, dd) for dd in sorted({max(1, d - 1), d, d + 1})]
+        keys += [(p.kind, p.tau_s * f, p.tau2_s * f, d) for f in (0.8, 1.25)]
+        sgrid = ProcessGrid.of(keys, ts_s)
+        for k, r in enumerate(ratios):
+            _, F, xs0 = per_ratio[k]
+            c = obj.with_start(xs0).score(S_set, S_set * r, np.full(S_set.shape[0], F), sgrid)[0].min(axis=1) * scale
+            keep(c, S_set, S_set * r, np.full(S_set.shape[0], r), F, xs0)
+    nu = max((fit.n_eff if math.isfinite(fit.n_eff) else n) - 2.0, 1.0)
+    c_free = best["free"][0]
+    bound = c_free * (1.0 + cfg.chi2 / nu)
+    out: dict[str, Any] = {"cost_fit": c_fit, "cost_free": c_free, "bound": bound,
+                           "cost_deadband": best["deadband"][0], "cost_no_offset": best["no_offset"][0],
+                           "free_S_pct": best["free"][1], "free_J_pct": best["free"][2]}
+    out["plausible"] = sorted((k for k, v in by_class.items() if v <= bound), key=by_class.get)
+    ok = [k for k in ("deadband", "no_offset") if best[k][0] <= bound]
+    pick = min(ok, key=lambda k: best[k][0]) if ok else "free"
+    c, S, J, F, dl = best[pick]
+    out.update({"cls": None if pick == "free" else pick, "S_pct": S, "J_pct": J, "f0": F,
+                "delta_pct": dl, "cost": c})
+    return out
