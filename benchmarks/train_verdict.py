@@ -60,6 +60,7 @@ CANDIDATES: dict[str, dict[str, tuple[int, bool]]] = {
              "choudhury_bicoherence": (1, False), "choudhury_bicoherence.NGI": (1, False),
              "kano_stuck": (1, False), "kano_stuck.kano_raw_index": (1, False), "yamashita_qsa": (1, False),
              "singhal_area": (1, False), "model_fit": (1, False), "model_fit.lr": (1, True), "valve_band": (1, True),
+             "valve_band.slips": (1, True), "valve_band.S_over_range": (-1, False),
              "band_sharpness": (-1, True), "deadband_fit": (1, True), "oscillation_regularity": (0, True)},
     "op_only": {"op_shape": (1, False), "op_shape.regularity": (0, True)},
 }
@@ -68,6 +69,10 @@ CANDIDATES["op_mv"] = CANDIDATES["full"]
 MIN_COVERAGE = 0.05
 #: Inverse regularisation strength of the logistic regression (standardised inputs).
 C_REG = 1.0
+#: The decision threshold is the lowest probability at which the training corpus's healthy and
+#: false-alarm records are left alone at least this often: a false stiction call sends a crew to a
+#: good valve, so specificity is fixed first and sensitivity is what the evidence then gives.
+TARGET_SPECIFICITY = 0.90
 
 
 # ------------------------------------------------------------------------------------------ features
@@ -81,6 +86,7 @@ def _row_features(rec: LoopRecord, *, integrating: bool | None = None) -> dict[s
     try:
         res = identify(rec.replace(mv=None), integrating=integrating)
         out["full"] = feature_values(res.evidence)
+        out["full_decisions"] = {ev.test: ev.decision for ev in res.evidence}
         out["full_S"] = res.fitted_S_pct
         # raw numbers behind the fit's rows, so new fit features can be tried without refitting
         out["full_raw"] = {"n_eff": res.fit.n_eff, "cost": res.fit.cost, "linear_cost": res.linear_fit.cost,
@@ -96,7 +102,9 @@ def _row_features(rec: LoopRecord, *, integrating: bool | None = None) -> dict[s
         except Exception as exc:  # noqa: BLE001
             out["op_mv_error"] = f"{type(exc).__name__}: {exc}"
     flat = np.full(rec.n, float(np.median(rec.pv)))
-    out["op_only"] = feature_values(run_all(rec.op, flat, rec.ts_s, sp=None, integrating=integrating))
+    op_only = run_all(rec.op, flat, rec.ts_s, sp=None, integrating=integrating)
+    out["op_only"] = feature_values(op_only)
+    out["op_only_decisions"] = {ev.test: ev.decision for ev in op_only}
     return out
 
 
@@ -242,7 +250,9 @@ def logistic(Z: np.ndarray, y: np.ndarray, w: np.ndarray, signs: np.ndarray, C: 
         return val, grad
 
     bounds = [(None, None)] + [(0.0, None) if sg > 0 else (None, 0.0) if sg < 0 else (None, None) for sg in signs]
-    res = minimize(f, np.zeros(k + 1), jac=True, method="L-BFGS-B", bounds=bounds)
+    # converged tightly, so that a feature held at its bound leaves the others where they would be
+    res = minimize(f, np.zeros(k + 1), jac=True, method="L-BFGS-B", bounds=bounds,
+                   options={"maxiter": 20000, "ftol": 1e-15, "gtol": 1e-10})
     return res.x[1:], float(res.x[0])
 
 
@@ -275,7 +285,14 @@ def fit_model(rows: list[dict[str, Any]], kind: str, *, names: list[str] | None 
     signs = np.array([CANDIDATES[kind][k][0] for k in names])
     coef, b = logistic(Z, y, w, signs, C)
     feats = [Feature(f.name, f.lo, f.hi, f.center, f.scale, float(c), f.log) for f, c in zip(feats, coef)]
-    return CombinerModel(kind, tuple(feats), b, 0.5, trained_on)
+    model = CombinerModel(kind, tuple(feats), b, 0.5, trained_on)
+    p_neg = np.sort(predict(model, [r for r, t in zip(rows, y) if not t], kind))
+    if p_neg.size:
+        # the smallest threshold above the TARGET_SPECIFICITY quantile of the negatives' probabilities
+        q = float(np.quantile(p_neg, TARGET_SPECIFICITY, method="higher"))
+        threshold = float(np.nextafter(q, 1.0))
+        model = CombinerModel(kind, tuple(feats), b, round(max(threshold, 0.5), 4), trained_on)
+    return model
 
 
 def predict(model: CombinerModel, rows: list[dict[str, Any]], kind: str) -> np.ndarray:
@@ -322,9 +339,11 @@ def scores(truth: np.ndarray, pred: np.ndarray, weights: np.ndarray | None = Non
 
 
 def loto(rows_real: list[dict[str, Any]], sim_train: list[dict[str, Any]], *, real_weight: float,
-         C: float) -> np.ndarray:
-    """Leave-one-tag-out probabilities for the real rows (a window's own tag never in its model)."""
+         C: float) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-tag-out probabilities and verdicts for the real rows (a window's own tag never in
+    the model that judges it)."""
     p = np.full(len(rows_real), np.nan)
+    verdict = np.zeros(len(rows_real), bool)
     tags = sorted({r["tag"] for r in rows_real})
     for tag in tags:
         others = [r for r in rows_real if r["tag"] != tag and r.get("sticky") is not None]
@@ -340,7 +359,8 @@ def loto(rows_real: list[dict[str, Any]], sim_train: list[dict[str, Any]], *, re
         m = fit_model(train, "full", C=C, weights=np.asarray(weights))
         idx = [i for i, r in enumerate(rows_real) if r["tag"] == tag]
         p[idx] = predict(m, [rows_real[i] for i in idx], "full")
-    return p
+        verdict[idx] = p[idx] >= m.threshold
+    return p, verdict
 
 
 def cmd_evaluate(a: argparse.Namespace) -> int:
@@ -369,11 +389,24 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
             print(f"  {key:22s} BA {s['balanced_accuracy']:.3f} sens {s['sensitivity']:.3f} "
                   f"spec {s['specificity']:.3f} n {s['n']}" +
                   (f"  own-kind accuracy {s['accuracy_own']:.3f}" if "accuracy_own" in s else ""))
+    # each test alone on the same records: a stiction call flags, anything else does not
+    sub = [r for r in test if r.get("full_decisions")]
+    if sub:
+        truth = np.array([r["sticky"] for r in sub])
+        per_test = {}
+        print(f"\neach test alone, simulated seeds {a.test_seed} ({len(sub)} records; flag = says stiction):")
+        for t in sub[0]["full_decisions"]:
+            dec = [r["full_decisions"].get(t, "cannot_judge") for r in sub]
+            s_ = scores(truth, np.array([d == "stiction" for d in dec]))
+            s_["cannot_judge"] = float(np.mean([d == "cannot_judge" for d in dec]))
+            per_test[t] = s_
+            print(f"  {t:24s} BA {s_['balanced_accuracy']:.3f} sens {s_['sensitivity']:.3f} "
+                  f"spec {s_['specificity']:.3f} cannot judge {s_['cannot_judge']:.2f}")
+        report["sim_per_test"] = per_test
     real = [r for r in rows if r.get("source") == "plant" and r.get("full") is not None]
     if real:
         sim_train = _training_rows(rows, set(a.train_seed))
-        p = loto(real, sim_train, real_weight=a.real_weight, C=a.C)
-        pred = p >= 0.5
+        p, pred = loto(real, sim_train, real_weight=a.real_weight, C=a.C)
         truth = np.array([r["sticky"] for r in real])
         per_tag = defaultdict(int)
         for r in real:
@@ -392,8 +425,9 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     isdb = [r for r in rows if r.get("source") == "isdb" and r.get("full") is not None]
     if isdb:
         p = predict(models["full"], isdb, "full")
-        report["isdb"] = [{"loop": r["tag"], "label": r.get("label"), "p": float(pi)} for r, pi in zip(isdb, p)]
-        print("\nISDB (packaged model):")
+        report["isdb"] = [{"loop": r["tag"], "label": r.get("label"), "p": float(pi),
+                           "stiction": bool(pi >= models["full"].threshold)} for r, pi in zip(isdb, p)]
+        print(f"\nISDB (packaged model, threshold {models['full'].threshold}):")
         for r, pi in zip(isdb, p):
             print(f"  {r['tag']:8s} {str(r.get('label')):24s} p={pi:.2f}")
     if a.json:

@@ -255,9 +255,15 @@ def _integrating_hint(record: LoopRecord, fit: HammersteinFit | None) -> bool | 
     return False if fit is not None else None
 
 
+def _slips(mv_pct: np.ndarray) -> int:
+    """How many times a modelled stem path starts moving after standing still (its slips)."""
+    moving = np.abs(np.diff(np.asarray(mv_pct, dtype=float))) > 1e-9
+    return int(np.count_nonzero(moving[1:] & ~moving[:-1]))
+
+
 def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None, n_eff: float | None,
-                  backlash_lr: float | None, op_noise_pct: float, osc: Oscillation,
-                  method: str) -> tuple[Evidence, ...]:
+                  backlash_lr: float | None, op_noise_pct: float, op_range_pct: float, slips: int,
+                  osc: Oscillation, method: str) -> tuple[Evidence, ...]:
     """The Hammerstein (or OP/MV valve) fit's own evidence as rows of the evidence table.
 
     ``model_fit`` carries the improvement itself and, as ``lr``, the likelihood ratio
@@ -276,9 +282,13 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     ratio = S_pct / op_noise_pct if op_noise_pct > 0 else (100.0 if S_pct > 0 else 0.0)
     ratio = min(ratio, 100.0)
     dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct >= S_MIN_PCT else "no_stiction"
+    # a band that OP hardly ever crosses is a valve that hardly moves: little for the fit to go by
     rows.append(Evidence("valve_band", ratio, BAND_NOISE_RATIO, dec,
                          f"fitted valve band S = {S_pct:.2f} % of span is {ratio:.1f} times OP's own "
-                         f"sample-to-sample noise ({op_noise_pct:.3g} %)", extras={"S_pct": S_pct}))
+                         f"sample-to-sample noise ({op_noise_pct:.3g} %); the fitted valve slips {slips} "
+                         f"times as OP travels over {op_range_pct:.3g} % of span",
+                         extras={"S_pct": S_pct, "slips": float(slips),
+                                 "S_over_range": S_pct / op_range_pct if op_range_pct > 0 else 1.0}))
     if S_pct > 0 and math.isfinite(S_int[1] - S_int[0]):
         width = (S_int[1] - S_int[0]) / S_pct
         dec = "stiction" if width <= SHARP_REL_WIDTH and S_pct >= SHARP_MIN_S_PCT else "undetermined"
@@ -457,9 +467,11 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             if S >= SHARP_MIN_S_PCT and stiction_class(S, J) == "deadband":
                 backlash_lr = _backlash_lr(fit, linear, ctest)
     op_noise = _op_noise_pct(op)
-    n_eff = (valve_fit.hammerstein if valve_fit is not None else fit).n_eff
-    fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=n_eff, backlash_lr=backlash_lr,
-                             op_noise_pct=op_noise, osc=osc, method=method)
+    source = valve_fit.hammerstein if valve_fit is not None else fit
+    slips = 0 if mv_still else _slips(source.simulate(op)[0])
+    op_range = float(np.percentile(op, 99) - np.percentile(op, 1))
+    fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=source.n_eff, backlash_lr=backlash_lr,
+                             op_noise_pct=op_noise, op_range_pct=op_range, slips=slips, osc=osc, method=method)
     tests = run_all(op, pv, ts, sp=record.sp, integrating=integrating)
     evidence = tuple(tests) + fit_rows
     cap = _confidence_caps(findings, record.n, r2, method, warnings)
