@@ -1,4 +1,4 @@
-"""Simulated validation benchmark of `diagnose.identify` (issue 3).
+"""Simulated validation benchmark of `diagnose.identification` (issue 3).
 
 Builds a seeded set of closed loops with the simulator (`diagnose.simulate`): every stiction class
 plus healthy valves, random process kinds (FOPTD / SOPTD / integrating), gains (either sign), lags,
@@ -176,7 +176,7 @@ def cases(n_loops: int, seed: int, n: int, definition: str = "original") -> Iter
 def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str = "original",
         **identify_opts) -> tuple[list[dict], dict]:
     """Generate (`cases`) and identify ``n_loops`` loops."""
-    from diagnose.identify import identify
+    from diagnose.identification import identify
 
     rows = []
     n_redrawn = 0

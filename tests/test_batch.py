@@ -16,7 +16,7 @@ import pytest
 from connectors.historian import write_wide
 from diagnose.service import batch as B
 from diagnose.service.cli import main
-from diagnose.service.history import History
+from diagnose.service.history import History, row_from_stored
 from diagnose.simulate import sticky_loop
 
 # (name, S, J): a clearly sticky valve, a mildly sticky one, a healthy one
@@ -130,8 +130,8 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     db = tmp_path / "h.sqlite"
     with History(db) as h:
         for i, S in enumerate([1.0, 2.0]):
-            h.add({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}"},
-                  run_at=f"2026-01-0{i + 1}T00:00:00+00:00")
+            h.add_rows([row_from_stored({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}"},
+                                        run_at=f"2026-01-0{i + 1}T00:00:00+00:00")])   # runs of an older release
     logs = tmp_path / "logs"
     logs.mkdir()
     (logs / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
