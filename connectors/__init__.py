@@ -5,8 +5,9 @@ one entry point for files: it detects the layout (see `connectors.layouts`; pand
 rows), finds the loops (naming rule in `connectors.columns`, or a tag map, or explicit column
 names), puts every loop on a uniform time grid (`connectors.timebase`), splits it at long gaps,
 keeps the newest ``max_samples`` samples and attaches data-quality findings
-(`diagnose.quality.assess`). `read_frame` does the same for a pandas DataFrame. Modbus polling lives
-in `connectors.modbus` (imported on demand: it pulls in pymodbus).
+(`diagnose.quality.assess`). `read_frame` does the same for a pandas DataFrame. Users reach both
+through `diagnose.read_loops` (docs/api.md). Modbus polling lives in `connectors.modbus` (imported
+on demand: it pulls in pymodbus).
 """
 
 from __future__ import annotations

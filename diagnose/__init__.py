@@ -18,7 +18,8 @@ needs none of them does not pay for them.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing: `import diagnose` stays cheap
 
 # name -> module that defines it
 _EXPORTS = {
@@ -57,7 +58,7 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time names load on fi
     from .verdict import Verdict
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> object:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'diagnose' has no attribute {name!r}")

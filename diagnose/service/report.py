@@ -192,28 +192,32 @@ REASON_TEXT = {
     "pv_unusable": "PV is unusable", "no_oscillation": "the loop does not oscillate",
     "too_few_cycles": "too few oscillation cycles", "irregular_oscillation": "the oscillation is irregular",
     "process_type_unknown": "the process type is unknown",
-    "wrong_process_type": "it does not apply to this type of process", "irregular_ccf": "the cross-correlation is irregular",
+    "wrong_process_type": "not for this type of process", "irregular_ccf": "the cross-correlation is irregular",
     "non_finite": "the data have gaps", "bad_sample_period": "the sample period does not suit it",
 }
 
 
 def evidence_summary(ident: Identification) -> str:
-    """Which tests agree, which disagree, which cannot judge this record and why, in a few lines."""
+    """Which tests agree, which disagree, which cannot judge this record and why, in a few lines
+    (the table beside it names each test)."""
     by: dict[str, list[str]] = {k: [] for k in _DECISION_TEXT}
     for ev in ident.evidence:
         by.setdefault(ev.decision, []).append(ev.test)
     judged = len(ident.evidence) - len(by["cannot_judge"])
     text = (f"Of the {judged} tests that could judge this record, {len(by['stiction'])} say stiction, "
             f"{len(by['no_stiction'])} say no stiction and {len(by['undetermined'])} are undecided.")
-    cannot = [ev for ev in ident.evidence if ev.decision == "cannot_judge"]
-    if cannot:
-        why = "; ".join(f"{_label(ev.test)}: {REASON_TEXT.get(ev.reason, ev.reason.replace('_', ' ') or 'see below')}"
-                        for ev in cannot)
-        text += f" {len(cannot)} cannot judge it ({why})."
+    reasons: dict[str, int] = {}
+    for ev in ident.evidence:
+        if ev.decision == "cannot_judge":
+            why = REASON_TEXT.get(ev.reason, ev.reason.replace("_", " ") or "see the table")
+            reasons[why] = reasons.get(why, 0) + 1
+    if reasons:
+        n = sum(reasons.values())
+        text += f" {n} cannot judge it: " + "; ".join(f"{k} ({v})" for k, v in reasons.items()) + "."
     v = ident.verdict
     if v is not None:
         text += (f" Together they give a probability of stiction of {percent(v.stiction_probability)} (stiction "
-                 f"at {percent(v.threshold)} and above); each test moves it by its weight, positive towards stiction.")
+                 f"at {percent(v.threshold)} and above); each test's weight says how far it moved it.")
     return text
 
 
@@ -238,7 +242,11 @@ def _found_rows(diag: Diagnosis) -> list[list[str]]:
     meaning = CLASS_MEANING.get(ident.cls)
     alt = (f" (the data also allow: {', '.join(ident.class_alternatives)})" if ident.class_alternatives else "")
     rows = [["Class", ident.cls + (f": {meaning}" if meaning else "") + alt]]
-    if ident.S_pct is not None and ident.J_pct is not None:
+    if not ident.stiction and ident.S_interval_pct is not None and ident.J_interval_pct is not None:
+        # a healthy valve: what the data would have shown (the upper ends of the intervals)
+        rows += [[S_MEANING, f"0 (no stiction); the data allow at most {fmt(ident.S_interval_pct[1])} {unit}"],
+                 [J_MEANING, f"0 (no stiction); the data allow at most {fmt(ident.J_interval_pct[1])} {unit}"]]
+    elif ident.S_pct is not None and ident.J_pct is not None:
         rows += [[S_MEANING, f"{fmt(ident.S_pct)} {unit}, interval {fmt_interval(ident.S_interval_pct)}"],
                  [J_MEANING, f"{fmt(ident.J_pct)} {unit}, interval {fmt_interval(ident.J_interval_pct)}"]]
     else:
