@@ -97,9 +97,9 @@ def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *,
     DataError
         One line naming the file (line, column) or frame column and what is wrong.
     """
-    opts = {k: v for k, v in dict(op=op, pv=pv, sp=sp, mv=mv, time=time, ts_s=ts_s, tz=tz, dst=dst, loop=loop,
-                                  max_samples=max_samples, max_gap_s=max_gap_s,
-                                  min_samples=min_samples).items() if v is not None}
+    given = dict(op=op, pv=pv, sp=sp, mv=mv, time=time, ts_s=ts_s, tz=tz, dst=dst, loop=loop,
+                 max_samples=max_samples, max_gap_s=max_gap_s, min_samples=min_samples)
+    opts: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
     if isinstance(data, LoopRecord):
         given = sorted(k for k, v in dict(opts, tags=tags, format=format).items() if v is not None)
         if given:
@@ -151,7 +151,7 @@ def _label(data: Any) -> str:
 def load(data: Any, verb: str = "identified", **options: Any) -> tuple[LoopRecord, tuple[Note, ...]]:
     """The one record a front-door function works on (``loop=`` picks among several loops; the
     longest segment is taken) and the notes that say what was chosen. Options as `read_loops`."""
-    records = read_loops(data, **options)
+    records = read_loops(data, **dict(options))
     return choose_record(records, options.get("loop"), _label(data), verb)
 
 

@@ -145,7 +145,7 @@ def draw_phase(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = None
     ax.set_ylabel(_pv_label(record))
     ax.set_title(f"OP-PV, last {shown} samples", fontsize=9)
     ax.legend(loc="best", fontsize=7)
-    if two:
+    if record.mv is not None:
         ax = axes[1]
         if mv_hat is not None:
             ax.plot(record.op[s], mv_hat[s], lw=1.0, ls="--", color=COLORS["model"], label="fitted valve", zorder=1)

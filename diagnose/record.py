@@ -221,7 +221,8 @@ class LoopRecord:
                 try:
                     idx = idx.tz_localize(tz or "UTC", ambiguous="raise", nonexistent="raise")
                 except Exception as exc:  # pytz/zoneinfo errors: an unknown zone or a DST fold
-                    raise DataError(f"the frame's naive times cannot be read as local times in {tz}: {exc}{fix}") from None
+                    raise DataError(f"the frame's naive times cannot be read as local times in {tz}: "
+                                    f"{exc}{fix}") from None
             ns = idx.tz_convert("UTC").as_unit("ns").asi8
             if len(ns) < 2:
                 raise DataError("the frame needs at least two rows")

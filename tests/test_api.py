@@ -44,7 +44,8 @@ def loop(tmp_path_factory):
 
 
 def test_import_is_cheap_and_names_load_on_first_use():
-    code = ("import sys, diagnose; heavy = [m for m in ('numpy', 'pandas', 'scipy', 'matplotlib') if m in sys.modules]; "
+    code = ("import sys, diagnose; "
+            "heavy = [m for m in ('numpy', 'pandas', 'scipy', 'matplotlib') if m in sys.modules]; "
             "assert not heavy, heavy; f = diagnose.identify; import diagnose.api; assert f is diagnose.api.identify; "
             "assert 'pandas' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
@@ -130,8 +131,8 @@ def test_a_record_gives_the_core_identification_with_its_bank_model(loop):
     ident = diagnose.identify(rec)
     core = identify(rec)
     assert core.narx is None and ident.narx is not None
-    assert _json(ident) == {**_json(core), "narx": ident.narx.to_dict(),
-                            "warnings": [*_json(core)["warnings"], *[w.to_dict() for w in ident.warnings[len(core.warnings):]]]}
+    added = [w.to_dict() for w in ident.warnings[len(core.warnings):]]      # the bank's note, if any
+    assert _json(ident) == {**_json(core), "narx": ident.narx.to_dict(), "warnings": [*_json(core)["warnings"], *added]}
     with pytest.raises(diagnose.DataError, match="op: reading options apply to files and frames"):
         diagnose.identify(rec, op="OP")
 

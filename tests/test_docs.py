@@ -25,7 +25,8 @@ def test_the_api_page_runs_as_a_notebook(tmp_path, monkeypatch):
     assert repr(result).startswith("Identification(loop='2411FIC20102', stiction=True, cls='deadband', S_pct=2.24,")
     assert (result.stiction, result.cls, round(result.S_pct, 2), result.J_pct) == (True, "deadband", 2.24, 0.0)
     assert result.narx.model == "narxsp_S2_J0" and result.narx.robust
-    assert (fic103.method, fic103.cls, round(fic103.S_pct, 2), round(fic103.J_pct, 2)) == ("op_mv", "undershoot", 5.0, 2.0)
+    assert (fic103.method, fic103.cls, round(fic103.S_pct, 2), round(fic103.J_pct, 2)) == \
+        ("op_mv", "undershoot", 5.0, 2.0)
     assert (tmp_path / "FIC103_trends.png").stat().st_size > 10_000
     assert [(r.name, r.n, r.ts_s) for r in ns["records"]][:2] == [("FIC101", 3000, 1.0), ("FIC102", 3000, 1.0)]
     assert ns["same"].method == "op_mv" and ns["berlin"].cls == fic103.cls

@@ -110,7 +110,8 @@ def end_of_record(start: Any, n: Any, ts_s: Any) -> str | None:
 
 def record_end(result: Mapping[str, Any]) -> str | None:
     """`end_of_record` of a stored result (``LOOP.json`` or a history row's ``result_json``)."""
-    rec = result.get("record") if isinstance(result.get("record"), Mapping) else {}
+    stored = result.get("record")
+    rec: Mapping[str, Any] = stored if isinstance(stored, Mapping) else {}
     return end_of_record(rec.get("start"), rec.get("n") or result.get("n_samples"),
                          rec.get("ts_s") or result.get("ts_s"))
 
@@ -127,7 +128,8 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
     """The history row of one loop's diagnosis (the columns of the ``runs`` table)."""
     ident = diag.identification
     rec = diag.record
-    si, ji = ident.S_interval_pct, ident.J_interval_pct
+    si = ident.S_interval_pct or (None, None)
+    ji = ident.J_interval_pct or (None, None)
     return {
         "loop": history_loop(ident.loop),
         "run_at": run_at or utc_now(),
@@ -138,8 +140,8 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "tool_version": diag.tool_version,
         "status": "ok",
         "class": ident.cls,
-        "S_pct": _num(ident.S_pct), "S_lo": None if si is None else _num(si[0]), "S_hi": None if si is None else _num(si[1]),
-        "J_pct": _num(ident.J_pct), "J_lo": None if ji is None else _num(ji[0]), "J_hi": None if ji is None else _num(ji[1]),
+        "S_pct": _num(ident.S_pct), "S_lo": _num(si[0]), "S_hi": _num(si[1]),
+        "J_pct": _num(ident.J_pct), "J_lo": _num(ji[0]), "J_hi": _num(ji[1]),
         "confidence": _num(ident.confidence),
         "severity": _num(diag.severity.score),
         "oscillation_period_s": _num(ident.oscillation.period_s),
@@ -168,7 +170,8 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
                     status: str = "ok", error: str | None = None) -> dict[str, Any]:
     """The history row of a stored result: a ``LOOP.json`` of any schema in
     `diagnose.service.pipeline.READ_SCHEMAS` (a resumed batch files it again)."""
-    rec = result.get("record") if isinstance(result.get("record"), Mapping) else {}
+    stored = result.get("record")
+    rec: Mapping[str, Any] = stored if isinstance(stored, Mapping) else {}
     slo, shi = _pair(result.get("S_interval"))
     jlo, jhi = _pair(result.get("J_interval"))
     sev = result.get("severity")
