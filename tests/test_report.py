@@ -435,3 +435,16 @@ def test_missing_physics_figure_titles_do_not_overlap_and_ticks_are_distinct():
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_a_diagnosis_shows_itself_in_a_notebook(sticky_diag):
+    from matplotlib.figure import Figure
+
+    assert repr(sticky_diag).startswith("Diagnosis(loop='FIC7', verdict='Stiction: S = ")
+    page = sticky_diag._repr_html_()
+    assert sticky_diag.verdict_text in page and sticky_diag.action.split(":")[0] in page and "<table>" in page
+    fig = sticky_diag.plot("narx")
+    assert isinstance(fig, Figure)
+    labels = {ln.get_label() for ln in fig.axes[0].get_lines()}
+    assert labels == {"recorded MV", "NARX-SP free run (MV)"}
+    assert isinstance(sticky_diag.plot(), Figure)

@@ -170,6 +170,10 @@ class Monitor:
                  on_result: Callable[[Diagnosis], Any] | None = None) -> None:
         from connectors.modbus import ModbusPoller, load_modbus_config
 
+        # each window's Diagnosis comes back pickled: its types are imported now, not by the first
+        # result while the poller runs
+        from . import pipeline  # noqa: F401
+
         self.config = config if not isinstance(config, (str, os.PathLike)) else load_modbus_config(config)
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
