@@ -3,7 +3,7 @@
 On seeded simulated records of 10 000 samples (a sticky flow loop, a healthy loop with a
 sinusoidal load, a sticky level loop), each run several times; the figures are medians. The
 baselines are one `diagnose.oscillation.oscillation_context` call (the core's oscillation test) and,
-with --identify, one `diagnose.identify.identify` call on the same record (what `stiction
+with --identify, one `diagnose.identification.identify` call on the same record (what `stiction
 identify` does now). Timings on a shared machine are noisy: read the ratios.
 Run:  python benchmarks/bench_evidence.py [--n 10000] [--repeat 15] [--identify]
 """
@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10_000, help="samples per record")
     ap.add_argument("--repeat", type=int, default=15)
-    ap.add_argument("--identify", action="store_true", help="also time diagnose.identify.identify once per record")
+    ap.add_argument("--identify", action="store_true", help="also time diagnose.identification.identify once per record")
     args = ap.parse_args(argv)
     print(f"{'record':20} {'run_all ms':>10} {'osc ms':>8} {'ratio':>7}" + (f" {'identify s':>10} {'share':>7}"
                                                                             if args.identify else ""))
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
         t_osc = median_time(lambda: oscillation_context(r.pv, r.ts_s, sp=r.sp, op=r.op), args.repeat)
         line = f"{name:20} {1000 * t_ev:10.1f} {1000 * t_osc:8.2f} {t_ev / t_osc:7.1f}"
         if args.identify:
-            from diagnose.identify import identify
+            from diagnose.identification import identify
             t0 = time.perf_counter()
             identify(r)
             t_id = time.perf_counter() - t0

@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from diagnose.fit import fit_hammerstein  # noqa: E402
-from diagnose.identify import FIT_WINDOWS  # noqa: E402
+from diagnose.identification import FIT_WINDOWS  # noqa: E402
 from diagnose.objective import Objective, ProcessGrid, burn_in, legendre_basis, op_offset, score_weights  # noqa: E402
 from validate_simulated import make_case  # noqa: E402
 

@@ -14,7 +14,7 @@ revision ``--baseline``, unpacked into a temporary folder) in separate subproces
     Generates seeded exports of ``--rows`` rows (long/tall and wide layouts, about 50 bytes per
     row: 3 M rows is about 150 MB), reads each with both readers under ``/usr/bin/time -v`` (wall
     time, peak resident memory), the baseline with a time limit (``--baseline-timeout``), and then
-    diagnoses the records read (`diagnose.identify.identify`, timed apart from reading).
+    diagnoses the records read (`diagnose.identification.identify`, timed apart from reading).
 
     python benchmarks/bench_read.py compare --fuzz 400
     python benchmarks/bench_read.py large --rows 3000000 --md docs/_bench_read.md
@@ -164,7 +164,7 @@ def worker(case_file: str, out: str) -> None:
         item["read_s"] = time.perf_counter() - t0
         item["id"] = case["id"]
         if case.get("identify") and "records" in item:
-            from diagnose.identify import identify
+            from diagnose.identification import identify
 
             for r in recs:
                 t1 = time.perf_counter()

@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from diagnose.identify import identify  # noqa: E402
+from diagnose.identification import identify  # noqa: E402
 from diagnose.objective import Objective, ProcessGrid, burn_in, legendre_basis, op_offset, score_weights  # noqa: E402
 from validate_simulated import cases  # noqa: E402
 

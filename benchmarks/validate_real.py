@@ -1,4 +1,4 @@
-"""Validation of `diagnose.identify` on the real and third-party loop data in ../shared/data.
+"""Validation of `diagnose.identification` on the real and third-party loop data in ../shared/data.
 
 * plant-dcs-stictiongpt: the stiction verdict on every plant window against the plant engineers'
   label; balanced accuracy per window, weighted so that each tag counts once (one valve holds 23 of
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from diagnose.identify import identify  # noqa: E402
+from diagnose.identification import identify  # noqa: E402
 from diagnose.record import LoopRecord  # noqa: E402
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

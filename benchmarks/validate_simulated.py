@@ -1,4 +1,4 @@
-"""Simulated validation benchmark of `diagnose.identify` (issue 3).
+"""Simulated validation benchmark of `diagnose.identification` (issue 3).
 
 Builds a seeded set of closed loops with the simulator (`diagnose.simulate`): every stiction class
 plus healthy valves, random process kinds (FOPTD / SOPTD / integrating), gains (either sign), lags,
@@ -176,7 +176,7 @@ def cases(n_loops: int, seed: int, n: int, definition: str = "original") -> Iter
 def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str = "original",
         **identify_opts) -> tuple[list[dict], dict]:
     """Generate (`cases`) and identify ``n_loops`` loops."""
-    from diagnose.identify import identify
+    from diagnose.identification import identify
 
     rows = []
     n_redrawn = 0
@@ -189,10 +189,9 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str =
                "class": res.cls, "class_alternatives": list(res.class_alternatives),
                "stiction": res.stiction, "S": res.S_pct, "J": res.J_pct,
                "S_fit": res.fitted_S_pct, "J_fit": res.fitted_J_pct,
-               "improvement": res.detection.get("improvement"), "t_stat": res.detection.get("t_stat"),
-               "insample": res.detection.get("insample_improvement"), "rule": res.detection.get("rule"),
-               "confidence": res.confidence,
-               "class_test": res.detection.get("class_test"),
+               "insample": res.detection.insample_improvement,
+               "stiction_probability": res.stiction_probability, "confidence": res.confidence,
+               "class_test": None if res.detection.class_test is None else res.detection.class_test.to_dict(),
                "time_s": dt, **case.info}
         if res.process is not None:
             row.update({"fit_kind": res.process.kind, "fit_gain": res.process.gain,
@@ -200,7 +199,7 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str =
         rows.append(row)
         if verbose:
             print(f"{row['loop']} {case.cls:10s} S={case.S_pct:5.2f} J={case.J_pct:5.2f} {row['kind']:11s} -> "
-                  f"{res.cls:10s} S={row['S_fit']:5.2f} J={row['J_fit']:5.2f} rule={row['rule']} "
+                  f"{res.cls:10s} S={row['S_fit']:5.2f} J={row['J_fit']:5.2f} p={row['stiction_probability'] or 0:.2f} "
                   f"moves={row['mv_moves']} {dt:.2f}s", flush=True)
     summary = evaluate(rows)
     summary["definition"] = definition

@@ -5,8 +5,9 @@ one entry point for files: it detects the layout (see `connectors.layouts`; pand
 rows), finds the loops (naming rule in `connectors.columns`, or a tag map, or explicit column
 names), puts every loop on a uniform time grid (`connectors.timebase`), splits it at long gaps,
 keeps the newest ``max_samples`` samples and attaches data-quality findings
-(`diagnose.quality.assess`). `read_frame` does the same for a pandas DataFrame. Modbus polling lives
-in `connectors.modbus` (imported on demand: it pulls in pymodbus).
+(`diagnose.quality.assess`). `read_frame` does the same for a pandas DataFrame. Users reach both
+through `diagnose.read_loops` (docs/api.md). Modbus polling lives in `connectors.modbus` (imported
+on demand: it pulls in pymodbus).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from diagnose.errors import ConnectorError
 from diagnose.record import LoopRecord
 
 FILE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".prn")
-OPTIONS = ("op", "pv", "sp", "mv", "mode", "ts", "ts_s", "name", "fmt", "format", "tags", "tz", "dst",
+OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "fmt", "format", "tags", "tz", "dst",
            "loop", "max_gap_s", "min_samples", "max_samples", "progress")
 
 
@@ -39,8 +40,8 @@ def list_sources(path: str | os.PathLike) -> list[str]:
 
 def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str | None = None,
                dst: str | None = None, op: str | None = None, pv: str | None = None, sp: str | None = None,
-               mv: str | None = None, mode: str | None = None, ts: str | None = None,
-               ts_s: float | None = None, name: str | None = None, fmt: str | None = None,
+               mv: str | None = None, mode: str | None = None, time: str | None = None,
+               ts: str | None = None, ts_s: float | None = None, name: str | None = None, fmt: str | None = None,
                loop: str | None = None, max_gap_s: float | None = None, min_samples: int | None = None,
                max_samples: int | None = None, progress: Any = None) -> list[LoopRecord]:
     """Read every loop in a historian export (file, folder of files, or file object) into records.
@@ -56,8 +57,9 @@ def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str
         Policy for ambiguous/missing local times at DST changes (default ``infer``).
     op, pv, sp, mv, mode : str, optional
         Column (tag) names that override the naming rule; OP/PV given -> one loop.
-    ts : str, optional
-        Name of the time column.
+    time : str, optional
+        Name of the time column (default: found by its name or content). ``ts`` is an older
+        spelling of the same option.
     ts_s : float, optional
         Sample period in seconds (default: median spacing of the timestamps; the DCS export's own).
     name : str, optional
@@ -89,7 +91,7 @@ def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str
     diagnose.errors.ConnectorError
         One line naming the file (line, column) and the problem.
     """
-    options = {k: v for k, v in dict(tags=tags, tz=tz, dst=dst, op=op, pv=pv, sp=sp, mv=mv, mode=mode, ts=ts,
+    options = {k: v for k, v in dict(tags=tags, tz=tz, dst=dst, op=op, pv=pv, sp=sp, mv=mv, mode=mode, time=time, ts=ts,
                                      ts_s=ts_s, name=name, fmt=fmt, loop=loop, max_gap_s=max_gap_s,
                                      min_samples=min_samples, max_samples=max_samples,
                                      progress=progress).items() if v is not None}
@@ -125,6 +127,8 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
             options.setdefault("fmt" if k == "format" else k, v)
     if "format" in options:
         options.setdefault("fmt", options.pop("format"))
+    if "time" in options:
+        options.setdefault("ts", options.pop("time"))
     if hasattr(source, "read"):
         sources: list[Any] = [source]
         folder = False

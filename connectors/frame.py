@@ -24,7 +24,7 @@ from .textio import numbers
 from .timebase import _localise, _tzinfo, parse_times
 
 LABEL = "<DataFrame>"
-FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",
+FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",
                  "min_samples", "max_samples")
 
 
@@ -110,6 +110,8 @@ def records_from_frame(df: pd.DataFrame, **options: Any) -> list[LoopRecord]:
     if unknown:
         raise DataError(f"unknown options {sorted(unknown)}; allowed: {', '.join(FRAME_OPTIONS)}")
     options = {k: v for k, v in options.items() if v is not None}
+    if "time" in options:
+        options.setdefault("ts", options.pop("time"))
     if not options.get("name") and isinstance(df, pd.DataFrame) and df.attrs.get("name"):
         options["name"] = str(df.attrs["name"])      # what LoopRecord.to_frame() writes
     try:
@@ -127,18 +129,3 @@ def records_from_frame(df: pd.DataFrame, **options: Any) -> list[LoopRecord]:
     except ConnectorError as exc:
         raise DataError(str(exc).removeprefix(f"{LABEL}: ")) from None
     return [r.replace(source=None) if r.source == LABEL else r for r in records]
-
-
-def record_from_frame(df: pd.DataFrame, **options: Any) -> LoopRecord:
-    """One loop's one uninterrupted record from a DataFrame (`diagnose.record.LoopRecord.from_frame`)."""
-    options.setdefault("max_samples", 0)
-    records = records_from_frame(df, **options)
-    loops = list(dict.fromkeys(r.name for r in records))
-    if len(loops) > 1:
-        raise DataError(f"the frame holds {len(loops)} loops ({', '.join(loops)}); choose one with op= and pv=")
-    if len(records) > 1:
-        seg = next(f for f in records[0].findings if f.code == "segment")
-        raise DataError(f"the frame splits into {len(records)} segments at gaps longer than "
-                        f"{seg.data['max_gap_s']:g} s (longest {max(seg.data['gaps_s']):g} s); fill or cut the "
-                        "gaps, or use connectors.read_frame(df) for one record per segment")
-    return records[0]

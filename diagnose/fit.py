@@ -550,60 +550,78 @@ def finish(obj: Objective, best: Candidate, lim: Limits, off: float, *, surface:
 # --------------------------------------------------------------------------------------------------
 
 class StictionEstimator:
-    """scikit-learn style wrapper around `fit_hammerstein` (or `diagnose.valve_fit.fit_valve` with
-    ``use_mv``).
+    """scikit-learn-style estimator over `diagnose.identification.identify` (the same identification
+    as `diagnose.identify` and ``stiction identify``, on a record).
 
-    Parameters are stored as given; ``fit(record)`` (a `diagnose.record.LoopRecord`) or
-    ``fit(op_pct, pv, ts_s)`` validates and learns ``S_pct_``, ``J_pct_``, ``f0_``, ``process_``,
-    ``class_`` and ``result_``.
+    Parameters are those of `identify`, stored as given; `get_params` reads them from this
+    signature. ``fit(record)`` (a `diagnose.record.LoopRecord`, or ``fit(op_pct, pv, ts_s)``)
+    learns ``identification_`` and, from it, ``stiction_``, ``stiction_probability_``, ``S_pct_``,
+    ``J_pct_``, ``class_`` and ``process_``.
+
+    Parameters
+    ----------
+    use_mv : bool
+        Fit the valve directly on OP -> MV when the record has a stem position.
+    class_test : bool
+        Test the special shapes J = 0 and J = S against the free fit.
+    integrating : bool, optional
+        Whether the process is integrating (default: the fit or a level tag decides).
     """
 
-    def __init__(self, *, use_mv: bool = False, n_S: int = 12, n_J: int = 12, load_order: int = 2,
-                 hp_tau_s: float | None | str = "auto") -> None:
+    def __init__(self, *, use_mv: bool = True, class_test: bool = True, integrating: bool | None = None) -> None:
         self.use_mv = use_mv
-        self.n_S = n_S
-        self.n_J = n_J
-        self.load_order = load_order
-        self.hp_tau_s = hp_tau_s
+        self.class_test = class_test
+        self.integrating = integrating
 
-    def get_params(self) -> dict[str, Any]:
-        return {"use_mv": self.use_mv, "n_S": self.n_S, "n_J": self.n_J,
-                "load_order": self.load_order, "hp_tau_s": self.hp_tau_s}
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The constructor's parameters and their values."""
+        import inspect
 
-    def fit(self, record_or_op, pv=None, ts_s: float | None = None) -> "StictionEstimator":
-        from .stiction_model import stiction_class
-        from .valve_fit import fit_valve
+        names = [n for n in inspect.signature(type(self).__init__).parameters if n != "self"]
+        return {n: getattr(self, n) for n in names}
+
+    def set_params(self, **params: Any) -> "StictionEstimator":
+        valid = self.get_params()
+        for k, v in params.items():
+            if k not in valid:
+                raise ValueError(f"invalid parameter {k!r} for StictionEstimator; valid: {', '.join(valid)}")
+            setattr(self, k, v)
+        return self
+
+    def fit(self, record_or_op: Any, pv: Any = None, ts_s: float | None = None) -> "StictionEstimator":
+        """Identify stiction in one loop; returns self."""
+        from .identification import identify
+        from .record import LoopRecord
+
         if pv is None:
             rec = record_or_op
-            op, pv, ts_s = rec.op, rec.pv, rec.ts_s
-            mv = rec.mv
+            if not isinstance(rec, LoopRecord):
+                raise DataError("fit(record): give a LoopRecord (diagnose.read_loops reads files and "
+                                "DataFrames), or fit(op_pct, pv, ts_s)")
         else:
-            op, mv = record_or_op, None
             if ts_s is None:
                 raise DataError("fit(op_pct, pv, ts_s): give the sample period ts_s")
-        if self.use_mv:
-            if mv is None:
-                raise DataError("use_mv=True needs a record with a stem position (MV)")
-            res = fit_valve(op, mv, ts_s)
-            self.process_ = None
-        else:
-            cfg = SearchConfig(grid=replace(SearchConfig().grid, n_S=self.n_S, n_J=self.n_J))
-            res = fit_hammerstein(op, pv, ts_s, load_order=self.load_order, hp_tau_s=self.hp_tau_s, search=cfg)
-            self.process_ = res.process
-        self.result_ = res
-        self.S_pct_ = res.S_pct
-        self.J_pct_ = res.J_pct
-        self.f0_ = res.f0
-        self.class_ = stiction_class(res.S_pct, res.J_pct)
+            rec = LoopRecord(name="LOOP", ts_s=ts_s, op=record_or_op, pv=pv)
+        ident = identify(rec, **self.get_params())
+        self.identification_ = ident
+        self.stiction_ = ident.stiction
+        self.stiction_probability_ = ident.stiction_probability
+        self.S_pct_ = ident.S_pct
+        self.J_pct_ = ident.J_pct
+        self.class_ = ident.cls
+        self.process_ = ident.process
         return self
 
     def _check(self) -> None:
-        if not hasattr(self, "result_"):
+        if not hasattr(self, "identification_"):
             raise NotFittedError("this StictionEstimator is not fitted yet; call fit() first")
 
-    def simulate(self, op_pct):
-        """``(mv_hat_pct, pv_hat)`` (Hammerstein) or ``mv_hat_pct`` (valve fit) for an OP series."""
+    def simulate(self, op_pct: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``(mv_hat_pct, pv_hat)`` of the identified model for an OP series (`Identification.model_path`:
+        the valve path is None on a no-stiction verdict)."""
         self._check()
-        return self.result_.simulate(op_pct)
+        return self.identification_.model_path(np.asarray(op_pct, dtype=float))
 
-    predict = simulate
+    def predict(self, op_pct: Any) -> np.ndarray | None:
+        """PV of the identified model for an OP series."""
+        return self.simulate(op_pct)[1]

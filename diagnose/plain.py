@@ -72,3 +72,16 @@ def percent_change(fraction: Any, none: str = "-") -> str:
     if v is None:
         return none
     return f"{100.0 * v:+.0f} %"
+
+
+def percent(fraction: Any, none: str = "-") -> str:
+    """A probability or share as a whole percentage (``0.97`` -> ``"97 %"``); above 99.5 % it reads
+    ``"> 99 %"`` and below 0.5 % ``"< 1 %"``: a rounded 100 % would read as a certainty."""
+    v = _finite(fraction)
+    if v is None:
+        return none
+    if v >= 0.995:
+        return "> 99 %"
+    if 0 < v < 0.005:
+        return "< 1 %"
+    return f"{100.0 * v:.0f} %"

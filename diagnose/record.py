@@ -158,37 +158,94 @@ class LoopRecord:
     def from_frame(cls, df: Any, *, op: str | None = None, pv: str | None = None, sp: str | None = None,
                    mv: str | None = None, ts_s: float | None = None, name: str | None = None,
                    tz: str | None = None) -> "LoopRecord":
-        """One loop's record from a pandas DataFrame.
+        """One loop's record from a DataFrame that is already uniformly sampled (what `to_frame` writes).
 
-        The time is the frame's `DatetimeIndex`, or its time column (``time``, ``timestamp``...),
-        or, for evenly spaced rows, the row number times ``ts_s``. Which column is OP, PV, SP and MV
-        is guessed from the names as for files (``OP``, ``FIC101.PV``, ``SP``, ``MV``/``.POS``...;
-        see docs/connectors.md) unless given. Rows are sorted, duplicated times keep their first
-        value, short gaps are interpolated and the result is on a uniform grid (``ts_s``, default
-        the median spacing), with the same data-quality findings as a file.
+        A strict constructor: the frame's rows are the record's samples as they are. For anything
+        else (tag names such as ``FIC101.PV``, a time column, irregular times, gaps, duplicates,
+        several loops) use `diagnose.read_loops` (or `diagnose.identify` directly), which reads a
+        frame the way it reads a file.
 
         Parameters
         ----------
         df : pandas.DataFrame
+            A `DatetimeIndex` with equal steps, or any index with ``ts_s`` given (evenly spaced rows).
         op, pv, sp, mv : str, optional
             Column names of controller output (% of span), process variable, setpoint and valve
-            stem position (% of span).
+            stem position (% of span); by default the columns named ``OP``, ``PV``, ``SP`` and
+            ``MV`` (any case).
         ts_s : float, optional
-            Sample period in seconds (required for frames without a time).
+            Sample period in seconds: required without a `DatetimeIndex`; with one it must agree
+            with the index's step.
         name : str, optional
-            Loop name (default: the columns' tag, ``df.attrs["name"]``, else ``"LOOP"``).
+            Loop name (default ``df.attrs["name"]``, else ``"LOOP"``).
         tz : str, optional
-            Time zone of naive times (IANA name or ``+hh:mm``; default UTC).
+            Time zone of a naive `DatetimeIndex` (IANA name; default UTC).
 
         Raises
         ------
         DataError
-            The frame has no OP or PV column, several loops, a gap longer than ten sample periods
-            (``connectors.read_frame`` gives one record per segment), or too few samples.
+            No OP or PV column, missing values, an index whose steps are not equal, or no time.
         """
-        from connectors.frame import record_from_frame
+        import pandas as pd
 
-        return record_from_frame(df, op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, name=name, tz=tz)
+        fix = "; diagnose.read_loops(df) reads such frames (gaps, time columns, tag names, several loops)"
+        if not isinstance(df, pd.DataFrame):
+            raise DataError(f"expected a pandas DataFrame, got {type(df).__name__}")
+        if isinstance(df.columns, pd.MultiIndex):
+            raise DataError("the frame has several column levels; flatten them to one name per column")
+        names = {str(c).lower(): c for c in df.columns}
+        cols: dict[str, Any] = {}
+        for role, given in (("op", op), ("pv", pv), ("sp", sp), ("mv", mv)):
+            if given is not None:
+                if given not in df.columns:
+                    raise DataError(f"no column named {given!r} for {role.upper()} "
+                                    f"(columns: {', '.join(map(str, df.columns))})")
+                cols[role] = given
+            elif role in names:
+                cols[role] = names[role]
+        for role in ("op", "pv"):
+            if role not in cols:
+                raise DataError(f"no {role.upper()} column (columns: {', '.join(map(str, df.columns))}): name it "
+                                f"{role.upper()} or give {role}={fix}")
+        values = {}
+        for role, col in cols.items():
+            v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+            bad = int(np.count_nonzero(~np.isfinite(v)))
+            if bad:
+                raise DataError(f"column {col!r} ({role.upper()}) has {bad} missing or non-numeric values{fix}")
+            values[role] = v
+        start = None
+        if isinstance(df.index, pd.DatetimeIndex):
+            idx = df.index
+            if idx.tz is None:
+                try:
+                    idx = idx.tz_localize(tz or "UTC", ambiguous="raise", nonexistent="raise")
+                except Exception as exc:  # pytz/zoneinfo errors: an unknown zone or a DST fold
+                    raise DataError(f"the frame's naive times cannot be read as local times in {tz}: "
+                                    f"{exc}{fix}") from None
+            ns = idx.tz_convert("UTC").as_unit("ns").asi8
+            if len(ns) < 2:
+                raise DataError("the frame needs at least two rows")
+            step = np.diff(ns)
+            period = float(np.median(step))
+            if period <= 0 or np.max(np.abs(step - period)) > max(1e-6 * period, 1000.0):
+                raise DataError(f"the frame's time steps are not equal (from {step.min() / 1e9:g} s to "
+                                f"{step.max() / 1e9:g} s): LoopRecord.from_frame takes uniformly sampled "
+                                f"frames{fix}")
+            period_s = period / 1e9
+            if ts_s is not None and abs(float(ts_s) - period_s) > 1e-6 * period_s:
+                raise DataError(f"ts_s={ts_s:g} s disagrees with the index's step of {period_s:g} s")
+            ts_s = period_s
+            first = pd.Timestamp(ns[0], tz="UTC").to_pydatetime(warn=False)
+            start = first.isoformat().replace("+00:00", "Z")
+        elif ts_s is None:
+            raise DataError(f"the frame has no DatetimeIndex: give the sample period ts_s= (seconds){fix}")
+        attrs = df.attrs
+        units = dict(attrs.get("units") or {})
+        source = attrs.get("source")
+        return cls(name=str(name or attrs.get("name") or "LOOP"), ts_s=float(ts_s), start=start,
+                   units=units, source=None if source is None else str(source),
+                   meta={"format": "dataframe", "columns": {r: str(c) for r, c in cols.items()}}, **values)
 
     def to_frame(self) -> Any:
         """The record as a pandas DataFrame: columns OP, PV[, SP][, MV] on a UTC `DatetimeIndex`.

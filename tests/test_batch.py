@@ -16,7 +16,7 @@ import pytest
 from connectors.historian import write_wide
 from diagnose.service import batch as B
 from diagnose.service.cli import main
-from diagnose.service.history import History
+from diagnose.service.history import History, row_from_stored
 from diagnose.simulate import sticky_loop
 
 # (name, S, J): a clearly sticky valve, a mildly sticky one, a healthy one
@@ -111,6 +111,24 @@ def test_rerun_skips_what_is_done_and_redoes_what_changed(first_run, plant):
         assert len(h.runs("FIC1")) == 1 and len(h.runs("FIC2")) == 2 and len(h.runs("FIC3")) == 1
 
 
+def test_a_result_stored_without_its_summary_row_is_diagnosed_again(first_run, plant):
+    """A LOOP.json of an earlier schema (no stored summary row) is read for its name and redone."""
+    out, _ = first_run
+    path = out / "loops" / "FIC1" / "FIC1.json"
+    old = json.loads(path.read_text())
+    assert old["summary"]["loop"] == "FIC1" and old["schema"] == "stiction.loop/2"
+    del old["summary"]
+    old["schema"] = "stiction.loop/1"
+    path.write_text(json.dumps(old))
+    again = B.run_batch([plant / "logs"], out, workers=1, explain=False, db=plant / "h.sqlite", progress=False)
+    row = next(r for r in again.rows if r["loop"] == "FIC1")
+    assert not row["skipped"] and row["S_pct"] > 3.0
+    new = json.loads(path.read_text())
+    assert new["summary"]["loop"] == "FIC1" and new["schema"] == "stiction.loop/2"
+    with History(plant / "h.sqlite") as h:
+        assert len(h.runs("FIC1")) == 1      # the same input and version: filed once
+
+
 def test_cli_exit_code_says_whether_any_failed(plant, tmp_path, capsys):
     good = tmp_path / "good"
     good.mkdir()
@@ -130,8 +148,8 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     db = tmp_path / "h.sqlite"
     with History(db) as h:
         for i, S in enumerate([1.0, 2.0]):
-            h.add({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}"},
-                  run_at=f"2026-01-0{i + 1}T00:00:00+00:00")
+            h.add_rows([row_from_stored({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}"},
+                                        run_at=f"2026-01-0{i + 1}T00:00:00+00:00")])   # runs of an older release
     logs = tmp_path / "logs"
     logs.mkdir()
     (logs / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())

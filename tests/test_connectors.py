@@ -543,12 +543,20 @@ def frame_loop(n=600, seed=0, freq="1s"):
                         index=pd.date_range("2024-05-01 00:00", periods=n, freq=freq, name="time"))
 
 
-def test_from_frame_datetime_index_and_to_frame_round_trip():
+def _one(df, **options):
+    """The one record `diagnose.read_loops` reads from a frame of one loop and one segment."""
+    import diagnose
+
+    (rec,) = diagnose.read_loops(df, **options)
+    return rec
+
+
+def test_read_loops_frame_with_datetime_index_and_to_frame_round_trip():
     import pandas as pd
 
     df = frame_loop()
-    rec = LoopRecord.from_frame(df, name="FIC9")
-    assert rec.name == "FIC9" and rec.n == 600 and rec.ts_s == 1.0 and rec.start == "2024-05-01T00:00:00Z"
+    rec = _one(df).replace(name="FIC9")
+    assert rec.n == 600 and rec.ts_s == 1.0 and rec.start == "2024-05-01T00:00:00Z"
     np.testing.assert_array_equal(rec.op, df["OP"].to_numpy())
     np.testing.assert_array_equal(rec.sp, df["SP"].to_numpy())
     assert rec.mv is None and rec.meta["format"] == "dataframe" and rec.meta["quality_checked"]
@@ -556,87 +564,111 @@ def test_from_frame_datetime_index_and_to_frame_round_trip():
     assert list(out.columns) == ["OP", "PV", "SP"] and isinstance(out.index, pd.DatetimeIndex)
     assert str(out.index.tz) == "UTC" and out.index[0] == pd.Timestamp("2024-05-01", tz="UTC")
     assert out.index[1] - out.index[0] == pd.Timedelta(seconds=1) and out.attrs["name"] == "FIC9"
-    back = LoopRecord.from_frame(out)
+    back = LoopRecord.from_frame(out)                     # the strict constructor takes what to_frame writes
     assert back.name == "FIC9" and back.start == rec.start and back.ts_s == rec.ts_s
     for role in ("op", "pv", "sp"):
         np.testing.assert_array_equal(getattr(back, role), getattr(rec, role))
+    again = _one(out)                                     # and the reader reads it the same
+    assert again.name == "FIC9" and again.start == rec.start
+    np.testing.assert_array_equal(again.op, rec.op)
 
 
-def test_from_frame_time_column_and_naming_rule():
+def test_read_loops_frame_time_column_and_naming_rule():
     df = frame_loop().reset_index()
     df.columns = ["Timestamp", "FIC7.OUT", "FIC7.MEAS", "FIC7.SP"]
     df["Timestamp"] = df["Timestamp"].dt.strftime("%d-%b-%Y %H:%M:%S")     # PI-style text times
-    rec = LoopRecord.from_frame(df)
+    rec = _one(df)
     assert rec.name == "FIC7" and rec.n == 600 and rec.start == "2024-05-01T00:00:00Z" and rec.sp is not None
     assert rec.meta["columns"] == {"op": "FIC7.OUT", "pv": "FIC7.MEAS", "sp": "FIC7.SP"}
-    named = LoopRecord.from_frame(df.rename(columns={"FIC7.OUT": "valve", "FIC7.MEAS": "flow"}), op="valve",
-                                  pv="flow")
+    named = _one(df.rename(columns={"FIC7.OUT": "valve", "FIC7.MEAS": "flow", "Timestamp": "when"}), op="valve",
+                 pv="flow", time="when")
     np.testing.assert_array_equal(named.op, rec.op)
 
 
-def test_from_frame_evenly_spaced_rows_need_ts_s():
+def test_frames_of_evenly_spaced_rows_need_ts_s():
     from diagnose.errors import DataError
 
     df = frame_loop().reset_index(drop=True)
-    rec = LoopRecord.from_frame(df, ts_s=0.5)
+    rec = _one(df, ts_s=0.5)
     assert rec.ts_s == 0.5 and rec.n == 600 and rec.start is None
     with pytest.raises(DataError, match="no time column; give the sample period"):
+        _one(df)
+    strict = LoopRecord.from_frame(df, ts_s=0.5)
+    assert strict.ts_s == 0.5 and strict.start is None
+    np.testing.assert_array_equal(strict.op, rec.op)
+    with pytest.raises(DataError, match="no DatetimeIndex: give the sample period ts_s=.*diagnose.read_loops"):
         LoopRecord.from_frame(df)
 
 
-def test_from_frame_time_zones_and_dst():
+def test_frames_time_zones_and_dst():
     import pandas as pd
+
+    from diagnose.errors import DataError
 
     # naive local times across the autumn change, the repeated hour written twice
     local = pd.date_range("2024-10-27 00:00", "2024-10-27 05:00", freq="1min", tz="Europe/Berlin")
     df = frame_loop(len(local)).set_axis(local.tz_localize(None), axis=0)
-    rec = LoopRecord.from_frame(df, tz="Europe/Berlin")
+    rec = _one(df, tz="Europe/Berlin")
     assert rec.n == len(local) and rec.ts_s == 60.0 and "duplicates" not in codes(rec)
     assert rec.start == "2024-10-26T22:00:00Z"
-    aware = LoopRecord.from_frame(df.set_axis(local, axis=0))           # tz-aware index: converted to UTC
+    aware = _one(df.set_axis(local, axis=0))            # tz-aware index: converted to UTC
     np.testing.assert_array_equal(aware.op, rec.op)
     assert aware.start == rec.start
-    utc = LoopRecord.from_frame(df.set_axis(local.tz_localize(None), axis=0))   # naive = UTC by default
+    utc = _one(df.set_axis(local.tz_localize(None), axis=0))   # naive = UTC by default
     assert "duplicates" in codes(utc)                                   # the repeated hour collides
+    # the strict constructor: a tz-aware uniform index is fine; the naive local one is not uniform
+    strict = LoopRecord.from_frame(df.set_axis(local, axis=0))
+    assert strict.start == rec.start and strict.ts_s == 60.0
+    np.testing.assert_array_equal(strict.op, rec.op)
+    with pytest.raises(DataError, match="cannot be read as local times in Europe/Berlin"):
+        LoopRecord.from_frame(df, tz="Europe/Berlin")
 
 
-def test_from_frame_gaps_and_duplicates():
+def test_frames_gaps_and_duplicates():
     import pandas as pd
 
-    from connectors import read_frame
     from diagnose.errors import DataError
 
     df = frame_loop()
     holes = df.drop(df.index[100:103])                                 # 3 missing rows: filled
-    rec = LoopRecord.from_frame(pd.concat([holes, holes.iloc[[10]]]).sort_index(kind="stable"))
+    rec = _one(pd.concat([holes, holes.iloc[[10]]]).sort_index(kind="stable"))
     assert rec.n == 600 and next(f for f in rec.findings if f.code == "duplicates").data["count"] == 1
     assert next(f for f in rec.findings if f.code == "gap").data["filled"] == 3
     op = df["OP"].to_numpy()
     np.testing.assert_allclose(rec.op[100:103], op[99] + (op[103] - op[99]) * np.arange(1, 4) / 4)
     np.testing.assert_array_equal(rec.op[:100], op[:100])
+    with pytest.raises(DataError, match=r"time steps are not equal \(from 1 s to 4 s\).*diagnose.read_loops"):
+        LoopRecord.from_frame(holes)                                   # the strict constructor refuses
     nan = df.copy()
     nan.iloc[200:205, 0] = np.nan                                       # NaN values: filled too
-    assert next(f for f in LoopRecord.from_frame(nan).findings if f.code == "gap").data["filled"] == 5
+    assert next(f for f in _one(nan).findings if f.code == "gap").data["filled"] == 5
+    with pytest.raises(DataError, match="'OP' \\(OP\\) has 5 missing or non-numeric values.*diagnose.read_loops"):
+        LoopRecord.from_frame(nan)
+    import diagnose
+
     long_gap = df.drop(df.index[200:260])
-    with pytest.raises(DataError, match="splits into 2 segments at gaps longer than 10 s .*read_frame"):
-        LoopRecord.from_frame(long_gap)
-    parts = read_frame(long_gap)
+    parts = diagnose.read_loops(long_gap)
     assert [r.n for r in parts] == [200, 340] and parts[1].start == "2024-05-01T00:04:20Z"
+    assert [r.meta["n_segments"] for r in parts] == [2, 2]
 
 
-def test_from_frame_errors_are_data_errors():
+def test_frame_errors_are_data_errors():
     import pandas as pd
 
-    from connectors import read_frame
+    import diagnose
     from diagnose.errors import DataError
 
     with pytest.raises(DataError, match=r"no PV column found \(columns: OP, X\)"):
+        diagnose.read_loops(pd.DataFrame({"OP": np.arange(50.0), "X": np.arange(50.0)}), ts_s=1.0)
+    with pytest.raises(DataError, match=r"no PV column \(columns: OP, X\): name it PV or give pv="):
         LoopRecord.from_frame(pd.DataFrame({"OP": np.arange(50.0), "X": np.arange(50.0)}), ts_s=1.0)
     two = pd.DataFrame({"A.OP": np.arange(50.0) % 7, "A.PV": np.arange(50.0) % 5,
                         "B.OP": np.arange(50.0) % 3, "B.PV": np.arange(50.0) % 4})
-    with pytest.raises(DataError, match=r"holds 2 loops \(A, B\)"):
-        LoopRecord.from_frame(two, ts_s=1.0)
-    (b,) = [r for r in read_frame(two, ts_s=1.0) if r.name == "B"]
-    assert b.n == 50
+    with pytest.raises(DataError, match=r"holds 2 loops \(A, B\); choose one"):
+        diagnose.identify(two, ts_s=1.0)
+    (b,) = diagnose.read_loops(two, ts_s=1.0, loop="B")
+    assert b.n == 50 and b.name == "B"
     with pytest.raises(DataError, match="expected a pandas DataFrame"):
         LoopRecord.from_frame({"OP": [1, 2]})
+    with pytest.raises(DataError, match="tags= applies to files"):
+        diagnose.read_loops(two, ts_s=1.0, tags={"loops": {}})

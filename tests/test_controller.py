@@ -6,7 +6,7 @@ import pytest
 
 from diagnose.controller import MIN_R2, controller_action
 from diagnose.fit import fit_hammerstein
-from diagnose.identify import identify
+from diagnose.identification import identify
 from diagnose.simulate import sticky_loop
 
 

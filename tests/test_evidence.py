@@ -20,7 +20,7 @@ from diagnose.evidence.curve_fit import stiction_index
 from diagnose.evidence.d2pdf import d2_index
 from diagnose.evidence.result import DECISIONS
 from diagnose.evidence._signals import half_cycles, oscillation, sample_range
-from diagnose.simulate import FOPTD, Integrating, PIDController, simulate_loop, sinusoid, sticky_loop
+from diagnose.simulate import PIDController, make_process, simulate_loop, sinusoid, sticky_loop
 
 SEEDS = (0, 1, 2)
 
@@ -36,7 +36,7 @@ def sticky_flow(seed):
 def healthy_sine_load(seed, period_s=20.0, ts_s=0.25):
     """A healthy self-regulating loop oscillating with an external sinusoidal load."""
     n = int(50 * period_s / ts_s)
-    return simulate_loop(n=n, ts_s=ts_s, process=FOPTD(gain=1.0, tau_s=10.0, delay_s=1.0),
+    return simulate_loop(n=n, ts_s=ts_s, process=make_process("foptd", gain=1.0, tau_s=10.0, delay_s=1.0),
                          controller=PIDController(Kc=2.0, Ti_s=10.0), load=sinusoid(n, ts_s, period_s, 2.0),
                          noise_std=0.05, seed=seed, warmup=400)
 
@@ -50,7 +50,7 @@ def sticky_level(seed):
 def level_sine_inflow(seed):
     """A healthy level loop under PI with a sinusoidal inflow."""
     n = 3000
-    return simulate_loop(n=n, ts_s=1.0, process=Integrating(gain=0.02, delay_s=2.0),
+    return simulate_loop(n=n, ts_s=1.0, process=make_process("integrating", gain=0.02, tau_s=0.0, delay_s=2.0),
                          controller=PIDController(Kc=1.0 / (0.02 * 6.0), Ti_s=24.0),
                          load=sinusoid(n, 1.0, 200.0, 1.0), noise_std=0.02, seed=seed, warmup=300)
 

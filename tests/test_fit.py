@@ -130,15 +130,20 @@ def test_op_outside_the_span_is_shifted_and_simulate_undoes_it():
 
 def test_estimator_contract(sticky):
     rec, _ = sticky
-    est = StictionEstimator(n_S=8, n_J=8)
+    est = StictionEstimator(use_mv=False)
+    assert est.get_params() == {"use_mv": False, "class_test": True, "integrating": None}
     with pytest.raises(NotFittedError):
         est.simulate(rec.op)
     assert est.fit(rec) is est
-    assert est.S_pct_ > 2.0 and est.class_ in ("undershoot", "deadband", "no_offset")
+    assert est.stiction_ and est.S_pct_ > 2.0 and est.class_ in ("undershoot", "deadband", "no_offset")
+    assert est.identification_.method == "op_pv" and est.process_ is est.identification_.process
     mv_hat, pv_hat = est.simulate(rec.op)
-    assert pv_hat.shape == rec.pv.shape
-    valve = StictionEstimator(use_mv=True).fit(rec)
-    assert valve.S_pct_ == pytest.approx(4.0, abs=0.2)
+    assert pv_hat.shape == rec.pv.shape and mv_hat.shape == rec.op.shape
+    np.testing.assert_array_equal(est.predict(rec.op), pv_hat)
+    valve = StictionEstimator().set_params(use_mv=True).fit(rec)
+    assert valve.identification_.method == "op_mv" and valve.S_pct_ == pytest.approx(4.0, abs=0.2)
+    with pytest.raises(ValueError, match="invalid parameter 'n_S'"):
+        StictionEstimator().set_params(n_S=8)
 
 
 def test_refinements_keep_S_within_the_OP_range():

@@ -22,7 +22,7 @@ def _res(loop: str, S: float, J: float = 1.0, h: str = "h", cls: str = "undersho
 def _fill(db, loop, S_values):
     with H.History(db) as hist:
         for i, S in enumerate(S_values):
-            hist.add(_res(loop, S, h=f"h{i}"), run_at=f"2026-03-{i + 1:02d}T02:00:00+00:00")
+            hist.add_rows([H.row_from_stored(_res(loop, S, h=f"h{i}"), run_at=f"2026-03-{i + 1:02d}T02:00:00+00:00")])
 
 
 def test_default_path_follows_stiction_home(monkeypatch, tmp_path):
@@ -38,7 +38,7 @@ def test_runs_are_stored_once_in_wal_mode_and_read_back_in_order(tmp_path):
     _fill(db, "FIC1", [1.0, 1.5, 1.2])
     with H.History(db) as hist:
         assert hist.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-        assert not hist.add(_res("FIC1", 1.0, h="h0"))  # same loop, input and version: not again
+        assert hist.add_rows([H.row_from_stored(_res("FIC1", 1.0, h="h0"))]) == 0  # same loop, input, version
         rows = hist.runs("FIC1")
         assert [r["S_pct"] for r in rows] == [1.0, 1.5, 1.2]
         assert rows[0]["S_lo"] == pytest.approx(0.9) and rows[0]["class"] == "undershoot"
@@ -48,8 +48,8 @@ def test_runs_are_stored_once_in_wal_mode_and_read_back_in_order(tmp_path):
 
 def test_a_failed_write_stores_nothing(tmp_path):
     db = tmp_path / "h.sqlite"
-    good = H.row_from_result(_res("A", 1.0))
-    bad = dict(H.row_from_result(_res("B", 2.0)), loop=None)  # violates NOT NULL
+    good = H.row_from_stored(_res("A", 1.0))
+    bad = dict(H.row_from_stored(_res("B", 2.0)), loop=None)  # violates NOT NULL
     with H.History(db) as hist:
         with pytest.raises(sqlite3.IntegrityError):
             hist.add_rows([good, bad])
@@ -63,7 +63,7 @@ def test_a_crash_mid_transaction_keeps_earlier_runs(tmp_path):
         sys.path.insert(0, {str(sys.path[0])!r})
         from diagnose.service import history as H
         h = H.History({str(db)!r})
-        h.add({{"loop": "L", "S": 1.0, "tool_version": "t", "input_hash": "a"}})
+        h.add_rows([H.row_from_stored({{"loop": "L", "S": 1.0, "tool_version": "t", "input_hash": "a"}})])
         h.conn.execute("BEGIN")
         h.conn.execute("INSERT INTO runs (loop, run_at, input_hash) VALUES ('L', 'x', 'b')")
         os._exit(9)  # killed before COMMIT
@@ -118,7 +118,7 @@ def test_backfilled_exports_are_ordered_by_their_records_not_by_the_run(tmp_path
     run_at = "2026-04-01T02:00:00+00:00"   # one night back-fills three months
     with H.History(db) as hist:
         for month, S in (("03", 1.7), ("01", 1.0), ("02", 1.3)):
-            hist.add(_dated("FIC1", S, f"2026-{month}-10T00:00:00Z", h=month), run_at=run_at)
+            hist.add_rows([H.row_from_stored(_dated("FIC1", S, f"2026-{month}-10T00:00:00Z", h=month), run_at=run_at)])
         rows = hist.runs("FIC1")
     assert [r["S_pct"] for r in rows] == [1.0, 1.3, 1.7]
     assert [r["data_end"] for r in rows] == ["2026-01-11T00:00:00+00:00", "2026-02-11T00:00:00+00:00",
@@ -169,14 +169,36 @@ def test_a_version_1_database_is_read_and_migrated_in_place(tmp_path, capsys):
         rows = hist.runs("FIC1")
         assert [r["S_pct"] for r in rows] == [1.0, 1.3]   # by the records' ends, filled in
         assert rows[0]["data_end"] == "2026-01-11T00:00:00+00:00"
-        assert hist.add(_dated("FIC1", 1.6, "2026-03-10T00:00:00Z", h="03"))
+        assert hist.add_rows([H.row_from_stored(_dated("FIC1", 1.6, "2026-03-10T00:00:00Z", h="03"))]) == 1
         assert [r["S_pct"] for r in hist.runs("FIC1")] == [1.0, 1.3, 1.6]
 
 
 def test_cli_finds_a_loop_by_its_tag_as_written(tmp_path, capsys):
     db = tmp_path / "h.sqlite"
     with H.History(db) as hist:
-        hist.add(_res("FIC 9/A", 1.0))   # filed under the file-safe tag
+        hist.add_rows([H.row_from_stored(_res("FIC 9/A", 1.0))])   # filed under the file-safe tag
     assert H.History(db, readonly=True).loops() == ["FIC_9_A"]
     assert main(["history", "FIC 9/A", "--db", str(db)]) == 0
     assert capsys.readouterr().out.startswith("FIC_9_A: 1 run(s)")
+
+
+def test_a_diagnosis_is_filed_as_its_stored_json_reads_back(tmp_path):
+    """The row of a live diagnosis and the row read back from its LOOP.json are the same row."""
+    import json
+
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=1200, noise_std=0.03, load_walk_std=0.02, seed=4, name="FIC 4")
+    diag = diagnose(rec.replace(start="2026-02-01T00:00:00Z"), narx=False)
+    live = H.row_from_diagnosis(diag, run_at="2026-02-02T00:00:00+00:00", input_hash="x")
+    stored = H.row_from_stored(json.loads(json.dumps(diag.to_dict())), run_at=live["run_at"], input_hash="x")
+    assert {k: v for k, v in live.items() if k != "result_json"} == \
+        {k: v for k, v in stored.items() if k != "result_json"}
+    assert live["loop"] == "FIC_4" and live["data_end"] == "2026-02-01T00:19:59+00:00"
+    assert live["S_pct"] == diag.identification.S_pct and live["verdict"] == diag.verdict_text
+    with H.History(tmp_path / "h.sqlite") as hist:
+        assert hist.add(diag, run_at=live["run_at"], input_hash="x")
+        assert not hist.add(diag, run_at=live["run_at"], input_hash="x")     # stored once
+        (row,) = hist.runs("FIC_4", with_result=True)
+    assert json.loads(row["result_json"])["schema"] == "stiction.loop/2"

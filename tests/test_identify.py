@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from diagnose.errors import DataError
-from diagnose.identify import INSAMPLE_THRESHOLD, Identification, identify
+from diagnose.identification import INSAMPLE_THRESHOLD, Identification, identify
 from diagnose.oscillation import acf, oscillation_context
 from diagnose.record import Finding, LoopRecord
 from diagnose.simulate import sticky_loop
@@ -37,7 +37,7 @@ def test_a_sticky_loop_is_detected_and_classed(sticky_result):
     assert res.stiction_probability >= res.verdict.threshold
     rows = {ev.test: ev for ev in res.evidence}
     assert rows["model_fit"].decision == "stiction" and rows["valve_band"].decision == "stiction"
-    assert res.detection["insample_improvement"] > INSAMPLE_THRESHOLD
+    assert res.detection.insample_improvement > INSAMPLE_THRESHOLD
     assert res.oscillation.oscillating and res.oscillation.period_s > 0
     assert 0.5 < res.confidence <= 1.0
     assert res.fit is not None and res.valve_fit is None
@@ -123,21 +123,22 @@ def test_class_test_keeps_the_special_shape_that_the_data_allow():
     rec = sticky_loop(3.0, 3.0, n=2000, gain=1.2, tau_s=15.0, delay_s=4.0, noise_std=0.02,
                       load_walk_std=0.01, seed=5, f0=-1)
     res = identify(_no_mv(rec))
-    ct = res.detection["class_test"]
+    ct = res.detection.class_test
     assert res.stiction and res.cls == "no_offset"
     assert res.J_pct == pytest.approx(res.S_pct) and res.S_pct == pytest.approx(3.0, rel=0.1)
-    assert ct["cost_no_offset"] <= ct["bound"] and ct["cost_free"] <= ct["cost_fit"] * (1 + 1e-12)
+    assert ct.cost_no_offset <= ct.bound and ct.cost_free <= ct.cost_fit * (1 + 1e-12)
     # ... and without the test the free J is reported (the contract of class_test=False)
     res0 = identify(_no_mv(rec), class_test=False)
-    assert "class_test" not in res0.detection
+    assert res0.detection.class_test is None and "class_test" not in res0.to_dict()["detection"]
     assert res0.fitted_J_pct == pytest.approx(res0.fit.J_pct)
 
 
 def test_class_test_does_not_force_a_shape_the_data_reject(sticky_result):
     # J = 0.375 S (undershoot): both restrictions are rejected by the F-test bound
-    ct = sticky_result.detection["class_test"]
-    assert ct["cls"] is None
-    assert ct["cost_deadband"] > ct["bound"] and ct["cost_no_offset"] > ct["bound"]
+    ct = sticky_result.detection.class_test
+    assert ct.cls is None
+    assert ct.cost_deadband > ct.bound and ct.cost_no_offset > ct.bound
+    assert sticky_result.to_dict()["detection"]["class_test"]["cls"] is None
 
 
 def test_class_alternatives_name_the_shapes_the_data_cannot_separate(sticky_result):
@@ -151,7 +152,7 @@ def test_class_alternatives_name_the_shapes_the_data_cannot_separate(sticky_resu
     assert res.stiction
     assert res.cls not in res.class_alternatives
     assert {"overshoot", "no_offset"} <= {res.cls, *res.class_alternatives}
-    assert set(res.detection["class_test"]["plausible"]) == {res.cls, *res.class_alternatives}
+    assert set(res.detection.class_test.plausible) == {res.cls, *res.class_alternatives}
 
 
 def test_a_backlash_on_a_slow_process_is_found_by_its_likelihood_ratio():
@@ -160,10 +161,10 @@ def test_a_backlash_on_a_slow_process_is_found_by_its_likelihood_ratio():
     kw = dict(n=3000, noise_std=0.2, load_walk_std=0.02, tau_s=60.0, delay_s=8.0, seed=1)
     res = identify(_no_mv(sticky_loop(2.5, 0.0, **kw)))
     det = res.detection
-    assert det["insample_improvement"] < 0.05
+    assert det.insample_improvement < 0.05
     rows = {ev.test: ev for ev in res.evidence}
     assert res.stiction and res.cls == "deadband" and rows["deadband_fit"].decision == "stiction"
-    assert det["backlash_lr"] > 10.83
+    assert det.backlash_lr > 10.83
     assert res.S_pct == pytest.approx(2.5, rel=0.15)
     # the same loop with a healthy valve is left alone
     healthy = identify(_no_mv(sticky_loop(0.0, 0.0, **kw)))

@@ -93,7 +93,7 @@ def test_monitor_diagnoses_windows_survives_a_device_restart_and_serves_metrics(
         starts = [datetime.fromisoformat(r["record"]["start"].replace("Z", "+00:00")).timestamp() for r in results]
         assert max(starts) > up - 0.5, "no window diagnosed after the device came back"
         assert (tmp_path / "out" / loop / "latest.md").read_text().startswith("# Stiction report")
-        assert all(r["schema"] == "stiction.loop/1" and "S" in r for r in results)
+        assert all(r["schema"] == "stiction.loop/2" and "S" in r and r["window"] for r in results)
     with History(tmp_path / "h.sqlite") as h:
         assert len(h.runs("SIM000")) >= 2 and len(h.runs("SIM001")) >= 2
     m = state["metrics"]

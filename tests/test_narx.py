@@ -157,10 +157,10 @@ def test_selection_contract_and_robustness_warning():
     json.dumps(d)
     far = bank.select(4.0, 2.0)        # between bank cases, 1 % of span from the nearest
     w = far.warning()
-    assert far.robust is False and w is not None and w["code"].startswith("robustness")
+    assert far.robust is False and w is not None and w.code.startswith("robustness")
     assert far.free_run_rmse > 0.5
     off = bank.select(40.0, 0.0)       # beyond the measured map
-    assert off.robust is False and off.warning()["code"].startswith("robustness")
+    assert off.robust is False and off.warning().code.startswith("robustness")
     with pytest.raises(DataError):
         bank.select(-1.0, 0.0)
 

@@ -22,3 +22,11 @@ def test_numbers_never_use_an_exponent(value, text):
 
 def test_a_change_is_signed_by_its_direction():
     assert percent_change(-0.05) == "-5 %" and percent_change(0.12) == "+12 %" and percent_change(None) == "-"
+
+
+@pytest.mark.parametrize("fraction,text", [(0.97, "97 %"), (0.5, "50 %"), (0.9999, "> 99 %"), (1.0, "> 99 %"),
+                                           (0.001, "< 1 %"), (0.0, "0 %"), (None, "-")])
+def test_a_probability_never_reads_as_a_certainty_it_is_not(fraction, text):
+    from diagnose.plain import percent
+
+    assert percent(fraction) == text

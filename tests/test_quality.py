@@ -140,5 +140,6 @@ def test_op_fraction_reaches_the_diagnosis_warnings():
     from diagnose.service.pipeline import diagnose
 
     rec = sticky_loop(4.0, 1.0, n=1500, seed=8, noise_std=0.03, load_walk_std=0.02)
-    res = diagnose(rec.replace(op=rec.op / 100.0, mv=None), narx=False).result
-    assert "data_quality.op_fraction" in [w["code"] for w in res["warnings"]]
+    diag = diagnose(rec.replace(op=rec.op / 100.0, mv=None), narx=False)
+    assert "data_quality.op_fraction" in [w.code for w in diag.warnings]
+    assert "data_quality.op_fraction" in [w["code"] for w in diag.to_dict()["warnings"]]

@@ -1,20 +1,29 @@
-"""Loop reports: Markdown sections and figures, PDF that a reader opens (pdftoppm), pure content."""
+"""Loop reports: the first page, Markdown sections and figures, PDF that a reader opens (pdftoppm),
+pure content from the typed diagnosis."""
 
 from __future__ import annotations
 
 import shutil
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from diagnose import figures as draw
+from diagnose.identification import Identification
+from diagnose.notes import Note
+from diagnose.oscillation import Oscillation
+from diagnose.process_model import ProcessModel
+from diagnose.record import LoopRecord
 from diagnose.service import figures, pipeline, report
 from diagnose.service.batch import BatchConfig, write_loop_outputs
 from diagnose.service.pdf import latin1, to_pdf
 from diagnose.simulate import sticky_loop
+from diagnose.verdict import Verdict
 
-SECTIONS = ["## Verdict", "## Recommended action", "## Warnings", "## Trends", "## Phase plots",
-            "## Error surface", "## NARX-SP free run", "## Spectrum"]
+SECTIONS = ["## Verdict", "## Why we believe it", "## Recommended action", "## Warnings", "## Trends",
+            "## Phase plots", "## Error surface", "## NARX-SP free run", "## Spectrum", "## Evidence in numbers"]
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +36,7 @@ def sticky_diag():
 def written(sticky_diag, tmp_path_factory):
     out = tmp_path_factory.mktemp("rep")
     cfg = BatchConfig(out_dir=str(out))
-    rel = write_loop_outputs(cfg, sticky_diag, "FIC7")
+    rel, _ = write_loop_outputs(cfg, sticky_diag, "FIC7")
     return out, out / rel
 
 
@@ -43,9 +52,9 @@ def test_markdown_has_every_section_and_its_figures(written, sticky_diag):
     md = md_path.read_text()
     pos = [md.index(s) for s in SECTIONS]
     assert pos == sorted(pos), "sections out of order"
-    res = sticky_diag.result
-    assert f"{res['S']:.2f} % of span" in md and f"{res['J']:.2f} % of span" in md
-    assert res["class"] in md and res["action"] in md
+    ident = sticky_diag.identification
+    assert f"{ident.S_pct:.2f} % of span" in md and f"{ident.J_pct:.2f} % of span" in md
+    assert ident.cls in md and sticky_diag.action in md and sticky_diag.verdict_text in md
     for name in ("trends", "phase", "surface", "spectrum"):
         assert f"]({name}.png)" in md
         assert (md_path.parent / f"{name}.png").stat().st_size > 1000
@@ -62,8 +71,11 @@ def test_json_beside_report_is_the_result(written, sticky_diag):
 
     _, md_path = written
     data = json.loads(md_path.with_suffix(".json").read_text())
-    assert data["S"] == pytest.approx(sticky_diag.result["S"])
+    assert data["S"] == pytest.approx(sticky_diag.identification.S_pct)
     assert data["schema"] == pipeline.SCHEMA and data["tool_version"] == pipeline.tool_version()
+    assert data["summary"]["loop"] == "FIC7" and data["summary"]["verdict"] == sticky_diag.verdict_text
+    assert data["summary"]["report"] == "loops/FIC7/FIC7.md" and data["timings_s"]["report"] > 0
+    assert [w["code"] for w in data["warnings"]] == [w.code for w in sticky_diag.warnings]
 
 
 def test_pdf_opens_and_pages_are_not_blank(written, tmp_path):
@@ -78,13 +90,28 @@ def test_pdf_opens_and_pages_are_not_blank(written, tmp_path):
         assert _ink_fraction(p) > 0.01, f"{p.name} is blank"
 
 
+def test_the_first_page_is_what_a_planner_acts_on(written, sticky_diag):
+    _, md_path = written
+    pdf_path = md_path.with_suffix(".pdf")
+    assert shutil.which("pdftotext"), "pdftotext (poppler-utils) is needed to read the PDF"
+    first = subprocess.run(["pdftotext", "-f", "1", "-l", "1", "-layout", str(pdf_path), "-"], check=True,
+                           capture_output=True, text=True).stdout
+    for text in ("Verdict", "deadband + stickband", "slip jump", "Why we believe it", "Recommended action",
+                 "Have the valve inspected", "Probability of stiction"):
+        assert text in first, text
+    for later in ("Trends", "Phase plots", "Error surface", "Evidence in numbers"):
+        assert later not in first, later
+    ev = sticky_diag.identification.evidence
+    agree = sum(1 for e in ev if e.decision == "stiction")
+    assert f"{agree} say stiction" in " ".join(first.split())
+
+
 def test_phase_plot_gets_an_op_mv_panel_only_with_mv(sticky_diag):
     from PIL import Image
     import io
 
     with_mv = figures.phase(sticky_diag)
-    no_mv = pipeline.Diagnosis(record=sticky_diag.record.replace(mv=None), result=sticky_diag.result,
-                               identification=sticky_diag.identification)
+    no_mv = replace(sticky_diag, record=sticky_diag.record.replace(mv=None))
     w1 = Image.open(io.BytesIO(with_mv)).size[0]
     w2 = Image.open(io.BytesIO(figures.phase(no_mv))).size[0]
     assert sticky_diag.record.mv is not None and w1 > 1.5 * w2
@@ -92,19 +119,20 @@ def test_phase_plot_gets_an_op_mv_panel_only_with_mv(sticky_diag):
 
 def test_error_surface_needs_a_fit(sticky_diag):
     assert figures.surface(sticky_diag) is not None
-    bare = pipeline.Diagnosis(record=sticky_diag.record, result=sticky_diag.result)
+    ident = sticky_diag.identification
+    bare = replace(sticky_diag, identification=replace(ident, fit=None, valve_fit=None))
     assert figures.surface(bare) is None
-    blocks = report.loop_blocks(sticky_diag.result, figures=["trends"])
+    blocks = report.loop_blocks(sticky_diag, figures=["trends"])
     md = report.to_markdown(blocks)
     assert "No error surface" in md and "](surface.png)" not in md and "## Spectrum" not in md
-    bare_md = report.to_markdown(report.loop_blocks(sticky_diag.result))  # a monitor window: no figures
+    bare_md = report.to_markdown(report.loop_blocks(sticky_diag))  # a monitor window: no figures
     assert "## Trends" not in bare_md and "## Verdict" in bare_md and "## NARX-SP free run" in bare_md
 
 
 def test_envelope_keeps_extremes_of_a_long_series():
     t = np.arange(100_000, dtype=float)
     y = np.sin(2 * np.pi * t / 977.0) + 0.01 * np.random.default_rng(0).standard_normal(t.size)
-    tt, yy = figures.envelope(t, y, max_points=500)
+    tt, yy = draw.envelope(t, y, max_points=500)
     assert yy.size <= 2 * 500 + 2
     assert yy.max() == y.max() and yy.min() == y.min()
     assert np.all(np.diff(tt) >= 0)
@@ -115,7 +143,7 @@ def test_envelope_covers_the_whole_record(n):
     t = np.arange(n, dtype=float)
     y = np.sin(t / 40.0)
     y[-5] = 9.0   # an event in the newest samples must be drawn
-    tt, yy = figures.envelope(t, y, max_points=1200)
+    tt, yy = draw.envelope(t, y, max_points=1200)
     assert tt[0] == t[0] and tt[-1] == t[-1]
     assert yy.max() == 9.0 and yy.min() == y.min()
     assert np.all(np.diff(tt) >= 0) and yy.size <= 2 * 1200 + 2
@@ -129,7 +157,7 @@ def test_trends_show_the_whole_record_and_the_record_sets_the_scale(sticky_diag)
     rec = sticky_diag.record.replace(mv=None)
     n = 3599   # 33 % of the record was lost at this length
     rec = rec.replace(op=np.resize(rec.op, n), pv=np.resize(rec.pv, n), sp=np.resize(rec.sp, n))
-    diag = pipeline.Diagnosis(record=rec, result=sticky_diag.result)
+    diag = replace(sticky_diag, record=rec)
     pv_hat = rec.pv.copy()
     pv_hat[:20] = 1e4   # a model start-up transient
     figures.trends(diag, mv_hat=rec.op, pv_hat=pv_hat)
@@ -141,12 +169,15 @@ def test_trends_show_the_whole_record_and_the_record_sets_the_scale(sticky_diag)
     assert hi < rec.pv.max() + 0.2 * np.ptp(rec.pv) and lo > rec.pv.min() - 0.2 * np.ptp(rec.pv)
 
 
+def _healthy(diag):
+    return replace(diag, identification=replace(diag.identification, stiction=False, cls="none"))
+
+
 def test_no_sticky_valve_path_on_a_no_stiction_verdict(sticky_diag):
-    healthy = {**sticky_diag.result, "stiction": False, "class": "none"}
-    diag = pipeline.Diagnosis(record=sticky_diag.record, result=healthy,
-                              identification=sticky_diag.identification)
+    diag = _healthy(sticky_diag)
     mv_hat, pv_hat = figures._model_path(diag)
     assert mv_hat is None and pv_hat is not None
+    np.testing.assert_allclose(pv_hat, sticky_diag.identification.linear_fit.simulate(diag.record.op)[1])
     figures.phase(diag, mv_hat, pv_hat)
     labels = [ln.get_label() for ln in _lines((8.0, 3.8), 1)]
     assert "fitted valve" not in labels and "record" in labels
@@ -164,21 +195,24 @@ def test_recorded_op_mv_is_drawn_over_the_fitted_valve(sticky_diag):
 
 
 def test_error_surface_is_the_one_of_the_fit_that_gave_S_and_J(sticky_diag):
-    assert sticky_diag.result["method"] == "op_mv"
+    ident = sticky_diag.identification
+    assert ident.method == "op_mv"
     surf, source = figures._surface_source(sticky_diag)
-    assert surf is sticky_diag.identification.valve_fit.surface and "OP-MV" in source
+    assert surf is ident.valve_fit.surface and "OP-MV" in source
     figures.surface(sticky_diag)
     assert "OP-MV valve fit" in figures._FIGS[(4.6, 3.8)].axes[0].get_title()
-    op_pv = pipeline.Diagnosis(record=sticky_diag.record, result={**sticky_diag.result, "method": "op_pv"},
-                               identification=sticky_diag.identification)
-    assert figures._surface_source(op_pv)[0] is sticky_diag.identification.fit.surface
+    op_pv = replace(sticky_diag, identification=replace(ident, method="op_pv"))
+    assert figures._surface_source(op_pv)[0] is ident.fit.surface
+
+
+def _osc(oscillating, period_s, regularity):
+    return Oscillation(oscillating, period_s, regularity, 10.0, 1.0, 1.0)
 
 
 def test_spectrum_marks_only_an_oscillation_the_result_reports(sticky_diag):
-    for osc, marked in (({"oscillating": False, "period_s": 120.0, "regularity": 0.3}, False),
-                        ({"oscillating": True, "period_s": 120.0, "regularity": 2.0}, True),
-                        ({"oscillating": True, "period_s": 86604.0, "regularity": 1.5}, False)):  # daily
-        diag = pipeline.Diagnosis(record=sticky_diag.record, result={**sticky_diag.result, "oscillation": osc})
+    for osc, marked in ((_osc(False, 120.0, 0.3), False), (_osc(True, 120.0, 2.0), True),
+                        (_osc(True, 86604.0, 1.5), False)):  # daily
+        diag = replace(sticky_diag, identification=replace(sticky_diag.identification, oscillation=osc))
         figures.spectrum(diag)
         ax = figures._FIGS[(4.6, 3.0)].axes[0]
         assert (len(ax.get_lines()) == 2) is marked, osc
@@ -190,87 +224,99 @@ def test_spectrum_peak_is_at_the_oscillation_period():
     ts = 1.0
     t = np.arange(4000) * ts
     pv = np.sin(2 * np.pi * t / 125.0) + 0.1 * np.random.default_rng(1).standard_normal(t.size)
-    period, power = figures.pv_spectrum(pv, ts)
+    period, power = draw.pv_spectrum(pv, ts)
     assert period[np.argmax(power)] == pytest.approx(125.0, rel=0.05)
 
 
-def _result(**kw):
-    base = {"loop": "X1", "stiction": True, "class": "undershoot", "S": 3.0, "J": 1.0,
-            "S_interval": [2.8, 3.2], "J_interval": [0.8, 1.2], "confidence": 0.9,
-            "oscillation": {"oscillating": True, "period_s": 100.0, "regularity": 2.5},
-            "warnings": [], "process": {"kind": "foptd", "gain": 1.0, "tau_s": 20.0, "delay_s": 3.0},
-            "fit": {"rmse": 0.1, "r2": 0.9}}
+def _record(n=2000, ts_s=1.0, name="X1"):
+    k = np.arange(n)
+    return LoopRecord(name=name, ts_s=ts_s, op=50 + np.sin(k / 30), pv=np.cos(k / 30), start="2026-01-01T00:00:00Z")
+
+
+def _diag(*, warnings=(), notes=(), p=None, record=None, explanation=None, oscillation=(True, 100.0, 2.5), **kw):
+    """A diagnosis of a made-up identification (the report's wording under test, not the fit)."""
+    base = dict(loop="X1", stiction=True, cls="undershoot", S_pct=3.0, J_pct=1.0, S_interval_pct=(2.8, 3.2),
+                J_interval_pct=(0.8, 1.2), process=ProcessModel("foptd", 1.0, 20.0, 3.0, 0.0), rmse=0.1, r2=0.9,
+                oscillation=_osc(*oscillation), confidence=0.9, n=2000)
     base.update(kw)
-    base["severity"] = pipeline.severity(base)
-    base["verdict"] = pipeline.verdict(base)
-    base["action"] = pipeline.recommended_action(base)
-    return base
+    if p is not None:
+        base["verdict"] = Verdict(stiction_probability=p, stiction=p >= 0.5, threshold=0.5,
+                                  confidence=max(p, 1 - p))
+    ident = Identification(warnings=tuple(warnings), **base)
+    rec = record if record is not None else _record(name=ident.loop)
+    return pipeline.assemble(rec, ident, notes=notes, explanation=explanation)
 
 
 def test_severity_ranks_by_the_probability_of_stiction_then_its_size():
-    big = _result(S=5.0, stiction_probability=0.9)["severity"]["score"]
-    small = _result(S=0.5, stiction_probability=0.9)["severity"]["score"]
-    unsure = _result(S=5.0, stiction_probability=0.55)["severity"]["score"]
-    watch = _result(stiction=False, S=0.0, J=0.0, stiction_probability=0.4, **{"class": "none"},
-                    oscillation={"oscillating": False})["severity"]["score"]
-    healthy = _result(stiction=False, S=0.0, J=0.0, stiction_probability=0.0, **{"class": "none"},
-                      oscillation={"oscillating": False})["severity"]["score"]
-    dq = _result(S=0.5, stiction_probability=0.9,
-                 warnings=[{"code": "data_quality.gap", "message": "g"}])["severity"]["score"]
+    big = _diag(S_pct=5.0, p=0.9).severity.score
+    small = _diag(S_pct=0.5, p=0.9).severity.score
+    unsure = _diag(S_pct=5.0, p=0.55).severity.score
+    quiet = (False, None, 0.0)
+    watch = _diag(stiction=False, S_pct=0.0, J_pct=0.0, p=0.4, cls="none", oscillation=quiet).severity.score
+    healthy = _diag(stiction=False, S_pct=0.0, J_pct=0.0, p=0.0, cls="none", oscillation=quiet).severity.score
+    dq = _diag(S_pct=0.5, p=0.9, warnings=[Note("data_quality.gap", "g")]).severity.score
     assert big > small > unsure > watch > healthy == 0
     assert dq == pytest.approx(small + 5.0)
     # without a probability (an older result) a sticky verdict's confidence stands in for it
-    assert _result(S=5.0, confidence=0.9)["severity"]["score"] == pytest.approx(big)
+    assert _diag(S_pct=5.0, confidence=0.9).severity.score == pytest.approx(big)
 
 
 def test_plain_words_follow_the_evidence():
-    assert "inspected" in _result()["action"]
-    comp = _result(warnings=[{"code": "data_quality.compression", "message": "c"}])
-    assert "compress" in comp["action"] and comp["verdict"].startswith("Possible stiction")
-    tune = _result(stiction=False, S=0.0, J=0.0, **{"class": "none"})
-    assert "tuning" in tune["action"] and tune["verdict"].startswith("No stiction")
+    assert "inspected" in _diag().action
+    comp = _diag(warnings=[Note("data_quality.compression", "c")])
+    assert "compress" in comp.action and comp.verdict_text.startswith("Possible stiction")
+    tune = _diag(stiction=False, S_pct=0.0, J_pct=0.0, cls="none")
+    assert "tuning" in tune.action and tune.verdict_text.startswith("No stiction")
+
+
+def _explanation(name, accepted, **params):
+    from diagnose.physics import Explanation, HypothesisResult
+
+    hyp = HypothesisResult(name=name, params=params, heldout_rmse=4.33, accepted=accepted, stage="loop",
+                           train_rmse=0.63, reduction=0.05, delta_bic=-3.0, n_extra=2)
+    return Explanation(missing_physics=name if accepted else None, baseline_rmse=4.66,
+                       improved_rmse=4.33 if accepted else 4.66, hypotheses=(hyp,), mismatch={},
+                       explanation="No missing physics named." if not accepted else f"{name} explains it.",
+                       warnings=(), target="pv", loop="X1", baseline_source="fit_hammerstein")
 
 
 def test_explanation_section_slots_in_when_present():
-    res = _result(explanation={"missing_physics": "actuator_lag", "baseline_rmse": 0.2, "improved_rmse": 0.1,
-                               "hypotheses": [{"name": "actuator_lag", "heldout_rmse": 0.1, "accepted": True}]})
-    md = report.to_markdown(report.loop_blocks(res, figures=["explanation"]))
+    diag = _diag(explanation=_explanation("actuator_lag", True, tau_s=12.0))
+    md = report.to_markdown(report.loop_blocks(diag, figures=["explanation"]))
     assert "## Missing physics" in md and "actuator_lag" in md and "](explanation.png)" in md
-    assert "## Missing physics" not in report.to_markdown(report.loop_blocks(_result()))
+    assert "## Missing physics" not in report.to_markdown(report.loop_blocks(_diag()))
+    assert diag.to_dict()["explanation"]["missing_physics"] == "actuator_lag"
 
 
 def test_pdf_from_blocks_without_figures_and_with_odd_characters(tmp_path):
-    blocks = report.loop_blocks(_result(loop="T\u00f6st \u2265 1 \u03c4"))
+    blocks = report.loop_blocks(_diag(loop="T\u00f6st \u2265 1 \u03c4"))
     data = to_pdf(blocks)
     assert data[:5] == b"%PDF-" and len(data) > 1000
     assert latin1("S \u2265 2 \u00b1 0.1, \u03c4 = 3 s") == "S >= 2 +/- 0.1, tau = 3 s"
 
 
+def _quantity_rows(diag):
+    rows = {}
+    for b in report.loop_blocks(diag):
+        if b[0] == "table" and b[1] == ["Quantity", "Value"]:
+            rows.update({r[0].split(":")[0]: r[1] for r in b[2]})
+    return rows
+
+
 def test_report_says_where_S_and_J_came_from():
-    from diagnose.service.report import loop_blocks
-
-    def rows_of(result):
-        blocks = loop_blocks(result)
-        table = next(b for b in blocks if b[0] == "table" and b[1] == ["Quantity", "Value"])
-        return dict((r[0], r[1]) for r in table[2])
-
-    base = {"loop": "FIC1", "stiction": True, "class": "deadband", "S": 2.0, "J": 0.0,
-            "S_interval": [1.8, 2.2], "J_interval": [0.0, 0.1], "warnings": []}
-    assert "stem position" in rows_of({**base, "method": "op_mv"})["S and J from"]
-    assert "Hammerstein" in rows_of({**base, "method": "op_pv"})["S and J from"]
-
-
-def _quantity_rows(result):
-    table = next(b for b in report.loop_blocks(result) if b[0] == "table" and b[1] == ["Quantity", "Value"])
-    return {r[0].split(":")[0]: r[1] for r in table[2]}
+    base = dict(cls="deadband", S_pct=2.0, J_pct=0.0, S_interval_pct=(1.8, 2.2), J_interval_pct=(0.0, 0.1))
+    assert "stem position" in _quantity_rows(_diag(method="op_mv", **base))["S and J from"]
+    assert "Hammerstein" in _quantity_rows(_diag(method="op_pv", **base))["S and J from"]
 
 
 def test_numbers_are_plain_minutes_and_hours():
-    res = _result(process={"kind": "foptd", "gain": -2.33, "tau_s": 60.1, "delay_s": 3480.0},
-                  controller={"action": "reverse", "Kc": 0.21, "Ti_s": 1.9797e6, "r2": 0.8},
-                  oscillation={"oscillating": True, "period_s": 1500.0, "regularity": 1.5},
-                  record={"n": 6585, "ts_s": 60.0, "duration_s": 395100.0})
-    md = report.to_markdown(report.loop_blocks(res))
+    from diagnose.controller import ControllerAction
+
+    rec = _record(n=6585, ts_s=60.0)
+    diag = _diag(process=ProcessModel("foptd", -2.33, 60.1, 3480.0, 0.0),
+                 controller=ControllerAction(1, 0.21, 1.9797e6, 0.8, 0), oscillation=(True, 1500.0, 1.5),
+                 record=rec, n=rec.n, ts_s=rec.ts_s)
+    md = report.to_markdown(report.loop_blocks(diag))
     assert "e+0" not in md and "3480" not in md and "1500 s" not in md
     assert "dead time 58 min" in md and "22.9 days" in md and "25 min" in md and "4.57 days" in md
     summary = report.to_markdown(report.summary_blocks([{"status": "ok", "loop": "X", "rank": 1, "severity": 20,
@@ -279,15 +325,13 @@ def test_numbers_are_plain_minutes_and_hours():
 
 
 def test_a_daily_cycle_is_a_slow_cycle_ranked_below_a_sticky_valve():
-    daily = _result(stiction=False, S=0.0, J=0.0, confidence=0.68, **{"class": "none"},
-                    oscillation={"oscillating": True, "period_s": 86604.0, "regularity": 1.49},
-                    warnings=[{"code": "data_quality.segment", "message": "s"}])
-    sticky = _result(S=2.24, J=0.0, confidence=0.97, **{"class": "deadband"},
-                     oscillation={"oscillating": False})
-    assert sticky["severity"]["score"] > daily["severity"]["score"]
+    daily = _diag(stiction=False, S_pct=0.0, J_pct=0.0, confidence=0.68, cls="none",
+                  oscillation=(True, 86604.0, 1.49), warnings=[Note("data_quality.segment", "s")])
+    sticky = _diag(S_pct=2.24, J_pct=0.0, confidence=0.97, cls="deadband", oscillation=(False, None, 0.0))
+    assert sticky.severity.score > daily.severity.score
     rows = _quantity_rows(daily)
     assert "slow cycle" in rows["Oscillation"] and "24.1 h" in rows["Oscillation"]
-    assert "tuning" not in daily["action"] and "slow cycle" in daily["action"]
+    assert "tuning" not in daily.action and "slow cycle" in daily.action
     from diagnose.service.batch import loop_row, rank
 
     ranked = rank([{**loop_row(daily, None), "loop": "FIC211"}, {**loop_row(sticky, None), "loop": "FIC20102"}])
@@ -297,21 +341,20 @@ def test_a_daily_cycle_is_a_slow_cycle_ranked_below_a_sticky_valve():
 
 
 def test_classes_and_S_J_are_explained_in_words():
-    md = report.to_markdown(report.loop_blocks(_result()))   # undershoot
+    md = report.to_markdown(report.loop_blocks(_diag()))   # undershoot
     assert "stops short" in md and "how far OP must travel back" in md and "jumps when it breaks free" in md
-    md = report.to_markdown(report.loop_blocks(_result(**{"class": "overshoot"}, S=2.0, J=4.0)))
+    md = report.to_markdown(report.loop_blocks(_diag(cls="overshoot", S_pct=2.0, J_pct=4.0)))
     assert "jumps past" in md
-    md = report.to_markdown(report.loop_blocks(_result(**{"class": "no_offset"}, S=3.0, J=3.0)))
+    md = report.to_markdown(report.loop_blocks(_diag(cls="no_offset", S_pct=3.0, J_pct=3.0)))
     assert "exactly to where" in md
 
 
 def test_S_and_J_units_follow_OP_when_OP_is_not_in_percent():
-    warn = {"code": "op_not_percent", "message": "OP spans -3..4, outside 0..100 %"}
-    res = _result(S=0.42, J=0.1, warnings=[warn])
+    res = _diag(S_pct=0.42, J_pct=0.1, warnings=[Note("op_not_percent", "OP spans -3..4, outside 0..100 %")])
     rows = _quantity_rows(res)
     assert "OP's own units" in rows["S"] and not rows["S"].startswith("0.42 %")
-    assert "OP's own units" in res["verdict"] and "% of valve span" not in res["verdict"]
-    assert "% of its span" not in res["action"]
+    assert "OP's own units" in res.verdict_text and "% of valve span" not in res.verdict_text
+    assert "% of its span" not in res.action
     from diagnose.service.batch import loop_row
 
     md = report.to_markdown(report.summary_blocks([{**loop_row(res, None), "rank": 1}]))
@@ -319,24 +362,35 @@ def test_S_and_J_units_follow_OP_when_OP_is_not_in_percent():
 
 
 def test_no_narx_model_is_explained_where_there_are_no_warnings():
-    healthy = _result(stiction=False, S=0.0, J=0.0, **{"class": "none"}, oscillation={"oscillating": False})
+    healthy = _diag(stiction=False, S_pct=0.0, J_pct=0.0, cls="none", oscillation=(False, None, 0.0))
     md = report.to_markdown(report.loop_blocks(healthy))
     assert "see warnings" not in md.lower() and "shows no stiction" in md
-    broken = _result(warnings=[{"code": "service.narx_unavailable", "message": "no bank"}])
+    broken = _diag(notes=[Note("service.narx_unavailable", "no bank")])
     assert "see the warnings" in report.to_markdown(report.loop_blocks(broken))
 
 
 def test_explanation_tables_use_words_not_internal_keys():
-    res = _result(explanation={
-        "missing_physics": None, "baseline_rmse": 4.66, "improved_rmse": 4.66, "target": "pv",
-        "baseline_source": "fit_hammerstein", "explanation": "No missing physics named.",
-        "hypotheses": [{"name": "external_disturbance", "heldout_rmse": 4.33, "accepted": False,
-                        "train_rmse": 0.63, "heldout_reduction": 0.05, "stage": "loop",
-                        "params": {"period_s": 84755.6, "amplitude": 1.229}}]})
-    md = report.to_markdown(report.loop_blocks(res, figures=["explanation"]))
+    diag = _diag(explanation=_explanation("external_disturbance", False, period_s=84755.6, amplitude=1.229))
+    md = report.to_markdown(report.loop_blocks(diag, figures=["explanation"]))
     for raw in ("baseline_source", "train_rmse", "heldout_rmse", "baseline_rmse", "e+0"):
         assert raw not in md
     assert "| -5 % |" in md and "period_s 23.5 h" in md   # a 5 % fall is -5 %, as explain prints it
+
+
+def test_evidence_says_which_tests_agree_and_which_cannot_judge_and_why(sticky_diag):
+    ident = sticky_diag.identification
+    text = report.evidence_summary(ident)
+    cannot = [e for e in ident.evidence if e.decision == "cannot_judge"]
+    assert cannot, "the fixture should have a test that cannot judge"
+    judged = len(ident.evidence) - len(cannot)
+    assert f"Of the {judged} tests that could judge this record" in text
+    assert f"{len(cannot)} cannot judge it: " in text
+    for e in cannot:
+        assert report.REASON_TEXT[e.reason] in text
+    table = next(b for b in report.loop_blocks(sticky_diag) if b[0] == "table" and b[1] == ["Test", "Says", "Why"])
+    why = {r[0]: r[2] for r in table[2]}
+    for e in cannot:
+        assert why[report.EVIDENCE_LABELS[e.test]] == e.note and e.note
 
 
 def test_explain_summary_prints_a_fall_as_negative():
@@ -381,3 +435,19 @@ def test_missing_physics_figure_titles_do_not_overlap_and_ticks_are_distinct():
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_a_diagnosis_shows_itself_in_a_notebook(sticky_diag):
+    from matplotlib.figure import Figure
+
+    assert repr(sticky_diag).startswith("Diagnosis(loop='FIC7', verdict='Stiction: S = ")
+    page = sticky_diag._repr_html_()
+    import html
+
+    assert html.escape(sticky_diag.verdict_text) in page and html.escape(sticky_diag.action) in page
+    assert "<table>" in page and "> 99" not in page        # text is escaped
+    fig = sticky_diag.plot("narx")
+    assert isinstance(fig, Figure)
+    labels = {ln.get_label() for ln in fig.axes[0].get_lines()}
+    assert labels == {"recorded MV", "NARX-SP free run (MV)"}
+    assert isinstance(sticky_diag.plot(), Figure)

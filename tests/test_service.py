@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from connectors.historian import write_wide
+from diagnose.notes import Note
 from diagnose.service import figures, pipeline
 from diagnose.service.cli import main
 from diagnose.simulate import sticky_loop
@@ -23,13 +24,17 @@ def rec():
 class _Sel:
     model: str
     robust: bool
+    S: float = 3.0
+    J: float = 1.0
+    distance: float = 0.1
+    free_run_rmse: float = 0.2
 
     def to_dict(self):
-        return {"model": self.model, "S": 3.0, "J": 1.0, "distance": 0.1, "robust": self.robust,
-                "free_run_rmse": 0.2}
+        return {"model": self.model, "S": self.S, "J": self.J, "distance": self.distance, "robust": self.robust,
+                "free_run_rmse": self.free_run_rmse}
 
     def warning(self):
-        return None if self.robust else {"code": "robustness.outside_region", "message": "outside"}
+        return None if self.robust else Note("robustness.outside_region", "outside")
 
 
 class _Bank:
@@ -49,12 +54,16 @@ def test_narx_stage_uses_the_identified_s_and_j(rec, monkeypatch):
     bank = _Bank(robust=False)
     monkeypatch.setattr(pipeline, "_bank", lambda: bank)
     d = pipeline.diagnose(rec)
-    assert bank.calls == [(d.result["S"], d.result["J"])]
-    assert d.result["narx"]["model"] == "narx_S3_J1"
+    ident = d.identification
+    assert bank.calls == [(ident.S_pct, ident.J_pct)]
+    assert d.selection.model == "narx_S3_J1" and ident.narx is d.selection
     want = float(np.sqrt(np.mean((d.narx_mv_hat_pct - rec.mv) ** 2)))
-    assert d.result["narx"]["free_run_rmse_record"] == pytest.approx(want)
-    assert "robustness.outside_region" in [w["code"] for w in d.result["warnings"]]
-    assert d.result["severity"]["robustness"] == 10.0
+    assert d.narx_run.rmse_record == pytest.approx(want) and d.narx_run.against == "mv"
+    assert "robustness.outside_region" in [w.code for w in d.warnings]
+    assert d.severity.robustness == 10.0
+    res = d.to_dict()
+    assert res["narx"]["model"] == "narx_S3_J1" and res["narx"]["free_run_rmse_record"] == pytest.approx(want)
+    assert res["severity"]["robustness"] == 10.0 and "robustness.outside_region" in [w["code"] for w in res["warnings"]]
     assert figures.narx(d) is not None
 
 
@@ -66,7 +75,9 @@ def test_missing_or_broken_optional_stages_only_warn(rec, monkeypatch):
     real_optional = pipeline._optional
     monkeypatch.setattr(pipeline, "_optional",
                         lambda m: None if m == "diagnose.physics" else real_optional(m))
-    res = pipeline.diagnose_record(rec, explain=True)
+    d = pipeline.diagnose(rec, explain=True)
+    res = d.to_dict()
+    assert [w["code"] for w in res["warnings"]] == [w.code for w in d.warnings]
     codes = [w["code"] for w in res["warnings"]]
     assert "service.narx_unavailable" in codes and "service.explain_unavailable" in codes
     assert "truncated" in " ".join(w["message"] for w in res["warnings"])
@@ -79,7 +90,7 @@ def test_identification_failure_raises_a_domain_error():
 
     short = sticky_loop(3.0, 1.0, n=30, seed=1, name="TINY")
     with pytest.raises(DataError):
-        pipeline.diagnose_record(short)
+        pipeline.diagnose(short)
 
 
 def test_demo_is_quick_says_where_everything_is_and_history_reads_its_database(tmp_path, monkeypatch, capsys):

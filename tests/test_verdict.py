@@ -8,7 +8,7 @@ import pytest
 
 from benchmarks.train_verdict import CANDIDATES, fit_model
 from diagnose.evidence import Evidence
-from diagnose.identify import OP_ONLY_CONFIDENCE_CAP, identify
+from diagnose.identification import OP_ONLY_CONFIDENCE_CAP, identify
 from diagnose.record import LoopRecord
 from diagnose.simulate import sticky_loop
 from diagnose.verdict import CombinerModel, Feature, combine, feature_values, load_model

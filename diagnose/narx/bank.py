@@ -22,6 +22,7 @@ from importlib import resources
 import numpy as np
 
 from ..errors import DataError
+from ..notes import Note
 from ..stiction_model import stiction_class
 from .experiments import ROBUST_RMSE_PCT
 from .metrics import cdc_pct, rmse_pct
@@ -80,9 +81,24 @@ class BankModel:
 class Selection:
     """The bank model chosen for an identified (S, J).
 
-    ``S``/``J`` are the selected model's training case; ``S_query``/``J_query`` the identified
-    values; ``free_run_rmse`` the model's measured (interpolated) free-run RMSE, % of span, for a
-    plant at the identified (S, J); ``robust`` whether that is within the robust threshold.
+    Attributes
+    ----------
+    model : str
+        The bank model's name (``narxsp_S3_J1``).
+    S, J : float
+        The selected model's training case, % of span.
+    distance : float
+        Euclidean distance from the identified (S, J) to the model's case, % of span.
+    robust : bool
+        Whether the model's measured free-run RMSE at the identified (S, J) is within
+        ``threshold_pct``.
+    free_run_rmse : float
+        The model's measured (interpolated) free-run RMSE, % of span, for a plant at the
+        identified (S, J).
+    S_query, J_query : float
+        The identified values, % of span.
+    threshold_pct : float
+        The robustness threshold, % of span (`ROBUST_RMSE_PCT`).
     """
 
     model: str
@@ -95,22 +111,22 @@ class Selection:
     J_query: float
     threshold_pct: float = ROBUST_RMSE_PCT
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, str | float | bool]:
         """The ``"narx"`` object of `stiction identify`'s JSON."""
         return {"model": self.model, "S": self.S, "J": self.J, "distance": round(self.distance, 4),
                 "robust": self.robust, "free_run_rmse": round(self.free_run_rmse, 4)}
 
-    def warning(self) -> dict | None:
-        """A ``robustness...`` warning when the identified (S, J) is outside the model's robust
-        region, else None."""
+    def warning(self) -> Note | None:
+        """A ``robustness.outside_region`` note when the identified (S, J) is outside the model's
+        robust region, else None."""
         if self.robust:
             return None
-        return {"code": "robustness.outside_region",
-                "message": (f"identified S={self.S_query:.2f} %, J={self.J_query:.2f} % lies outside "
-                            f"the robust region of NARX-SP model {self.model} (trained for "
-                            f"S={self.S:g} %, J={self.J:g} %): its free-run RMSE there is about "
-                            f"{self.free_run_rmse:.2f} % of span, above {self.threshold_pct:g} %; "
-                            f"treat its predictions as indicative only")}
+        return Note("robustness.outside_region",
+                    f"identified S={self.S_query:.2f} %, J={self.J_query:.2f} % lies outside "
+                    f"the robust region of NARX-SP model {self.model} (trained for "
+                    f"S={self.S:g} %, J={self.J:g} %): its free-run RMSE there is about "
+                    f"{self.free_run_rmse:.2f} % of span, above {self.threshold_pct:g} %; "
+                    f"treat its predictions as indicative only")
 
 
 class Bank:

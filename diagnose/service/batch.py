@@ -40,15 +40,18 @@ import sys
 import time
 import traceback
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from connectors import FILE_SUFFIXES as INPUT_SUFFIXES
 from connectors.historian import atomic_write
 
 from ..errors import DataError, StictionError
 from .report import SUMMARY_COLUMNS
+
+if TYPE_CHECKING:
+    from .pipeline import Diagnosis
 
 STATE_DIR = ".stiction"
 
@@ -183,42 +186,52 @@ def failure_row(loop: str, source: str, error: str) -> dict[str, Any]:
 # one loop, one file (run in workers)
 
 
-def loop_row(result: Mapping[str, Any], report: str | None, *, skipped: bool = False,
-             degradation: str | None = None) -> dict[str, Any]:
-    """The summary row of one diagnosed loop."""
-    from .pipeline import _interval, op_in_percent, oscillation_info, stiction_present
+def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
+    """The summary row of one diagnosed loop (also stored as ``summary`` in its ``LOOP.json``)."""
+    ident = diag.identification
 
-    def r4(v: Any) -> Any:
-        return round(v, 4) if isinstance(v, float) else v
+    def r4(v: float | None) -> float | None:
+        return None if v is None else round(float(v), 4)
 
-    slo, shi = (r4(v) for v in _interval(result.get("S_interval")))
-    jlo, jhi = (r4(v) for v in _interval(result.get("J_interval")))
-    warns = result.get("warnings") or []
-    osc = oscillation_info(result)
+    si, ji = ident.S_interval_pct, ident.J_interval_pct
+    period = ident.oscillation.period_s
     return {
-        "loop": result.get("loop_id") or result.get("loop"),
+        "loop": diag.loop_id or ident.loop,
         "status": "ok",
-        "severity": (result.get("severity") or {}).get("score"),
-        "verdict": result.get("verdict"),
-        "class": result.get("class"),
-        "sticky": bool(stiction_present(result)),
-        "S_pct": r4(result.get("S")), "S_lo": slo, "S_hi": shi,
-        "J_pct": r4(result.get("J")), "J_lo": jlo, "J_hi": jhi,
-        "confidence": r4(result.get("confidence")),
-        "oscillation_period_s": r4(osc["period_s"]) if osc["present"] else None,
-        "slow_cycle_period_s": r4(osc["period_s"]) if osc.get("slow_cycle") else None,
-        "sj_in_op_units": not op_in_percent(result),
-        "warnings": len(warns),
-        "data_quality_warnings": sum(1 for w in warns if str(w.get("code", "")).startswith("data_quality.")),
-        "degradation": degradation or result.get("degradation"),
-        "action": result.get("action"),
+        "severity": diag.severity.score,
+        "verdict": diag.verdict_text,
+        "class": ident.cls,
+        "sticky": bool(ident.stiction),
+        "S_pct": r4(ident.S_pct), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
+        "J_pct": r4(ident.J_pct), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
+        "confidence": r4(ident.confidence),
+        "oscillation_period_s": r4(period) if ident.loop_oscillates else None,
+        "slow_cycle_period_s": r4(period) if ident.slow_cycle else None,
+        "sj_in_op_units": not ident.op_in_percent,
+        "warnings": len(diag.warnings),
+        "data_quality_warnings": sum(1 for w in diag.warnings if w.code.startswith("data_quality.")),
+        "degradation": diag.degradation,
+        "action": diag.action,
         "report": report,
-        "source": (result.get("record") or {}).get("source"),
+        "source": diag.record.source,
         "error": None,
-        "input_hash": result.get("input_hash"),
-        "skipped": skipped,
-        "seconds": sum((result.get("timings_s") or {}).values()),
+        "input_hash": diag.input_hash,
+        "skipped": False,
+        "seconds": round(sum(diag.timings_s.values()), 4),
     }
+
+
+def stored_row(stored: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The summary row of a loop done in an earlier run, from its ``LOOP.json`` (None when the file
+    predates stored rows: the loop is diagnosed again)."""
+    row = stored.get("summary")
+    if not isinstance(row, Mapping):
+        return None
+    from .history import row_from_stored
+
+    out = dict(row, skipped=True)
+    out["_history"] = row_from_stored(stored)
+    return out
 
 
 def _loop_dir(cfg: BatchConfig, loop_id: str) -> Path:
@@ -281,12 +294,12 @@ def _choose_loop_id(cfg: BatchConfig, record: Any, path: Path) -> str:
     raise StictionError(f"{path}: no free report name for loop {record.name!r}")  # pragma: no cover
 
 
-def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
-                       history_rows: Sequence[Mapping[str, Any]] = (),
-                       degradation: str | None = None) -> str:
-    """Figures, Markdown, PDF, then JSON (the done marker) of one loop; returns the report's path
-    relative to the output folder."""
+def write_loop_outputs(cfg: BatchConfig, diag: Diagnosis, loop_id: str, *,
+                       history_rows: Sequence[Mapping[str, Any]] = ()) -> tuple[str, Diagnosis]:
+    """Figures, Markdown, PDF, then JSON (the done marker) of one loop. Returns the report's path
+    relative to the output folder and the diagnosis with the report's time in its timings."""
     from . import figures as figs
+    from .history import end_of_record
     from .report import loop_blocks, to_markdown
 
     t0 = time.perf_counter()
@@ -294,51 +307,51 @@ def write_loop_outputs(cfg: BatchConfig, diag: Any, loop_id: str, *,
     d.mkdir(parents=True, exist_ok=True)
     for stale in d.glob(".*.tmp"):  # left by a killed job
         stale.unlink(missing_ok=True)
-    from .history import record_end
-
-    hist_for_fig = list(history_rows) + ([{"run_at": "this run", "data_end": record_end(diag.result),
-                                           "S_pct": diag.result.get("S"), "J_pct": diag.result.get("J")}]
-                                         if history_rows else [])
+    rec, ident = diag.record, diag.identification
+    hist_for_fig = list(history_rows) + ([{"run_at": "this run", "data_end": end_of_record(rec.start, rec.n, rec.ts_s),
+                                           "S_pct": ident.S_pct, "J_pct": ident.J_pct}] if history_rows else [])
     pngs = figs.loop_figures(diag, hist_for_fig)
     for name, png in pngs.items():
         atomic_write(d / f"{name}.png", png)
-    blocks = loop_blocks(diag.result, list(pngs), history_rows=list(history_rows), degradation=degradation)
+    blocks = loop_blocks(diag, list(pngs), history_rows=list(history_rows))
     atomic_write(d / f"{loop_id}.md", to_markdown(blocks))
     if cfg.pdf:
         from .pdf import to_pdf
 
         atomic_write(d / f"{loop_id}.pdf", to_pdf(blocks, pngs, title=f"Stiction report {loop_id}"))
-    timings = diag.result.setdefault("timings_s", {})
-    timings["report"] = round(time.perf_counter() - t0, 4)  # figures, Markdown, PDF
-    atomic_write(d / f"{loop_id}.json", json.dumps(diag.result, indent=1, allow_nan=False))
-    return f"loops/{loop_id}/{loop_id}.md"
+    # figures, Markdown, PDF
+    diag = replace(diag, timings_s={**diag.timings_s, "report": time.perf_counter() - t0})
+    report = f"loops/{loop_id}/{loop_id}.md"
+    result = diag.to_dict()
+    result["summary"] = loop_row(diag, report)
+    atomic_write(d / f"{loop_id}.json", json.dumps(result, indent=1, allow_nan=False))
+    return report, diag
 
 
 def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> dict[str, Any]:
-    """Diagnose one record and write its outputs; a summary row (``status`` ok or failed)."""
-    from .history import degradation as degrade, previous_runs, record_end
+    """Diagnose one record and write its outputs; a summary row (``status`` ok or failed) with the
+    loop's history row under ``_history``."""
+    from .history import degradation as degrade, end_of_record, previous_runs, row_from_diagnosis
     from .pipeline import diagnose
 
     loop_id = _choose_loop_id(cfg, record, path)
     ih = input_hash(digest, cfg.options_key(), record.name, record.meta.get("segment"))
     prev = _existing(cfg, loop_id)
     if prev is not None and prev.get("input_hash") == ih:
-        row = loop_row(prev, f"loops/{loop_id}/{loop_id}.md", skipped=True)
-        row["_result"] = prev
-        return row
+        row = stored_row(prev)
+        if row is not None:
+            return row
     try:
         diag = diagnose(record, explain=cfg.explain, narx=cfg.narx)
-        diag.result["loop_id"] = loop_id
-        diag.result["input_hash"] = ih
-        end = record_end(diag.result)
+        end = end_of_record(record.start, record.n, record.ts_s)
         hist = [r for r in previous_runs(cfg.db, _tag(record), exclude_hash=ih)
                 if end is None or not r.get("data_end") or r["data_end"] < end]
-        warn = degrade(hist + [{"run_at": "this run", "data_end": end, "S_pct": diag.result.get("S")}]) if hist else None
-        if warn:
-            diag.result["degradation"] = warn
-        report = write_loop_outputs(cfg, diag, loop_id, history_rows=hist, degradation=warn)
-        row = loop_row(diag.result, report, degradation=warn)
-        row["_result"] = diag.result
+        warn = degrade(hist + [{"run_at": "this run", "data_end": end,
+                                "S_pct": diag.identification.S_pct}]) if hist else None
+        diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn)
+        report, diag = write_loop_outputs(cfg, diag, loop_id, history_rows=hist)
+        row = loop_row(diag, report)
+        row["_history"] = row_from_diagnosis(diag, input_hash=ih)
         return row
     except MemoryError:
         raise
@@ -387,6 +400,7 @@ def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
         return read_records(str(path), **opts, **extra)
 
     opts = dict(cfg.read_options)
+    opts.pop("loop", None)  # a file without the loop is left alone, not failed (process_file)
     if not cfg.tags:
         return read()
     try:
@@ -417,6 +431,13 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
         raise
     except Exception as exc:
         return {"path": str(p), "digest": None, "rows": [failure_row(safe_name(p.stem), str(p), _one_line(exc))]}
+    want = cfg.read_options.get("loop")
+    if want:
+        names = sorted({r.name for r in records})
+        records = [r for r in records if r.name.lower() == str(want).lower()]
+        if not records:
+            return {"path": str(p), "digest": None, "rows": [],
+                    "left_alone": {"path": str(p), "reason": f"no loop named {want!r} (loops: {', '.join(names)})"}}
     rows = [process_record(cfg, rec, p, digest) for rec in records]
     import resource
 
@@ -533,10 +554,9 @@ def _load_state(cfg: BatchConfig, path: str, digest: str) -> list[dict[str, Any]
     rows = []
     for loop_id in st.get("loops", []):
         res = _existing(cfg, loop_id)
-        if res is None:
+        row = None if res is None else stored_row(res)
+        if row is None:
             return None
-        row = loop_row(res, f"loops/{loop_id}/{loop_id}.md", skipped=True)
-        row["_result"] = res
         rows.append(row)
     return rows
 
@@ -778,7 +798,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     BatchResult
         ``n_failed > 0`` when any file or loop failed.
     """
-    from .history import History, default_db_path, row_from_result, utc_now
+    from .history import History, default_db_path, utc_now
     from .pipeline import tool_version
 
     t0 = time.monotonic()
@@ -806,9 +826,11 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
 
     def collect(outcome: Mapping[str, Any], skipped_file: bool = False) -> None:
         frows = outcome["rows"]
+        if outcome.get("left_alone"):
+            skipped_files.append(dict(outcome["left_alone"]))
         if hist is not None:
-            hist.add_rows([row_from_result(r["_result"], run_at=run_at, input_hash=r.get("input_hash"))
-                           for r in frows if r["status"] == "ok" and "_result" in r])  # filed by tag
+            hist.add_rows([dict(r["_history"], run_at=run_at)
+                           for r in frows if r["status"] == "ok" and "_history" in r])  # filed by tag
         if not skipped_file:
             _save_state(cfg, outcome)
         rows.extend(frows)
@@ -852,6 +874,6 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
             "workers": workers, "scheduler": scheduler, "elapsed_s": round(time.monotonic() - t0, 3)}
     write_summary(out, ranked, pdf=pdf, meta=meta, skipped_files=skipped_files)
     for r in ranked:
-        r.pop("_result", None)
+        r.pop("_history", None)
     return BatchResult(rows=ranked, out_dir=out, n_files=len(files), elapsed_s=time.monotonic() - t0,
                        pdf=pdf, skipped_files=skipped_files)

@@ -16,13 +16,17 @@ migrated in place the first time it is opened for writing.
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 from ..errors import StictionError
+
+if TYPE_CHECKING:
+    from .pipeline import Diagnosis
 
 SCHEMA_VERSION = 2
 
@@ -86,46 +90,94 @@ def _parse_time(text: Any) -> datetime | None:
     return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
 
 
-def record_end(result: Mapping[str, Any]) -> str | None:
-    """UTC time of the last sample of the record a result diagnosed (``...+00:00``), None when the
-    record has no start time (an export of sample indices)."""
-    rec = result.get("record") if isinstance(result.get("record"), Mapping) else {}
-    start = _parse_time(rec.get("start"))
-    if start is None:
+def end_of_record(start: Any, n: Any, ts_s: Any) -> str | None:
+    """UTC time of the last sample (``...+00:00``) of a record of ``n`` samples every ``ts_s``
+    seconds from ``start`` (ISO 8601); None when the start is unknown (an export of sample indices)."""
+    t0 = _parse_time(start)
+    if t0 is None:
         return None
     try:
-        n = int(rec.get("n") or result.get("n_samples") or 0)
-        ts = float(rec.get("ts_s") or result.get("ts_s") or 0.0)
+        n, ts = int(n or 0), float(ts_s or 0.0)
     except (TypeError, ValueError):
         return None
     if n <= 0 or not ts > 0:
         return None
     from datetime import timedelta
 
-    end = start + timedelta(seconds=(n - 1) * ts)
+    end = t0 + timedelta(seconds=(n - 1) * ts)
     return end.astimezone(timezone.utc).isoformat(timespec="seconds")
 
 
-def history_loop(result: Mapping[str, Any]) -> str:
-    """The name a result is filed under: the loop's tag, file-safe (a batch report may carry a
+def record_end(result: Mapping[str, Any]) -> str | None:
+    """`end_of_record` of a stored result (``LOOP.json`` or a history row's ``result_json``)."""
+    stored = result.get("record")
+    rec: Mapping[str, Any] = stored if isinstance(stored, Mapping) else {}
+    return end_of_record(rec.get("start"), rec.get("n") or result.get("n_samples"),
+                         rec.get("ts_s") or result.get("ts_s"))
+
+
+def history_loop(name: str) -> str:
+    """The name a loop's runs are filed under: its tag, file-safe (a batch report may carry a
     longer name when two inputs hold the same tag; both belong to one history)."""
     from .batch import safe_name
 
-    return safe_name(str(result.get("loop") or result.get("loop_id")))
+    return safe_name(name)
 
 
-def row_from_result(result: Mapping[str, Any], *, run_at: str | None = None,
-                    input_hash: str | None = None, status: str = "ok", error: str | None = None
-                    ) -> dict[str, Any]:
-    """The history row for one loop's result (`diagnose.service.pipeline.diagnose_record`)."""
-    from .pipeline import _interval, _num, oscillation_info
-
-    rec = result.get("record") or {}
-    slo, shi = _interval(result.get("S_interval"))
-    jlo, jhi = _interval(result.get("J_interval"))
-    sev = result.get("severity") or {}
+def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash: str | None = None) -> dict[str, Any]:
+    """The history row of one loop's diagnosis (the columns of the ``runs`` table)."""
+    ident = diag.identification
+    rec = diag.record
+    si = ident.S_interval_pct or (None, None)
+    ji = ident.J_interval_pct or (None, None)
     return {
-        "loop": history_loop(result),
+        "loop": history_loop(ident.loop),
+        "run_at": run_at or utc_now(),
+        "data_start": rec.start,
+        "data_end": end_of_record(rec.start, rec.n, rec.ts_s),
+        "source": rec.source or ident.source,
+        "input_hash": input_hash or diag.input_hash or "",
+        "tool_version": diag.tool_version,
+        "status": "ok",
+        "class": ident.cls,
+        "S_pct": _num(ident.S_pct), "S_lo": _num(si[0]), "S_hi": _num(si[1]),
+        "J_pct": _num(ident.J_pct), "J_lo": _num(ji[0]), "J_hi": _num(ji[1]),
+        "confidence": _num(ident.confidence),
+        "severity": _num(diag.severity.score),
+        "oscillation_period_s": _num(ident.oscillation.period_s),
+        "verdict": diag.verdict_text,
+        "result_json": json.dumps(diag.to_dict(), separators=(",", ":"), allow_nan=False),
+    }
+
+
+def _num(value: Any) -> float | None:
+    if value is None or isinstance(value, bool):
+        return None
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _pair(value: Any) -> tuple[float | None, float | None]:
+    if isinstance(value, (list, tuple)) and len(value) == 2:
+        return _num(value[0]), _num(value[1])
+    return None, None
+
+
+def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, input_hash: str | None = None,
+                    status: str = "ok", error: str | None = None) -> dict[str, Any]:
+    """The history row of a stored result: a ``LOOP.json`` of any schema in
+    `diagnose.service.pipeline.READ_SCHEMAS` (a resumed batch files it again)."""
+    stored = result.get("record")
+    rec: Mapping[str, Any] = stored if isinstance(stored, Mapping) else {}
+    slo, shi = _pair(result.get("S_interval"))
+    jlo, jhi = _pair(result.get("J_interval"))
+    sev = result.get("severity")
+    osc = result.get("oscillation")
+    return {
+        "loop": history_loop(str(result.get("loop") or result.get("loop_id"))),
         "run_at": run_at or utc_now(),
         "data_start": rec.get("start"),
         "data_end": record_end(result),
@@ -138,7 +190,7 @@ def row_from_result(result: Mapping[str, Any], *, run_at: str | None = None,
         "J_pct": _num(result.get("J")), "J_lo": jlo, "J_hi": jhi,
         "confidence": _num(result.get("confidence")),
         "severity": _num(sev.get("score")) if isinstance(sev, Mapping) else None,
-        "oscillation_period_s": oscillation_info(result)["period_s"],
+        "oscillation_period_s": _num(osc.get("period_s")) if isinstance(osc, Mapping) else None,
         "verdict": error if status != "ok" else result.get("verdict"),
         "result_json": json.dumps(result, separators=(",", ":"), allow_nan=False) if status == "ok" else None,
     }
@@ -209,7 +261,7 @@ class History:
 
     # -- writing ---------------------------------------------------------------------------
     def add_rows(self, rows: Iterable[Mapping[str, Any]]) -> int:
-        """Store rows (see `row_from_result`) in one transaction; returns how many were new."""
+        """Store rows (`row_from_diagnosis`, `row_from_stored`) in one transaction; returns how many were new."""
         sql = (f"INSERT INTO runs ({', '.join(_COLS)}) VALUES ({', '.join('?' for _ in _COLS)}) "
                "ON CONFLICT (loop, input_hash, tool_version) DO NOTHING")
         n = 0
@@ -219,9 +271,10 @@ class History:
                 n += cur.rowcount
         return n
 
-    def add(self, result: Mapping[str, Any], **kw: Any) -> bool:
-        """Store one loop's result; False when the same (loop, input, version) is already there."""
-        return self.add_rows([row_from_result(result, **kw)]) == 1
+    def add(self, diag: Diagnosis, **kw: Any) -> bool:
+        """Store one loop's diagnosis (`row_from_diagnosis`); False when the same (loop, input,
+        version) is already there."""
+        return self.add_rows([row_from_diagnosis(diag, **kw)]) == 1
 
     # -- reading ---------------------------------------------------------------------------
     def runs(self, loop: str, *, limit: int | None = None, status: str | None = "ok",

@@ -9,9 +9,12 @@ another address is given.
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from ..errors import StictionError
+
+if TYPE_CHECKING:
+    from .pipeline import Diagnosis
 
 
 class Metrics:
@@ -63,16 +66,14 @@ class Metrics:
         self._server = server[0] if isinstance(server, tuple) else server
         self.port = self._server.server_port if self._server is not None else port
 
-    def observe(self, loop: str, result: Mapping[str, Any]) -> None:
-        """Update the gauges from one window's result."""
-        from .pipeline import stiction_present
-
-        for gauge, value in ((self.S, result.get("S")), (self.J, result.get("J")),
-                             (self.confidence, result.get("confidence")),
-                             (self.severity, (result.get("severity") or {}).get("score"))):
-            if isinstance(value, (int, float)):
+    def observe(self, loop: str, diag: Diagnosis) -> None:
+        """Update the gauges from one window's diagnosis."""
+        ident = diag.identification
+        for gauge, value in ((self.S, ident.S_pct), (self.J, ident.J_pct), (self.confidence, ident.confidence),
+                             (self.severity, diag.severity.score)):
+            if value is not None:
                 gauge.labels(loop).set(float(value))
-        self.detected.labels(loop).set(1.0 if stiction_present(result) else 0.0)
+        self.detected.labels(loop).set(1.0 if ident.stiction else 0.0)
         self.windows.labels(loop, "ok").inc()
 
     def failed(self, loop: str) -> None:

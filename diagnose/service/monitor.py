@@ -20,12 +20,16 @@ import os
 import sys
 import time
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, TextIO
+from typing import TYPE_CHECKING, Any, Callable, TextIO
 
 from ..errors import DataError, StictionError
 from ..plain import duration
+
+if TYPE_CHECKING:
+    from ..record import LoopRecord
+    from .pipeline import Diagnosis
 
 #: Shortest window (samples) the monitor accepts. The fit is scored on what is left after the
 #: model's start-up samples: the simulator's 60-sample windows left too few and failed one by one,
@@ -80,22 +84,19 @@ def window_id(record: Any) -> str:
     return f"w{int(time.time() * 1000)}"
 
 
-def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figures: bool = False) -> dict:
+def diagnose_window(record: LoopRecord, out_dir: str, explain: bool | str = False,
+                    figures: bool = False) -> Diagnosis:
     """Diagnose one window and write its JSON and Markdown (runs in a worker process)."""
-    from .batch import _worker_setup, safe_name
-    from .pipeline import diagnose
     from connectors.historian import atomic_write
 
+    from .batch import _worker_setup, safe_name
+    from .pipeline import diagnose
     from .report import loop_blocks, to_markdown
 
     _worker_setup()
-    diag = diagnose(record, explain=explain)
     loop = safe_name(record.name)
     wid = window_id(record)
-    res = diag.result
-    res["loop_id"] = loop
-    res["window"] = wid
-    res["input_hash"] = f"window:{wid}"
+    diag = replace(diagnose(record, explain=explain), loop_id=loop, window=wid, input_hash=f"window:{wid}")
     d = Path(out_dir) / loop
     names: list[str] = []
     if figures:
@@ -105,13 +106,13 @@ def diagnose_window(record: Any, out_dir: str, explain: bool | str = False, figu
         for name, png in pngs.items():
             atomic_write(d / f"{wid}_{name}.png", png)
         names = list(pngs)
-    md = to_markdown(loop_blocks(res, names), figure_path=f"{wid}_{{name}}.png")
-    text = json.dumps(res, indent=1, allow_nan=False)
+    md = to_markdown(loop_blocks(diag, names), figure_path=f"{wid}_{{name}}.png")
+    text = json.dumps(diag.to_dict(), indent=1, allow_nan=False)
     atomic_write(d / f"{wid}.md", md)
     atomic_write(d / f"{wid}.json", text)
     atomic_write(d / "latest.md", md)
     atomic_write(d / "latest.json", text)
-    return res
+    return diag
 
 
 def _monitor_worker_init(parent_pid: int | None = None) -> None:
@@ -132,7 +133,7 @@ def _warm_up() -> bool:
 
     _worker_setup()
     from . import pipeline, report  # noqa: F401
-    from .. import identify  # noqa: F401
+    from .. import identification  # noqa: F401
 
     return True
 
@@ -166,8 +167,12 @@ class Monitor:
                  history: bool = True, metrics_port: int | None = None, window_samples: int | None = None,
                  workers: int = 1, explain: bool | str = False, figures: bool = False,
                  min_fraction: float = 0.5, log: TextIO | None = None,
-                 on_result: Callable[[dict], Any] | None = None) -> None:
+                 on_result: Callable[[Diagnosis], Any] | None = None) -> None:
         from connectors.modbus import ModbusPoller, load_modbus_config
+
+        # each window's Diagnosis comes back pickled: its types are imported now, not by the first
+        # result while the poller runs
+        from . import pipeline  # noqa: F401
 
         self.config = config if not isinstance(config, (str, os.PathLike)) else load_modbus_config(config)
         self.out_dir = Path(out_dir)
@@ -282,11 +287,12 @@ class Monitor:
                 self.metrics.failed(name)
             return
         self.stats.diagnosed += 1
+        loop = res.loop_id or name
         if self.history is not None:
             self.history.add(res)
         if self.metrics is not None:
-            self.metrics.observe(res.get("loop_id", name), res)
-        print(f"{res.get('loop_id', name)} {res.get('window')}: {res.get('verdict')}", file=self.log, flush=True)
+            self.metrics.observe(loop, res)
+        print(f"{loop} {res.window}: {res.verdict_text}", file=self.log, flush=True)
         if self.on_result is not None:
             self.on_result(res)
 

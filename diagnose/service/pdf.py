@@ -61,8 +61,9 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
             pdf.multi_cell(epw, 8, latin1(b[1]), new_x="LMARGIN", new_y="NEXT")
             pdf.ln(2)
         elif kind == "h2":
-            need = 45.0  # keep a heading with what follows it (a figure: all of it)
+            # keep a heading with what follows it (a figure: all of it; a paragraph: a few lines)
             nxt = blocks[i + 1] if i + 1 < len(blocks) else None
+            need = 25.0 if nxt is not None and nxt[0] in ("p", "strong", "bullets") else 45.0
             if nxt is not None and nxt[0] == "figure" and nxt[1] in figures:
                 need = 20.0 + _figure_size_mm(figures[nxt[1]], epw)[1]
             if pdf.get_y() + need > pdf.h - pdf.b_margin:
@@ -79,16 +80,19 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
             pdf.set_font("Helvetica", "", 9)
             for item in b[1]:
                 pdf.set_x(pdf.l_margin + 3)
-                pdf.multi_cell(epw - 3, 4.5, latin1("- " + str(item)), new_x="LMARGIN", new_y="NEXT")
+                pdf.multi_cell(epw - 3, 4.5, latin1("- " + str(item)), new_x="LMARGIN", new_y="NEXT", align="L")
             pdf.ln(1.5)
         elif kind == "table":
             header, rows = b[1], b[2]
-            pdf.set_font("Helvetica", "", 8 if len(header) > 4 else 9)
+            small = len(header) > 4 or len(rows) > 8
+            pdf.set_font("Helvetica", "", 8 if small else 9)
             # column widths by content (long text columns wrap, short numeric ones stay narrow)
             lens = [max([len(latin1(str(h)))] + [len(latin1(str(r[j]))) for r in rows if j < len(r)])
                     for j, h in enumerate(header)]
-            widths = [min(max(n, 8), 60) + 2 for n in lens]  # short headers ("Named") stay on one line
-            with pdf.table(headings_style=head, line_height=4.4, text_align="LEFT", padding=0.8,
+            # short headers ("Named") stay on one line; the last column, the sentence ("Why",
+            # "Finding", "Value"), may take most of the width
+            widths = [min(max(n, 8), 110 if j == len(lens) - 1 else 60) + 2 for j, n in enumerate(lens)]
+            with pdf.table(headings_style=head, line_height=3.9 if small else 4.4, text_align="LEFT", padding=0.8,
                            col_widths=tuple(widths)) as table:
                 r = table.row()
                 for h in header:
@@ -109,6 +113,8 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
             pdf.set_font("Helvetica", "I", 8)
             pdf.multi_cell(epw, 4, latin1(b[2]), new_x="LMARGIN", new_y="NEXT")
             pdf.ln(2)
+        elif kind == "page":
+            pdf.add_page()
         else:  # pragma: no cover - programming error
             raise ValueError(f"unknown block kind {kind!r}")
     return bytes(pdf.output())

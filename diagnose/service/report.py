@@ -1,22 +1,31 @@
 """Report content as blocks, rendered to Markdown here and to PDF by `diagnose.service.pdf`.
 
-One content builder per report (`loop_blocks`, `summary_blocks`) turns a result dict (the issue-3
-JSON plus the service's keys, see `diagnose.service.pipeline`) into a list of blocks; the Markdown
-and PDF renderers only lay blocks out, so both formats always say the same thing. Blocks are tuples:
+One content builder per report (`loop_blocks`, `summary_blocks`) turns results into a list of
+blocks: a loop's report is built from its `diagnose.service.pipeline.Diagnosis` (the typed
+objects), the plant summary from the summary rows (`diagnose.service.batch.loop_row`). The
+Markdown and PDF renderers only lay blocks out, so both formats always say the same thing. Blocks
+are tuples:
 
 ``("title", text)``, ``("h2", text)``, ``("p", text)``, ``("strong", text)``, ``("bullets", [text])``,
 ``("table", header, rows)``, ``("figure", name, caption)`` where ``name`` is a PNG file name beside
-the report.
+the report, and ``("page",)``: a new page (the PDF starts one; Markdown draws a rule).
 
-The module also holds the atomic file writers every service output goes through.
+A loop's report opens with one page a maintenance planner can act on (the verdict, S and J with
+what they mean, why we believe it, what to do); the figures and the details follow.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
-from ..plain import duration, number, percent_change
+from ..plain import duration, number, percent, percent_change
+
+if TYPE_CHECKING:
+    from ..controller import ControllerAction
+    from ..identification import Identification
+    from ..process_model import ProcessModel
+    from .pipeline import Diagnosis
 
 
 Block = tuple
@@ -40,6 +49,7 @@ FIGURE_CAPTIONS = {
 #: What each stiction class means for the valve, in a maintenance planner's words (docs/model.md).
 CLASS_MEANING = {
     "none": "no stiction: the valve follows the controller output",
+    "unknown": "the evidence says the valve sticks, but its size could not be measured from these data",
     "deadband": "J = 0: the valve moves only after the controller output has travelled S back, "
                 "then follows it smoothly (pure deadband or backlash)",
     "undershoot": "0 < J < S: after sticking the valve jumps, but by less than the band, so it stops "
@@ -49,24 +59,8 @@ CLASS_MEANING = {
                  "to be",
 }
 
-#: The NARX-SP selection's keys, in words; keys not listed are internal and stay in the JSON.
-NARX_LABELS = (("model", "Model"), ("S", "S of the model (%)"), ("J", "J of the model (%)"),
-               ("distance", "Distance from the identified (S, J)"),
-               ("robust", "Within its robustness margin"),
-               ("free_run_rmse", "Free-run RMSE in training (% of span)"),
-               ("free_run_rmse_record", "Free-run RMSE on this record"),
-               ("free_run_against", "Compared with"))
-
-#: The explanation's keys, in words.
-EXPLAIN_LABELS = (("target", "Judged on"), ("baseline_rmse", "Held-out RMSE of the fitted model"),
-                  ("improved_rmse", "Held-out RMSE with the missing physics"))
-
-
-# ----------------------------------------------------------------------------------------------
-# atomic writers
-
-
-
+S_MEANING = "S: deadband + stickband, how far OP must travel back before the valve moves"
+J_MEANING = "J: slip jump, how far the valve jumps when it breaks free"
 
 # ----------------------------------------------------------------------------------------------
 # formatting helpers
@@ -84,85 +78,53 @@ def fmt(value: Any, spec: str = ".2f", none: str = "-") -> str:
     return str(value)
 
 
-def fmt_interval(value: Any, spec: str = ".2f") -> str:
-    from .pipeline import _interval
-
-    lo, hi = _interval(value)
-    if lo is None or hi is None:
+def fmt_interval(value: tuple[float, float] | None, spec: str = ".2f") -> str:
+    if value is None:
+        return "-"
+    lo, hi = value
+    if not (math.isfinite(lo) and math.isfinite(hi)):
         return "-"
     return f"[{lo:{spec}}, {hi:{spec}}]"
 
 
-def _scalar_items(d: Mapping[str, Any], skip: Iterable[str] = ()) -> list[list[str]]:
-    skip = set(skip)
-    rows = []
-    for k, v in d.items():
-        if k in skip or isinstance(v, (Mapping, list, tuple)):
-            continue
-        rows.append([str(k), fmt(v, ".4g")])
-    return rows
-
-
-def _process_text(proc: Any) -> str:
-
-    if not isinstance(proc, Mapping):
-        return fmt(proc)
-    kind = proc.get("kind", "?")
-    bits = [str(kind)]
-    for key, label in (("gain", "gain"), ("tau_s", "time constant"), ("tau2_s", "second time constant"),
-                       ("delay_s", "dead time")):
-        v = proc.get(key)
-        if isinstance(v, (int, float)) and (key != "tau2_s" or v):
-            bits.append(f"{label} {duration(v) if key.endswith('_s') else number(v)}")
+def _process_text(proc: ProcessModel | None) -> str:
+    if proc is None:
+        return "-"
+    bits = [proc.kind]
+    bits.append(f"gain {number(proc.gain)}")
+    bits.append(f"time constant {duration(proc.tau_s)}")
+    if proc.kind == "soptd" and proc.tau2_s:
+        bits.append(f"second time constant {duration(proc.tau2_s)}")
+    bits.append(f"dead time {duration(proc.delay_s)}")
     return ", ".join(bits)
 
 
-def _controller_text(ctl: Any) -> str:
-
-    if not isinstance(ctl, Mapping) or ctl.get("action") in (None, "unknown"):
+def _controller_text(ctl: ControllerAction | None) -> str:
+    if ctl is None or ctl.sign == 0:
         return "no PI law found in the records (manual, cascade slave or another algorithm)"
-    bits = [f"{ctl['action']} acting"]
-    if isinstance(ctl.get("Kc"), (int, float)):
-        bits.append(f"gain Kc {number(ctl['Kc'])} % per PV unit")
-    if isinstance(ctl.get("Ti_s"), (int, float)):
-        bits.append(f"integral time {duration(ctl['Ti_s'])}")
-    if isinstance(ctl.get("r2"), (int, float)):
-        bits.append(f"R2 {ctl['r2']:.2f}")
+    bits = [f"{'reverse' if ctl.sign > 0 else 'direct'} acting"]
+    if math.isfinite(ctl.Kc):
+        bits.append(f"gain Kc {number(ctl.Kc)} % per PV unit")
+    if math.isfinite(ctl.Ti_s):
+        bits.append(f"integral time {duration(ctl.Ti_s)}")
+    if math.isfinite(ctl.r2):
+        bits.append(f"R2 {ctl.r2:.2f}")
     return ", ".join(bits)
 
 
-def _labelled(d: Mapping[str, Any], labels: Sequence[tuple[str, str]]) -> list[list[str]]:
-    """Rows of ``(label, value)`` for the keys in ``labels`` that ``d`` holds, numbers plain."""
-
-    rows = []
-    for key, label in labels:
-        v = d.get(key)
-        if v is None or isinstance(v, (Mapping, list, tuple)):
-            continue
-        if isinstance(v, str):
-            text = {"mv": "the recorded stem position (MV)", "pv": "PV"}.get(v, v)
-        else:
-            text = fmt(v) if isinstance(v, bool) else number(v)
-        rows.append([label, text])
-    return rows
-
-
-def _params_text(params: Any) -> str:
-
-    if not isinstance(params, Mapping):
-        return ""
+def _params_text(params: Mapping[str, float | None]) -> str:
     return ", ".join(f"{k} {duration(v) if k.endswith('_s') else number(v)}"
                      for k, v in params.items() if isinstance(v, (int, float)))
 
 
-def _oscillation_text(osc: Mapping[str, Any]) -> str:
-
-    reg = f", regularity {osc['strength']:.2f}" if osc.get("strength") is not None else ""
-    if osc.get("slow_cycle"):
-        return (f"slow cycle with a period of {duration(osc['period_s'])}{reg}: a daily or shift "
+def _oscillation_text(ident: Identification) -> str:
+    osc = ident.oscillation
+    reg = f", regularity {osc.regularity:.2f}" if osc.regularity > 0 else ""
+    if ident.slow_cycle:
+        return (f"slow cycle with a period of {duration(osc.period_s)}{reg}: a daily or shift "
                 "pattern of the plant, not a loop oscillation")
-    if osc.get("present"):
-        return f"oscillating with a period of {duration(osc['period_s'])}{reg}"
+    if ident.loop_oscillates:
+        return f"oscillating with a period of {duration(osc.period_s)}{reg}"
     return "none detected"
 
 
@@ -170,7 +132,7 @@ def _oscillation_text(osc: Mapping[str, Any]) -> str:
 # content
 
 
-#: How identify obtained S and J (its ``method`` key), in words for the report.
+#: How identify obtained S and J (its ``method``), in words for the report.
 _METHOD_TEXT = {
     "op_mv": "OP and the recorded stem position (valve model fitted directly)",
     "op_pv": "OP and PV (Hammerstein fit: valve model + linear process, by simulation error)",
@@ -197,159 +159,236 @@ _DECISION_TEXT = {"stiction": "stiction", "no_stiction": "no stiction", "undeter
                   "cannot_judge": "cannot judge"}
 
 
-def evidence_rows(result: Mapping[str, Any]) -> list[list[str]]:
-    """The evidence table: each test, what it says, its index against its threshold, why."""
+def _label(test: str) -> str:
+    return EVIDENCE_LABELS.get(test, test)
+
+
+def evidence_rows(ident: Identification, *, numbers: bool = False) -> list[list[str]]:
+    """The evidence table: each test, what it says (and its weight in the verdict), why.
+
+    ``numbers``: the test's index and its threshold instead of the why.
+    """
+    contrib = dict(ident.verdict.contributions) if ident.verdict is not None else {}
     rows = []
-    contrib = ((result.get("combination") or {}).get("contributions") or {})
-    for ev in result.get("evidence") or ():
-        test = str(ev.get("test", "?"))
-        idx = "-" if ev.get("value") is None else number(ev.get("value"))
-        if ev.get("threshold") is not None and ev.get("value") is not None:
-            idx += f" (threshold {number(ev.get('threshold'))})"
-        weight = contrib.get(test)
-        says = _DECISION_TEXT.get(str(ev.get("decision")), str(ev.get("decision")))
+    for ev in ident.evidence:
+        says = _DECISION_TEXT.get(ev.decision, ev.decision)
+        weight = contrib.get(ev.test)
         if weight is not None and abs(weight) >= 0.005:
             says += f", weighs {weight:+.2f}"
-        rows.append([EVIDENCE_LABELS.get(test, test), says, idx, str(ev.get("note", ""))])
+        row = [_label(ev.test), says]
+        if numbers:
+            low = ev.extras.get("threshold_low")
+            thr = number(ev.threshold) + ("" if low is None else f" (no stiction at {number(low)} or below)")
+            row += [number(ev.value), thr]
+        else:
+            row.append(ev.note)
+        rows.append(row)
     return rows
 
 
-def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
+#: Why a test cannot judge (its ``reason``), in a few words (docs/evidence.md).
+REASON_TEXT = {
+    "too_short": "the record is too short", "op_flat": "OP hardly moves", "op_still": "OP hardly moves",
+    "pv_unusable": "PV is unusable", "no_oscillation": "the loop does not oscillate",
+    "too_few_cycles": "too few oscillation cycles", "irregular_oscillation": "the oscillation is irregular",
+    "process_type_unknown": "the process type is unknown",
+    "wrong_process_type": "not for this type of process", "irregular_ccf": "the cross-correlation is irregular",
+    "non_finite": "the data have gaps", "bad_sample_period": "the sample period does not suit it",
+}
+
+
+def evidence_summary(ident: Identification) -> str:
+    """Which tests agree, which disagree, which cannot judge this record and why, in a few lines
+    (the table beside it names each test)."""
+    by: dict[str, list[str]] = {k: [] for k in _DECISION_TEXT}
+    for ev in ident.evidence:
+        by.setdefault(ev.decision, []).append(ev.test)
+    judged = len(ident.evidence) - len(by["cannot_judge"])
+    text = (f"Of the {judged} tests that could judge this record, {len(by['stiction'])} say stiction, "
+            f"{len(by['no_stiction'])} say no stiction and {len(by['undetermined'])} are undecided.")
+    reasons: dict[str, int] = {}
+    for ev in ident.evidence:
+        if ev.decision == "cannot_judge":
+            why = REASON_TEXT.get(ev.reason, ev.reason.replace("_", " ") or "see the table")
+            reasons[why] = reasons.get(why, 0) + 1
+    if reasons:
+        n = sum(reasons.values())
+        text += f" {n} cannot judge it: " + "; ".join(f"{k} ({v})" for k, v in reasons.items()) + "."
+    v = ident.verdict
+    if v is not None:
+        text += (f" Together they give a probability of stiction of {percent(v.stiction_probability)} (stiction "
+                 f"at {percent(v.threshold)} and above); each test's weight says how far it moved it.")
+    return text
+
+
+def _source_line(diag: Diagnosis) -> str:
+    rec = diag.record
+    src = []
+    if rec.source:
+        src.append(f"source {rec.source}")
+    src.append(f"{rec.n} samples every {duration(rec.ts_s)} ({duration(rec.duration_s)})")
+    if rec.start:
+        src.append(f"from {rec.start}")
+    src.append("signals " + ", ".join(r.upper() for r in sorted(rec.roles())))
+    nseg = rec.meta.get("n_segments")
+    if nseg and nseg > 1:
+        src.append(f"segment {int(rec.meta.get('segment', 0)) + 1} of {nseg}")
+    return "; ".join(src) + "."
+
+
+def _found_rows(diag: Diagnosis) -> list[list[str]]:
+    ident = diag.identification
+    unit = "% of span" if ident.op_in_percent else "in OP's own units (OP is not in % of span)"
+    meaning = CLASS_MEANING.get(ident.cls)
+    alt = (f" (the data also allow: {', '.join(ident.class_alternatives)})" if ident.class_alternatives else "")
+    rows = [["Class", ident.cls + (f": {meaning}" if meaning else "") + alt]]
+    if not ident.stiction and ident.S_interval_pct is not None and ident.J_interval_pct is not None:
+        # a healthy valve: what the data would have shown (the upper ends of the intervals)
+        rows += [[S_MEANING, f"0 (no stiction); the data allow at most {fmt(ident.S_interval_pct[1])} {unit}"],
+                 [J_MEANING, f"0 (no stiction); the data allow at most {fmt(ident.J_interval_pct[1])} {unit}"]]
+    elif ident.S_pct is not None and ident.J_pct is not None:
+        rows += [[S_MEANING, f"{fmt(ident.S_pct)} {unit}, interval {fmt_interval(ident.S_interval_pct)}"],
+                 [J_MEANING, f"{fmt(ident.J_pct)} {unit}, interval {fmt_interval(ident.J_interval_pct)}"]]
+    else:
+        rows += [[S_MEANING, "not measurable from these data"], [J_MEANING, "not measurable from these data"]]
+    v = ident.verdict
+    prob = "-" if v is None else f"{percent(v.stiction_probability)} (stiction at {percent(v.threshold)} and above)"
+    rows.append(["Probability of stiction", prob])
+    return rows
+
+
+def _detail_rows(diag: Diagnosis) -> list[list[str]]:
+    ident = diag.identification
+    sev = diag.severity
+    if ident.rmse is None:
+        fit = "-"
+    elif ident.method == "op_mv":
+        fit = f"stem position (MV): RMSE {number(ident.rmse)} % of span, R2 {fmt(ident.r2, '.3f')}"
+    else:
+        unit = diag.record.units.get("pv") or "PV units"
+        fit = f"PV: RMSE {number(ident.rmse)} {unit}, R2 {fmt(ident.r2, '.3f')}"
+    return [["Confidence in the verdict", percent(ident.confidence)],
+            ["S and J from", _METHOD_TEXT.get(ident.method, ident.method)],
+            ["Process model", _process_text(ident.process)],
+            ["Controller (from OP/PV/SP)", _controller_text(ident.controller)],
+            ["Fit of the model (free-run simulation)", fit],
+            ["Oscillation", _oscillation_text(ident)],
+            ["Severity (0-100)", f"{sev.score:.0f}: stiction {sev.size:.0f}, oscillation {sev.oscillation:.0f}, "
+                                 f"data quality {sev.data_quality:.0f}, NARX-SP robustness {sev.robustness:.0f}"]]
+
+
+def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block]:
+    sel = diag.selection
+    blocks: list[Block] = [("h2", "NARX-SP free run")]
+    if sel is not None:
+        rows = [["Model", sel.model], ["S and J of the model", f"{number(sel.S)} %, {number(sel.J)} % of span"],
+                ["Distance from the identified (S, J)", f"{number(sel.distance)} % of span"],
+                ["Within its robustness margin", "yes" if sel.robust else "no"],
+                ["Free-run RMSE at the identified (S, J)", f"{number(sel.free_run_rmse)} % of span"]]
+        run = diag.narx_run
+        if run is not None and run.rmse_record is not None:
+            what = "the recorded stem position (MV), % of span" if run.against == "mv" else "PV, PV units"
+            rows.append(["Free-run RMSE on this record", f"{number(run.rmse_record)} against {what}"])
+        blocks.append(("table", ["NARX-SP", "Value"], rows))
+        if "narx" in figs:
+            blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
+    elif codes & {"service.narx_unavailable", "service.narx_failed"}:
+        blocks.append(("p", "No NARX-SP model: the bank could not be used (see the warnings above)."))
+    elif not diag.identification.stiction:
+        blocks.append(("p", "No NARX-SP model: the valve shows no stiction, and the bank's models "
+                            "describe sticky valves."))
+    elif diag.identification.S_pct is None:
+        blocks.append(("p", "No NARX-SP model: the size of the stiction (S and J) is not known."))
+    else:
+        blocks.append(("p", "No NARX-SP model: the NARX-SP stage was not run for this loop."))
+    return blocks
+
+
+def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
+    expl = diag.explanation
+    if expl is None:
+        if diag.explain_auto:
+            return [("h2", "Missing physics"),
+                    ("p", f"Not run: {diag.explain_auto} (run with --explain on to force it).")]
+        return []
+    unit = "% of span" if expl.target == "mv" else "PV units"
+    judged = {"mv": "the stem position (MV)", "pv": "PV"}.get(expl.target, expl.target)
+    blocks: list[Block] = [("h2", "Missing physics"), ("p", expl.explanation),
+                           ("strong", f"Missing physics named: {expl.missing_physics or 'none'}."),
+                           ("table", ["Explanation", "Value"],
+                            [["Judged on", judged],
+                             ["Held-out RMSE of the fitted model", f"{number(expl.baseline_rmse)} {unit}"],
+                             ["Held-out RMSE with the missing physics", f"{number(expl.improved_rmse)} {unit}"]])]
+    if expl.hypotheses:
+        # the change is signed, negative for a fall, as in the explanation's own text
+        blocks.append(("table", ["Hypothesis", "Named", "Held-out RMSE", "Change", "Parameters"],
+                       [[h.name, "yes" if h.accepted else "no", number(h.heldout_rmse, 4),
+                         percent_change(-h.reduction), _params_text(h.params)] for h in expl.hypotheses]))
+    if "explanation" in figs:
+        blocks.append(("figure", "explanation", FIGURE_CAPTIONS["explanation"]))
+    return blocks
+
+
+def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
                 history_rows: Sequence[Mapping[str, Any]] | None = None,
                 degradation: str | None = None) -> list[Block]:
-    """The content of one loop's report.
+    """The content of one loop's report: one page to act on, then the figures and details.
 
     Parameters
     ----------
-    result : mapping
-        The loop's result (`diagnose.service.pipeline.diagnose_record`).
+    diag : Diagnosis
     figures : sequence of str
         Names of the figures that exist (``"trends"``, ``"phase"``...); files are ``NAME.png``.
     history_rows : sequence of mapping, optional
-        Earlier runs of this loop from `diagnose.service.history` (oldest first).
+        Earlier runs of this loop from the history database (oldest first).
     degradation : str, optional
-        The degradation warning for this loop, if any.
+        The degradation warning for this loop (default: the diagnosis's own).
     """
-    from .pipeline import oscillation_info, op_in_percent, stiction_present
-
+    ident = diag.identification
     figs = set(figures)
-    rec = result.get("record") or {}
-    loop = result.get("loop_id") or result.get("loop") or "loop"
-    blocks: list[Block] = [("title", f"Stiction report: {loop}")]
-    src = []
-    if rec.get("source"):
-        src.append(f"source {rec['source']}")
-    if rec.get("n"):
-        src.append(f"{rec['n']} samples every {duration(rec.get('ts_s'))} ({duration(rec.get('duration_s'))})")
-    if rec.get("start"):
-        src.append(f"from {rec['start']}")
-    if rec.get("roles"):
-        src.append("signals " + ", ".join(r.upper() for r in rec["roles"]))
-    if rec.get("n_segments") and rec.get("n_segments", 1) > 1:
-        src.append(f"segment {rec.get('segment', 0) + 1} of {rec['n_segments']}")
-    if src:
-        blocks.append(("p", "; ".join(src) + "."))
-    blocks.append(("h2", "Verdict"))
-    blocks.append(("strong", str(result.get("verdict", ""))))
-    fitd = result.get("fit") or {}
-    osc = oscillation_info(result)
-    sev = result.get("severity") or {}
-    unit = "% of span" if op_in_percent(result) else "in OP's own units (OP is not in % of span)"
-    cls = str(result.get("class") or "")
-    meaning = CLASS_MEANING.get(cls)
-    rows = [
-        ["Class", fmt(result.get("class")) + (f": {meaning}" if meaning else "") + (
-            f" (the data also allow: {', '.join(result['class_alternatives'])})"
-            if result.get("class_alternatives") else "")],
-        ["S: deadband + stickband, how far OP must travel back before the valve moves",
-         f"{fmt(result.get('S'))} {unit}, interval {fmt_interval(result.get('S_interval'))}"],
-        ["J: slip jump, how far the valve jumps when it breaks free",
-         f"{fmt(result.get('J'))} {unit}, interval {fmt_interval(result.get('J_interval'))}"],
-        ["Probability of stiction", fmt(result.get("stiction_probability"), ".0%") + (
-            f" (stiction at {fmt((result.get('combination') or {}).get('threshold'), '.0%')} and above)"
-            if (result.get("combination") or {}).get("threshold") is not None else "")],
-        ["Confidence", fmt(result.get("confidence"), ".0%")],
-        ["S and J from", _METHOD_TEXT.get(result.get("method"), fmt(result.get("method")))],
-        ["Process model", _process_text(result.get("process"))],
-        ["Controller (from OP/PV/SP)", _controller_text(result.get("controller"))],
-        ["Fit", f"RMSE {number(fitd.get('rmse'))}, R2 {fmt(fitd.get('r2'), '.3f')}"],
-        ["Oscillation", _oscillation_text(osc)],
-        ["Severity (0-100)", fmt(sev.get("score"), ".0f")],
-    ]
-    blocks.append(("table", ["Quantity", "Value"], rows))
-    ev_rows = evidence_rows(result)
-    if ev_rows:
-        n_st = sum(1 for e in result["evidence"] if e.get("decision") == "stiction")
-        n_no = sum(1 for e in result["evidence"] if e.get("decision") == "no_stiction")
-        n_cj = sum(1 for e in result["evidence"] if e.get("decision") == "cannot_judge")
-        blocks.append(("h2", "Why we believe it"))
-        blocks.append(("p", f"{n_st} tests say stiction, {n_no} say no stiction, {n_cj} cannot judge this "
-                            "record (the reason is given). Each test that judges moves the probability by its "
-                            "weight (log-odds; positive towards stiction); docs/evidence.md and "
-                            "docs/verdict.md describe the tests and how they are combined."))
-        blocks.append(("table", ["Test", "Says", "Index", "Why"], ev_rows))
-    blocks.append(("h2", "Recommended action"))
-    blocks.append(("p", str(result.get("action", ""))))
-    warns = list(result.get("warnings") or [])
+    degradation = degradation or diag.degradation
+    loop = diag.loop_id or ident.loop
+    blocks: list[Block] = [("title", f"Stiction report: {loop}"), ("p", _source_line(diag)),
+                           ("h2", "Verdict"), ("strong", diag.verdict_text),
+                           ("table", ["Quantity", "Value"], _found_rows(diag))]
+    if ident.evidence:
+        blocks += [("h2", "Why we believe it"), ("p", evidence_summary(ident)),
+                   ("table", ["Test", "Says", "Why"], evidence_rows(ident))]
+    blocks += [("h2", "Recommended action"), ("p", diag.action)]
+    warns = [f"[{w.code}] {w.message}" for w in diag.warnings]
     if degradation:
-        warns.insert(0, {"code": "history.degradation", "message": degradation})
+        warns.insert(0, f"[history.degradation] {degradation}")
+    if warns:
+        blocks.append(("p", f"Read it with the {len(warns)} warning{'s' if len(warns) > 1 else ''} under "
+                            "Warnings below: they say what limits this result."))
+    # the details
+    if figs:
+        blocks.append(("page",))
     blocks.append(("h2", "Warnings"))
     if warns:
-        blocks.append(("bullets", [f"[{w.get('code', '?')}] {w.get('message', '')}" for w in warns]))
+        blocks.append(("bullets", warns))
     else:
-        narx_ok = isinstance(result.get("narx"), Mapping) and result["narx"].get("robust") is True
+        narx_ok = diag.selection is not None and diag.selection.robust
         blocks.append(("p", "None: the data passed every quality check" +
                        (" and the NARX-SP model is within its robustness margin." if narx_ok else ".")))
-    drawn = bool(figs)  # a report without any figure (e.g. a monitor window) leaves their sections out
+    blocks += [("h2", "Loop model"), ("table", ["Quantity", "Value"], _detail_rows(diag))]
     for name, title in (("trends", "Trends"), ("phase", "Phase plots")):
         if name in figs:
             blocks += [("h2", title), ("figure", name, FIGURE_CAPTIONS[name])]
     if "surface" in figs:
         blocks += [("h2", "Error surface"), ("figure", "surface", FIGURE_CAPTIONS["surface"])]
-    elif drawn:
-        blocks += [("h2", "Error surface"), ("p", "No error surface (no Hammerstein fit for this loop).")]
-    blocks.append(("h2", "NARX-SP free run"))
-    narx = result.get("narx")
-    codes = {str(w.get("code", "")) for w in warns}
-    if isinstance(narx, Mapping) and narx:
-        blocks.append(("table", ["NARX-SP", "Value"], _labelled(narx, NARX_LABELS)))
-        if "narx" in figs:
-            blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
-    elif codes & {"service.narx_unavailable", "service.narx_failed"}:
-        blocks.append(("p", "No NARX-SP model: the bank could not be used (see the warnings above)."))
-    elif stiction_present(result) is False:
-        blocks.append(("p", "No NARX-SP model: the valve shows no stiction, and the bank's models "
-                            "describe sticky valves."))
-    else:
-        blocks.append(("p", "No NARX-SP model: the NARX-SP stage was not run for this loop."))
+    elif figs:  # a report without any figure (e.g. a monitor window) leaves the figure sections out
+        blocks += [("h2", "Error surface"), ("p", "No error surface (no model was fitted for this loop).")]
+    codes = {w.code for w in diag.warnings}
+    blocks += _narx_blocks(diag, figs, codes)
     if "spectrum" in figs:
         blocks += [("h2", "Spectrum"), ("figure", "spectrum", FIGURE_CAPTIONS["spectrum"])]
-    expl = result.get("explanation")
-    if isinstance(expl, Mapping) and expl:
-        blocks.append(("h2", "Missing physics"))
-        text_keys = ("summary", "explanation", "verdict", "message", "conclusion")
-        for key in text_keys:
-            if isinstance(expl.get(key), str):
-                blocks.append(("p", expl[key]))
-                break
-        if "missing_physics" in expl:
-            blocks.append(("strong", f"Missing physics named: {expl.get('missing_physics') or 'none'}."))
-        items = _labelled(expl, EXPLAIN_LABELS)
-        if items:
-            blocks.append(("table", ["Explanation", "Value"], items))
-        hyps = expl.get("hypotheses") or expl.get("ranking")
-        if isinstance(hyps, list) and hyps and isinstance(hyps[0], Mapping):
-
-            # the change is signed, negative for a fall, as in the explanation's own text
-            blocks.append(("table", ["Hypothesis", "Named", "Held-out RMSE", "Change", "Parameters"],
-                           [[fmt(h.get("name")), fmt(bool(h.get("accepted"))), number(h.get("heldout_rmse"), 4),
-                             percent_change(-h["heldout_reduction"]) if h.get("heldout_reduction") is not None
-                             else "-", _params_text(h.get("params"))] for h in hyps]))
-        if "explanation" in figs:
-            blocks.append(("figure", "explanation", FIGURE_CAPTIONS["explanation"]))
-    elif result.get("explain_auto"):
-        blocks.append(("h2", "Missing physics"))
-        blocks.append(("p", f"Not run: {result['explain_auto']} (run with --explain on to force it)."))
+    blocks += _explanation_blocks(diag, figs)
+    if ident.evidence:
+        blocks += [("h2", "Evidence in numbers"),
+                   ("p", "Each test's index against the threshold at which it says stiction "
+                         "(docs/evidence.md describes the tests, docs/verdict.md how they are combined)."),
+                   ("table", ["Test", "Says", "Index", "Threshold"], evidence_rows(ident, numbers=True))]
     if history_rows:
         blocks.append(("h2", "History"))
         if degradation:
@@ -360,15 +399,11 @@ def loop_blocks(result: Mapping[str, Any], figures: Sequence[str] = (),
                         for r in history_rows]))
         if "history" in figs:
             blocks.append(("figure", "history", FIGURE_CAPTIONS["history"]))
-    dq = result.get("data_quality")
-    if isinstance(dq, list) and dq and isinstance(dq[0], Mapping):
+    if ident.data_quality:
         blocks.append(("h2", "Data quality"))
         blocks.append(("table", ["Check", "Severity", "Finding"],
-                       [[fmt(f.get("code")), fmt(f.get("severity")), fmt(f.get("message"))] for f in dq]))
-    elif isinstance(dq, Mapping) and dq:
-        blocks.append(("h2", "Data quality"))
-        blocks.append(("table", ["Check", "Value"], _scalar_items(dq)))
-    blocks.append(("p", f"Tool version {result.get('tool_version', '?')}."))
+                       [[f.code, f.severity, f.message] for f in ident.data_quality]))
+    blocks.append(("p", f"Tool version {diag.tool_version}."))
     return blocks
 
 
@@ -395,10 +430,10 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
             line += f" by stiction {tool_version}"
         line += "."
     blocks.append(("p", line))
-    blocks.append(("p", "Severity (0-100) adds stiction size scaled by confidence (up to 50), "
-                        "oscillation (25), data-quality warnings (15) and NARX-SP robustness (10). "
-                        "Slow cycles (periods of hours: daily or shift patterns of the plant) are "
-                        "not loop oscillations and add nothing."))
+    blocks.append(("p", "Severity (0-100) adds the probability of stiction weighted by its size (up to "
+                        "50), oscillation (25), data-quality warnings (15) and NARX-SP robustness (10), "
+                        "so likely sticky valves rank first. Slow cycles (periods of hours: daily or "
+                        "shift patterns of the plant) are not loop oscillations and add nothing."))
     blocks.append(("h2", "Loops ranked by severity"))
     table = []
     for r in ok:
@@ -464,10 +499,12 @@ def to_markdown(blocks: Sequence[Block], *, figure_path: str = "{name}.png") -> 
             out.append("\n".join(lines) + "\n")
         elif kind == "figure":
             out.append(f"![{b[2]}]({figure_path.format(name=b[1])})\n\n*{b[2]}*\n")
+        elif kind == "page":
+            out.append("---\n")
         else:  # pragma: no cover - programming error
             raise ValueError(f"unknown block kind {kind!r}")
     return "\n".join(out)
 
 
-def loop_markdown(result: Mapping[str, Any], figures: Sequence[str] = (), **kw: Any) -> str:
-    return to_markdown(loop_blocks(result, figures, **kw))
+def loop_markdown(diag: Diagnosis, figures: Sequence[str] = (), **kw: Any) -> str:
+    return to_markdown(loop_blocks(diag, figures, **kw))

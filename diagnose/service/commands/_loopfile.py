@@ -1,5 +1,6 @@
-"""What every command that diagnoses one loop from one file shares: the file and column options,
-turning them into `connectors.read_records` options, and choosing the loop (and segment)."""
+"""What every command that reads historian exports shares: the reading options (the same names and
+meanings in every command and in the Python front door, `diagnose.api`), turning them into
+options, choosing the loop (and segment), and printing a result."""
 
 from __future__ import annotations
 
@@ -11,64 +12,85 @@ from typing import Any, Callable
 
 from ...errors import DataError
 
+#: The layouts ``--format`` takes (`connectors.layouts`).
+FORMATS = ("auto", "wide", "long", "ragged", "influx", "dcs")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text} must be 0 or more")
+    return v
+
+
+def add_read_arguments(p: argparse.ArgumentParser, verb: str, *, tags: bool = True) -> None:
+    """The reading options: columns, time, time zone, layout, tag map, loop, length.
+
+    ``verb`` says what is done to the chosen loop (``--loop`` help); ``tags=False`` leaves out
+    ``--tags`` for a command that declares its own.
+    """
+    g = p.add_argument_group("reading the data (the same options in every command; docs/api.md)")
+    g.add_argument("--op", metavar="COL", help="controller output column (OP, %% of span)")
+    g.add_argument("--pv", metavar="COL", help="process variable column")
+    g.add_argument("--sp", metavar="COL", help="setpoint column")
+    g.add_argument("--mv", metavar="COL", help="valve stem position column (%% of span), if recorded")
+    g.add_argument("--time", metavar="COL", help="time column (default: found by its name or content)")
+    g.add_argument("--ts-s", dest="ts_s", type=float, metavar="SECONDS",
+                   help="sample period in seconds (default: the median spacing of the times)")
+    g.add_argument("--ts", dest="ts_legacy", metavar="SECONDS|COL", help=argparse.SUPPRESS)
+    g.add_argument("--tz", metavar="ZONE", help="time zone of times without one (IANA name such as "
+                                                "Europe/Berlin, or +hh:mm; default UTC)")
+    g.add_argument("--dst", choices=("infer", "earliest", "latest", "raise"), default=None,
+                   help="local times at clock changes (default infer)")
+    g.add_argument("--format", dest="fmt", metavar="LAYOUT", choices=FORMATS,
+                   help="file layout: " + ", ".join(FORMATS) + " (default auto)")
+    if tags:
+        g.add_argument("--tags", metavar="TOML", help="tag map (TOML) naming each loop's columns")
+    g.add_argument("--loop", metavar="NAME", help=f"the loop to {verb} when a file holds several")
+    g.add_argument("--max-samples", dest="max_samples", type=_positive_int, metavar="N",
+                   help="samples kept per loop, the newest (default 100000; 0 keeps all)")
+
 
 def add_file_arguments(p: argparse.ArgumentParser, verb: str) -> None:
-    """FILE and the column, layout, tag-map and loop options (``verb``: what is done to the loop)."""
+    """FILE and the reading options (``verb``: what is done to the loop)."""
     p.add_argument("file", metavar="FILE", help="historian export (CSV or another supported layout)")
-    p.add_argument("--op", metavar="COL", help="controller output column (OP, %% of span)")
-    p.add_argument("--pv", metavar="COL", help="process variable column")
-    p.add_argument("--sp", metavar="COL", help="setpoint column")
-    p.add_argument("--mv", metavar="COL", help="valve stem position column (%% of span), if recorded")
-    p.add_argument("--ts", metavar="SECONDS|COL",
-                   help="sample period in seconds (a number), or the name of the timestamp column")
-    p.add_argument("--format", dest="fmt", metavar="LAYOUT", help="file layout override")
-    p.add_argument("--tags", metavar="TOML", help="tag map (TOML) naming each loop's columns")
-    p.add_argument("--loop", metavar="NAME", help=f"loop to {verb} when the file holds several")
+    add_read_arguments(p, verb)
 
 
 def read_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The `connectors.read_records` options given on the command line."""
+    """The reading options given on the command line, by their Python names (`diagnose.api`
+    functions and `connectors.read_records` take them as they are)."""
     opts: dict[str, Any] = {}
-    for role in ("op", "pv", "sp", "mv"):
-        v = getattr(args, role)
-        if v is not None:
-            opts[role] = v
-    if args.ts is not None:
-        try:
-            ts_s = float(args.ts)
-        except ValueError:
-            opts["ts"] = args.ts
-        else:
-            if not (math.isfinite(ts_s) and ts_s > 0):
-                raise DataError(f"--ts {args.ts}: the sample period must be a positive number of seconds")
-            opts["ts_s"] = ts_s
-    for key in ("fmt", "tags", "loop"):
-        v = getattr(args, key)
+    for key in ("op", "pv", "sp", "mv", "time", "tz", "dst", "tags", "loop", "max_samples"):
+        v = getattr(args, key, None)
         if v is not None:
             opts[key] = v
+    if getattr(args, "fmt", None) is not None:
+        opts["format"] = args.fmt
+    ts_s = getattr(args, "ts_s", None)
+    legacy = getattr(args, "ts_legacy", None)
+    if legacy is not None:  # the older --ts: a number is the period, anything else the time column
+        try:
+            ts_s = float(legacy)
+        except ValueError:
+            opts.setdefault("time", legacy)
+    if ts_s is not None:
+        if not (math.isfinite(ts_s) and ts_s > 0):
+            raise DataError(f"--ts-s {ts_s:g}: the sample period must be a positive number of seconds")
+        opts["ts_s"] = float(ts_s)
     return opts
 
 
 def select_record(records: list, loop: str | None, source: str, verb: str = "identified"):
-    """The record to work on: the named (or only) loop's longest segment, and notes to report."""
-    notes: list[dict[str, str]] = []
-    if not records:
-        raise DataError(f"{source}: no loop found in the file")
-    names = list(dict.fromkeys(r.name for r in records))
-    if loop is not None:
-        chosen = [r for r in records if r.name == loop]
-        if not chosen:
-            raise DataError(f"{source}: no loop named {loop!r} (loops: {', '.join(names)})")
-    elif len(names) > 1:
-        raise DataError(f"{source} holds {len(names)} loops ({', '.join(names)}); choose one with --loop NAME")
-    else:
-        chosen = records
-    rec = max(chosen, key=lambda r: r.n)
-    if len(chosen) > 1:
-        notes.append({"code": "segments",
-                      "message": f"the record is split into {len(chosen)} segments (gaps or mode changes); "
-                                 f"{verb} the longest ({rec.n} samples)"})
-    return rec, notes
+    """The record to work on and notes to report (as ``{"code", "message"}``); see
+    `diagnose.api.choose_record`."""
+    from ...api import choose_record
+
+    rec, notes = choose_record(records, loop, source, verb)
+    return rec, [n.to_dict() for n in notes]
 
 
 def emit(d: dict[str, Any], *, as_json: bool, summary: Callable[[dict[str, Any]], str]) -> None:

@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     bank = load_bank()
     if args.action == "select":
         sel = bank.select(args.S, args.J)
-        print(json.dumps({"narx": sel.to_dict(), "warning": sel.warning()}))
+        note = sel.warning()
+        print(json.dumps({"narx": sel.to_dict(), "warning": None if note is None else note.to_dict()}))
         return 0
     if args.figure:
         _map_figure(bank, args.figure)

@@ -7,10 +7,20 @@ import sys
 from pathlib import Path
 
 
+def add_explain_argument(p: argparse.ArgumentParser, default: str, cost: str) -> None:
+    """``--explain [off|auto|on]`` (bare ``--explain`` is ``on``), the same in batch, demo and monitor."""
+    p.add_argument("--explain", nargs="?", const="on", choices=["off", "auto", "on"], default=default,
+                   help=f"run the missing-physics stage: off ({cost}), auto only where the fitted model "
+                        "leaves a mismatch (free-run r2 on PV < 0.5), on (or a bare --explain) for every "
+                        f"loop (default {default})")
+    p.add_argument("--no-explain", dest="explain", action="store_const", const="off", help=argparse.SUPPRESS)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ._loopfile import add_read_arguments
+
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="historian export files and/or folders")
     p.add_argument("--out", required=True, help="output folder (reports, figures, summary)")
-    p.add_argument("--tags", default=None, help="tag map (TOML) naming each loop's OP/PV/SP/MV tags")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes (default: CPU count; 1 runs in this process)")
     p.add_argument("--scheduler", default=None,
@@ -19,26 +29,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
                                               "or ~/.local/share/stiction/history.sqlite)")
     p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
-    p.add_argument("--explain", choices=["auto", "on", "off"], default="off",
-                   help="run the missing-physics stage: off (default; it costs several times the "
-                        "identification), auto only where the fitted model leaves a mismatch "
-                        "(free-run r2 on PV < 0.5), on for every loop")
-    p.add_argument("--no-explain", dest="explain", action="store_const", const="off",
-                   help="same as --explain off")
+    add_explain_argument(p, "off", "the default here; it costs several times the identification")
     p.add_argument("--narx", action=argparse.BooleanOptionalAction, default=True,
                    help="select and free-run the NARX-SP model (default on)")
     p.add_argument("--pdf", action=argparse.BooleanOptionalAction, default=True,
                    help="write PDF reports beside the Markdown (default on)")
-    for role in ("op", "pv", "sp", "mv"):
-        p.add_argument(f"--{role}", default=None, help=f"name of the {role.upper()} column (overrides the naming rule)")
-    p.add_argument("--ts-s", type=float, default=None, help="sample period in seconds (default: from the timestamps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_read_arguments(p, "diagnose (the others in each file are left out)")
 
 
 def read_options(args: argparse.Namespace) -> dict:
-    opts = {r: getattr(args, r) for r in ("op", "pv", "sp", "mv") if getattr(args, r, None)}
-    if getattr(args, "ts_s", None) is not None:
-        opts["ts_s"] = args.ts_s
+    """The reading options of the command line, without the tag map (the batch applies it file
+    by file)."""
+    from ._loopfile import read_options as options
+
+    opts = options(args)
+    opts.pop("tags", None)
     return opts
 
 

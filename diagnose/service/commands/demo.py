@@ -25,9 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
     p.add_argument("--db", default=None, help="history database (default: the one `stiction history` reads, "
                                               "$STICTION_HOME/history.sqlite or ~/.local/share/stiction/history.sqlite)")
-    p.add_argument("--explain", choices=["off", "auto", "on"], default="off",
-                   help="missing physics: off (default; it takes 10 s to 2 min per loop), auto where the fitted "
-                        "model leaves a mismatch, on for every loop")
+    from .batch import add_explain_argument
+
+    add_explain_argument(p, "off", "the default here; it takes 10 s to 2 min per loop")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -17,13 +17,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
     p.add_argument("--metrics-port", type=int, default=None, help="serve Prometheus metrics on this local port")
     p.add_argument("--workers", type=int, default=1, help="diagnosis worker processes (default 1)")
-    p.add_argument("--explain", action="store_true", help="run the missing-physics stage on every window")
+    from .batch import add_explain_argument
+
+    add_explain_argument(p, "off", "the default; it takes 10 s to 2 min per window")
     p.add_argument("--figures", action="store_true", help="draw figures for every window's report")
 
 
 def run(args: argparse.Namespace) -> int:
     from ...plain import duration
     from ..monitor import run_monitor
+    from .batch import explain_mode
 
     if args.duration is not None and args.duration <= 0:
         from ...errors import DataError
@@ -31,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError("--duration must be a positive number of seconds")
     stats = run_monitor(args.config, args.out, duration_s=args.duration, db=args.db, history=not args.no_history,
                         metrics_port=args.metrics_port, window_samples=args.window, workers=args.workers,
-                        explain=args.explain, figures=args.figures)
+                        explain=explain_mode(args.explain), figures=args.figures)
     print(f"{stats.diagnosed} windows diagnosed, {stats.failed} failed, {stats.skipped_short} too short; "
           f"{stats.polls} polls ({stats.polls_failed} failed, {stats.polls_missed} missed) in {duration(stats.wall_s)}, "
           f"{stats.outages} outage(s), {stats.reconnects} reconnection(s), "

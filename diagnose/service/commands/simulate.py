@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="process gain, PV units per %% (integrating: per %% per second); default 1 (0.02)")
     p.add_argument("--tau-s", type=float, default=20.0, help="process time constant, seconds")
     p.add_argument("--delay-s", type=float, default=3.0, help="process dead time, seconds")
-    p.add_argument("--ts", type=float, default=1.0, help="sample period, seconds")
+    p.add_argument("--ts-s", "--ts", dest="ts_s", type=float, default=1.0, help="sample period, seconds")
     p.add_argument("--n", type=int, default=3000, help="number of samples")
     p.add_argument("--noise", type=float, default=0.02, help="measurement noise std, PV units")
     p.add_argument("--load", type=float, default=0.01, help="random-walk load increment std, PV units")
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     if args.n < 10:
         raise DataError("--n must be at least 10 samples")
     gain = args.gain if args.gain is not None else (0.02 if args.process == "integrating" else 1.0)
-    rec = sticky_loop(args.S, args.J, n=args.n, ts_s=args.ts, gain=gain, tau_s=args.tau_s,
+    rec = sticky_loop(args.S, args.J, n=args.n, ts_s=args.ts_s, gain=gain, tau_s=args.tau_s,
                       delay_s=args.delay_s, kind=args.process, noise_std=args.noise,
                       load_walk_std=args.load, f0=args.f0, seed=args.seed, name=args.name,
                       Kc=args.kc, Ti_s=args.ti_s)

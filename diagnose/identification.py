@@ -22,10 +22,11 @@ The combiner, its training corpus and its threshold are described in docs/verdic
 
 from __future__ import annotations
 
+import html
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -34,12 +35,20 @@ from .controller import ControllerAction, controller_action
 from .errors import DataError
 from .evidence import Evidence, pv_usable, run_all
 from .fit import HammersteinFit, fit_hammerstein
+from .notes import Note
 from .objective import MIN_SAMPLES
 from .oscillation import Oscillation, oscillation_context
+from .process_model import ProcessModel
 from .record import Finding, LoopRecord
 from .stiction_model import stiction_class
 from .valve_fit import ValveFit, fit_valve
 from .verdict import Verdict, combine
+
+if TYPE_CHECKING:  # the bank is imported only where a selection is made
+    from matplotlib.figure import Figure
+
+    from .narx.bank import Selection
+
 
 #: Smallest S (% of span) at which the fit's own evidence counts: below this a valve is within the
 #: resolution a positioner and a control valve specification normally allow (about 0.5 % of span).
@@ -72,6 +81,13 @@ OP_ONLY_CONFIDENCE_CAP = 0.75
 #: A level tag (ISA letters L..C: LIC, LC, LRC) says the process is integrating.
 _LEVEL_TAG = re.compile(r"(?<![A-Z])L[IR]?C(?=[0-9_.\-]|$)")
 
+
+#: A regular cycle this slow (seconds) is a daily, shift or weather pattern of the plant (ambient
+#: temperature, production schedule), not a loop oscillation: a valve's stick-slip cycle is set by
+#: the loop's own dynamics (seconds to an hour). Reports call it a slow cycle and do not rank it.
+SLOW_CYCLE_S = 4 * 3600.0
+
+
 def _finite(v: float | None) -> float | None:
     if v is None:
         return None
@@ -81,6 +97,118 @@ def _finite(v: float | None) -> float | None:
 
 def _pair(v: tuple[float, float] | None) -> list[float | None] | None:
     return None if v is None else [_finite(v[0]), _finite(v[1])]
+
+
+@dataclass(frozen=True)
+class ClassTest:
+    """The class test's numbers (`diagnose.search.class_test`): the valve's starting stuck point free,
+    and the special shapes J = 0 (deadband) and J = S (no offset) against the free (S, J) fit.
+
+    Costs are the fit's output-error cost (PV units squared per scored sample).
+
+    Attributes
+    ----------
+    cls : str or None
+        The restricted shape accepted (``"deadband"`` or ``"no_offset"``), None for the free fit.
+    S_pct, J_pct : float
+        The chosen (S, J), % of span.
+    f0 : float
+        The chosen starting direction (+1 or -1).
+    delta_pct : float
+        The chosen starting stuck point, relative to OP's first sample, % of span.
+    cost, cost_fit, cost_free, cost_deadband, cost_no_offset : float
+        The chosen shape's cost; the fit as it was; the best free, deadband and no-offset shapes.
+    bound : float
+        The chi-square bound a restricted shape's cost must stay within.
+    free_S_pct, free_J_pct : float
+        The best free shape.
+    plausible : tuple of str
+        Every class shape within the bound, best first.
+    """
+
+    cls: str | None
+    S_pct: float
+    J_pct: float
+    f0: float
+    delta_pct: float
+    cost: float
+    cost_fit: float
+    cost_free: float
+    cost_deadband: float
+    cost_no_offset: float
+    bound: float
+    free_S_pct: float
+    free_J_pct: float
+    plausible: tuple[str, ...] = ()
+
+    @classmethod
+    def from_search(cls, d: Mapping[str, Any]) -> "ClassTest":
+        """From the mapping `diagnose.search.class_test` returns."""
+        return cls(cls=d["cls"], S_pct=float(d["S_pct"]), J_pct=float(d["J_pct"]), f0=float(d["f0"]),
+                   delta_pct=float(d["delta_pct"]), cost=float(d["cost"]), cost_fit=float(d["cost_fit"]),
+                   cost_free=float(d["cost_free"]), cost_deadband=float(d["cost_deadband"]),
+                   cost_no_offset=float(d["cost_no_offset"]), bound=float(d["bound"]),
+                   free_S_pct=float(d["free_S_pct"]), free_J_pct=float(d["free_J_pct"]),
+                   plausible=tuple(str(k) for k in d["plausible"]))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"cost_fit": _finite(self.cost_fit), "cost_free": _finite(self.cost_free),
+                "bound": _finite(self.bound), "cost_deadband": _finite(self.cost_deadband),
+                "cost_no_offset": _finite(self.cost_no_offset), "free_S_pct": _finite(self.free_S_pct),
+                "free_J_pct": _finite(self.free_J_pct), "plausible": list(self.plausible), "cls": self.cls,
+                "S_pct": _finite(self.S_pct), "J_pct": _finite(self.J_pct), "f0": _finite(self.f0),
+                "delta_pct": _finite(self.delta_pct), "cost": _finite(self.cost)}
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The numbers behind the fit's own evidence rows.
+
+    Attributes
+    ----------
+    insample_improvement : float or None
+        Relative reduction of the prediction-error cost by the valve model over a linear loop
+        (whole record); None when the stem never moved.
+    op_noise_pct : float or None
+        OP's sample-to-sample noise, % of span.
+    S_min_pct : float or None
+        `S_MIN_PCT`: the smallest S at which the fit's evidence counts.
+    fitted_S_pct, fitted_J_pct : float or None
+        The fit's (S, J) before the verdict (reported S and J are 0 on a no-stiction verdict).
+    integrating : bool or None
+        Whether the process was judged integrating (None: not known).
+    backlash_lr : float or None
+        Likelihood ratio of a deadband-shaped valve over a linear loop, where the fit is one.
+    class_test : ClassTest or None
+    op_only : bool
+        PV was unusable: the verdict came from OP's shape alone (the other numbers are None).
+    pv_unusable : str or None
+        Why PV was unusable.
+    """
+
+    insample_improvement: float | None = None
+    op_noise_pct: float | None = None
+    S_min_pct: float | None = None
+    fitted_S_pct: float | None = None
+    fitted_J_pct: float | None = None
+    integrating: bool | None = None
+    backlash_lr: float | None = None
+    class_test: ClassTest | None = None
+    op_only: bool = False
+    pv_unusable: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.op_only:
+            return {"op_only": True, "pv_unusable": self.pv_unusable}
+        d: dict[str, Any] = {"insample_improvement": _finite(self.insample_improvement),
+                             "op_noise_pct": _finite(self.op_noise_pct), "S_min_pct": _finite(self.S_min_pct),
+                             "fitted_S_pct": _finite(self.fitted_S_pct),
+                             "fitted_J_pct": _finite(self.fitted_J_pct), "integrating": self.integrating}
+        if self.backlash_lr is not None:
+            d["backlash_lr"] = _finite(self.backlash_lr)
+        if self.class_test is not None:
+            d["class_test"] = self.class_test.to_dict()
+        return d
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,23 +228,29 @@ class Identification:
         % of valve span, 0 when the class is ``none``, None when ``unknown``.
     S_interval_pct, J_interval_pct : (float, float) or None
     process : ProcessModel or None
+        The linear process of the Hammerstein fit (None for an OP-only judgement).
     rmse, r2 : float or None
         Free-run simulation fit of PV (or MV for the OP/MV method) over the record; None when no
         model was fitted (OP-only).
     oscillation : Oscillation
-    warnings : tuple of dict
-        ``{"code": str, "message": str}``.
+    warnings : tuple of Note
     confidence : float
         Probability of the reported verdict, 0..1, capped where the data are weak.
     method : str
         ``"op_pv"`` (Hammerstein fit), ``"op_mv"`` (valve fitted on the recorded stem position) or
         ``"op_only"`` (PV unusable: OP's shape alone).
-    detection : dict
+    detection : Detection
         Numbers behind the fit's evidence (in-sample improvement, OP noise, class test).
     data_quality : tuple of Finding
     fit : HammersteinFit or None
     valve_fit : ValveFit or None
     linear_fit : HammersteinFit or None
+    n : int
+        Samples in the record.
+    ts_s : float
+        Sample period, seconds.
+    fitted_S_pct, fitted_J_pct : float or None
+        The fit's (S, J), whatever the verdict.
     controller : ControllerAction or None
         The controller's action and PI tuning read from OP, PV and SP; its sign constrains the
         process gain of the OP/PV fit.
@@ -127,6 +261,13 @@ class Identification:
         Every test's row: the non-invasive tests and the fit's own evidence.
     verdict : Verdict or None
         The combined verdict: probability, threshold, each row's contribution.
+    narx : Selection or None
+        The NARX-SP bank model nearest to the identified (S, J) (`diagnose.identify` and the service
+        select it; `diagnose.identification.identify` alone leaves it None).
+    source : str or None
+        Where the record came from (file path), as `LoopRecord.source`.
+    record : LoopRecord or None
+        The record identified (for `plot`; not part of the JSON).
     """
 
     loop: str
@@ -136,15 +277,15 @@ class Identification:
     J_pct: float | None
     S_interval_pct: tuple[float, float] | None
     J_interval_pct: tuple[float, float] | None
-    process: Any
+    process: ProcessModel | None
     rmse: float | None
     r2: float | None
     oscillation: Oscillation
-    warnings: tuple = ()
+    warnings: tuple[Note, ...] = ()
     confidence: float = 0.0
     method: str = "op_pv"
-    detection: dict = field(default_factory=dict)
-    data_quality: tuple = ()
+    detection: Detection = field(default_factory=Detection)
+    data_quality: tuple[Finding, ...] = ()
     fit: HammersteinFit | None = None
     valve_fit: ValveFit | None = None
     linear_fit: HammersteinFit | None = None
@@ -153,9 +294,12 @@ class Identification:
     fitted_S_pct: float | None = None
     fitted_J_pct: float | None = None
     controller: ControllerAction | None = None
-    class_alternatives: tuple = ()
-    evidence: tuple = ()
+    class_alternatives: tuple[str, ...] = ()
+    evidence: tuple[Evidence, ...] = ()
     verdict: Verdict | None = None
+    narx: Selection | None = None
+    source: str | None = None
+    record: LoopRecord | None = field(default=None, repr=False)
 
     @property
     def klass(self) -> str:
@@ -164,6 +308,46 @@ class Identification:
     @property
     def stiction_probability(self) -> float | None:
         return None if self.verdict is None else self.verdict.stiction_probability
+
+    @property
+    def op_in_percent(self) -> bool:
+        """False when OP lay outside 0..100 % (mean-centred or in engineering units): S and J are
+        then in OP's own units, not in % of valve span."""
+        return not any(w.code == "op_not_percent" for w in self.warnings)
+
+    @property
+    def loop_oscillates(self) -> bool:
+        """The loop oscillates regularly at a loop's own period (a slow cycle does not count)."""
+        return bool(self.oscillation.oscillating) and not self.slow_cycle
+
+    @property
+    def slow_cycle(self) -> bool:
+        """The regular cycle found is a daily or shift pattern (period >= `SLOW_CYCLE_S`)."""
+        p = self.oscillation.period_s
+        return bool(self.oscillation.oscillating) and p is not None and p >= SLOW_CYCLE_S
+
+    def model_path(self, op_pct: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The fitted model's (valve path, PV) driven by ``op_pct`` (default: the record's OP).
+
+        The valve path is the sticky valve that S and J describe (the valve fit on the stem position
+        when S and J came from it, else the Hammerstein fit's valve); on a no-stiction verdict it is
+        None and PV comes from the linear (no-stiction) fit. ``(None, None)`` when no model was
+        fitted (OP-only judgement).
+        """
+        if op_pct is None:
+            if self.record is None:
+                raise DataError("this identification carries no record: pass op_pct")
+            op_pct = self.record.op
+        op = np.asarray(op_pct, dtype=float)
+        fit = self.fit if self.stiction or self.linear_fit is None else self.linear_fit
+        if fit is None:
+            return None, None
+        mv_hat, pv_hat = (np.asarray(a, dtype=float) for a in fit.simulate(op))
+        if not self.stiction:
+            return None, pv_hat
+        if self.method == "op_mv" and self.valve_fit is not None:
+            mv_hat = np.asarray(self.valve_fit.simulate(op), dtype=float)
+        return mv_hat, pv_hat
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON object ``stiction identify --json`` prints."""
@@ -184,15 +368,86 @@ class Identification:
             "combination": None if self.verdict is None else {
                 "threshold": self.verdict.threshold, "op_only": self.verdict.op_only,
                 "contributions": {k: _finite(v) for k, v in self.verdict.contributions.items()}},
-            "warnings": [dict(w) for w in self.warnings],
+            "warnings": [w.to_dict() for w in self.warnings],
             "confidence": float(self.confidence),
             "method": self.method,
-            "detection": {k: (_finite(v) if isinstance(v, float) else v) for k, v in self.detection.items()},
+            "detection": self.detection.to_dict(),
             "data_quality": [f.to_dict() for f in self.data_quality],
             "n_samples": int(self.n),
             "ts_s": float(self.ts_s),
             "controller": self.controller.to_dict() if self.controller is not None else None,
+            "narx": None if self.narx is None else self.narx.to_dict(),
+            "source": self.source,
         }
+
+    # ------------------------------------------------------------------ notebooks
+    def __repr__(self) -> str:
+        p = self.stiction_probability
+        size = ""
+        if self.S_pct is not None and self.J_pct is not None and self.stiction:
+            size = f", S_pct={self.S_pct:.3g}, J_pct={self.J_pct:.3g}"
+        prob = "" if p is None else f", stiction_probability={p:.3f}"
+        return (f"Identification(loop={self.loop!r}, stiction={self.stiction}, cls={self.cls!r}{size}{prob}, "
+                f"confidence={self.confidence:.3f}, method={self.method!r}, n={self.n}, ts_s={self.ts_s:g}, "
+                f"warnings={len(self.warnings)})")
+
+    def _repr_html_(self) -> str:
+        from .plain import duration, number
+
+        e = html.escape
+        unit = "% of span" if self.op_in_percent else "OP units"
+
+        def iv(v: tuple[float, float] | None) -> str:
+            return "" if v is None else f" [{number(v[0])}, {number(v[1])}]"
+
+        rows = [("Verdict", ("stiction" if self.stiction else "no stiction") + f", class {self.cls}"),
+                ("Probability of stiction", "-" if self.stiction_probability is None
+                 else f"{self.stiction_probability:.0%}"),
+                ("Confidence", f"{self.confidence:.0%}")]
+        if self.S_pct is not None and self.J_pct is not None:
+            rows += [("S", f"{number(self.S_pct)} {unit}{iv(self.S_interval_pct)}"),
+                     ("J", f"{number(self.J_pct)} {unit}{iv(self.J_interval_pct)}")]
+        rows.append(("Method", self.method))
+        if self.process is not None:
+            pr = self.process
+            rows.append(("Process", f"{pr.kind}, gain {number(pr.gain)}, time constant {duration(pr.tau_s)}, "
+                                    f"dead time {duration(pr.delay_s)}"))
+        if self.slow_cycle:
+            rows.append(("Oscillation", f"slow cycle, period {duration(self.oscillation.period_s)}"))
+        elif self.oscillation.oscillating:
+            rows.append(("Oscillation", f"period {duration(self.oscillation.period_s)}, regularity "
+                                        f"{self.oscillation.regularity:.2f}"))
+        else:
+            rows.append(("Oscillation", "none"))
+        agree = [ev.test for ev in self.evidence if ev.decision == "stiction"]
+        against = [ev.test for ev in self.evidence if ev.decision == "no_stiction"]
+        cannot = [ev.test for ev in self.evidence if ev.decision == "cannot_judge"]
+        if self.evidence:
+            rows.append(("Evidence", f"stiction: {', '.join(agree) or 'none'}; no stiction: "
+                                     f"{', '.join(against) or 'none'}; cannot judge: {', '.join(cannot) or 'none'}"))
+        body = "".join(f"<tr><th style='text-align:left'>{e(k)}</th><td style='text-align:left'>{e(v)}</td></tr>"
+                       for k, v in rows)
+        warn = "".join(f"<li><code>{e(w.code)}</code> {e(w.message)}</li>" for w in self.warnings)
+        return (f"<div><strong>Identification of {e(self.loop)}</strong> ({self.n} samples every "
+                f"{e(duration(self.ts_s))})<table>{body}</table>"
+                + (f"<p>Warnings:</p><ul>{warn}</ul>" if warn else "") + "</div>")
+
+    def plot(self, kind: str = "trends") -> "Figure":
+        """The report's figure of this identification as a new matplotlib `Figure`.
+
+        Parameters
+        ----------
+        kind : {"trends", "phase", "surface", "spectrum"}
+            ``trends``: SP, PV, OP (and MV) over the whole record with the fitted model beneath;
+            ``phase``: OP-PV (and OP-MV) over the last 1000 samples; ``surface``: the (S, J) error
+            surface of the fit that gave S and J; ``spectrum``: PV's power against period.
+        """
+        from . import figures
+
+        if self.record is None:
+            raise DataError("this identification carries no record to plot")
+        return figures.plot_identification(self, kind)
+
 
 
 def _quality(record: LoopRecord) -> tuple[Finding, ...]:
@@ -207,8 +462,8 @@ def _quality(record: LoopRecord) -> tuple[Finding, ...]:
     return findings
 
 
-def _warn(code: str, message: str) -> dict[str, str]:
-    return {"code": code, "message": message}
+def _warn(code: str, message: str) -> Note:
+    return Note(code, message)
 
 
 def _check(record: LoopRecord) -> None:
@@ -311,7 +566,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
 
 
 def _confidence_caps(findings: Sequence[Finding], n: int, r2: float | None, method: str,
-                     warnings: list[dict[str, str]]) -> float:
+                     warnings: list[Note]) -> float:
     """Upper bound on the confidence from what weakens the data, with a warning for each."""
     cap = 1.0
     codes = {f.code for f in findings if f.severity != "info"}
@@ -333,17 +588,11 @@ def _confidence_caps(findings: Sequence[Finding], n: int, r2: float | None, meth
     return cap
 
 
-def _unique(warnings: list[dict[str, str]]) -> tuple[dict[str, str], ...]:
-    seen, out = set(), []
-    for w in warnings:
-        key = (w["code"], w["message"])
-        if key not in seen:
-            seen.add(key)
-            out.append(w)
-    return tuple(out)
+def _unique(warnings: list[Note]) -> tuple[Note, ...]:
+    return tuple(dict.fromkeys(warnings))
 
 
-def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warnings: list[dict[str, str]],
+def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warnings: list[Note],
                       reason: str, integrating: bool | None) -> Identification:
     """The verdict from OP's shape alone, for a record whose PV is unusable."""
     op, ts = record.op, record.ts_s
@@ -356,13 +605,13 @@ def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warning
     evidence = run_all(op, record.pv, ts, sp=record.sp, integrating=integrating)
     cap = min(OP_ONLY_CONFIDENCE_CAP, _confidence_caps(findings, record.n, None, "op_only", warnings))
     verdict = combine(evidence, kind="op_only", confidence_cap=cap)
-    det = {"op_only": True, "pv_unusable": reason}
+    det = Detection(op_only=True, pv_unusable=reason)
     return Identification(
         loop=record.name, stiction=verdict.stiction, cls="unknown" if verdict.stiction else "none",
         S_pct=None, J_pct=None, S_interval_pct=None, J_interval_pct=None, process=None,
         rmse=None, r2=None, oscillation=osc, warnings=_unique(warnings), confidence=verdict.confidence,
         method="op_only", detection=det, data_quality=findings, n=record.n, ts_s=ts,
-        evidence=tuple(evidence), verdict=verdict)
+        evidence=tuple(evidence), verdict=verdict, source=record.source, record=record)
 
 
 def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True,
@@ -391,7 +640,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     """
     _check(record)
     findings = _quality(record)
-    warnings: list[dict[str, str]] = []
+    warnings: list[Note] = []
     for f in findings:
         if f.severity in ("warning", "error"):
             warnings.append(_warn(f"data_quality.{f.code}", f.message))
@@ -431,7 +680,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     if integrating is None:
         integrating = _integrating_hint(record, fit)
 
-    alternatives: tuple = ()
+    alternatives: tuple[str, ...] = ()
     ctest = None
     backlash_lr = None
     if mv_still:
@@ -480,12 +729,9 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     else:
         verdict = combine(evidence, kind="op_mv" if method == "op_mv" else "full", confidence_cap=cap)
     stiction = verdict.stiction
-    det: dict[str, Any] = {"insample_improvement": ins, "op_noise_pct": op_noise, "S_min_pct": S_MIN_PCT,
-                           "fitted_S_pct": float(S), "fitted_J_pct": float(J), "integrating": integrating}
-    if backlash_lr is not None:
-        det["backlash_lr"] = backlash_lr
-    if ctest is not None:
-        det["class_test"] = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in ctest.items()}
+    det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=float(S),
+                    fitted_J_pct=float(J), integrating=integrating, backlash_lr=backlash_lr,
+                    class_test=None if ctest is None else ClassTest.from_search(ctest))
     S_out: float | None = float(S)
     J_out: float | None = float(J)
     if stiction:
@@ -511,4 +757,4 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         confidence=float(min(max(verdict.confidence, 0.0), 1.0)), method=method, detection=det,
         data_quality=findings, fit=fit, valve_fit=valve_fit, linear_fit=linear, n=record.n, ts_s=ts,
         fitted_S_pct=float(S), fitted_J_pct=float(J), controller=ctl,
-        class_alternatives=alternatives, evidence=evidence, verdict=verdict)
+        class_alternatives=alternatives, evidence=evidence, verdict=verdict, source=record.source, record=record)

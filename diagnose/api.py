@@ -1,0 +1,255 @@
+"""The Python front door: `identify`, `explain` and `read_loops` on a file, a DataFrame or a record.
+
+These are the functions ``import diagnose`` exports, and what the ``stiction identify`` and
+``stiction explain`` commands run: a result from Python is the one the command prints for the same
+input and options. They sit in the shell layer (they read files through `connectors`); the core
+functions they call take a `LoopRecord` (`diagnose.identification.identify`,
+`diagnose.physics.explain`).
+
+Options mean the same everywhere (docs/api.md has the table):
+
+* ``op``, ``pv``, ``sp``, ``mv``: the columns (tags) of controller output, process variable,
+  setpoint and valve stem position (``--op`` ... on the command line); by default the naming rule
+  finds them (docs/connectors.md), the stem position included;
+* ``time``: the time column (``--time``); ``ts_s``: the sample period in seconds (``--ts-s``);
+* ``tz``: the time zone of naive times (``--tz``), ``dst``: the policy at clock changes (``--dst``);
+* ``loop``: which loop of a file or frame that holds several (``--loop``);
+* ``tags``: a tag map (``--tags``); ``format``: the file layout (``--format``);
+* ``max_samples``: samples kept per loop, the newest (``--max-samples``; 0 keeps all).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import IO, TYPE_CHECKING, Any, Sequence
+
+from .errors import DataError
+from .notes import Note
+from .record import LoopRecord
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .identification import Identification
+    from .physics import Explanation
+
+#: The read options every front-door function and file command takes.
+READ_OPTIONS = ("op", "pv", "sp", "mv", "time", "ts_s", "tz", "dst", "loop", "tags", "format", "max_samples")
+_FRAME_ONLY_NOT = ("tags", "format")
+
+
+def _is_frame(data: Any) -> bool:
+    mod = type(data).__module__ or ""
+    if not mod.startswith("pandas"):
+        return False
+    import pandas as pd
+
+    return isinstance(data, pd.DataFrame)
+
+
+def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *, op: str | None = None,
+               pv: str | None = None, sp: str | None = None, mv: str | None = None, time: str | None = None,
+               ts_s: float | None = None, tz: str | None = None, dst: str | None = None,
+               loop: str | None = None, tags: Any = None, format: str | None = None,
+               max_samples: int | None = None, max_gap_s: float | None = None,
+               min_samples: int | None = None, progress: Any = None) -> list[LoopRecord]:
+    """Every loop in a historian export, a folder of them, or a pandas DataFrame, as records.
+
+    Files and frames are read the same way: the layout is detected, the naming rule (or ``op=``...,
+    or a tag map) finds each loop's OP, PV, SP and MV, times are sorted and put on a uniform grid,
+    short gaps are filled and long ones split a loop into segments, and data-quality findings are
+    attached (docs/connectors.md).
+
+    Parameters
+    ----------
+    data : path, folder, file object, pandas.DataFrame or LoopRecord
+        A DataFrame's time is its `DatetimeIndex`, or a time column (``time=`` or found by name),
+        or its row number times ``ts_s``. A record is returned as it is.
+    op, pv, sp, mv : str, optional
+        Column names (tags) of OP (% of span), PV, SP and the valve stem position MV (% of span).
+    time : str, optional
+        Name of the time column.
+    ts_s : float, optional
+        Sample period in seconds (default: the median spacing of the times).
+    tz : str, optional
+        Time zone of naive times (IANA name or ``+hh:mm``; default UTC).
+    dst : {"infer", "earliest", "latest", "raise"}, optional
+        Ambiguous or missing local times at clock changes (default ``infer``).
+    loop : str, optional
+        Keep only this loop.
+    tags : path or mapping, optional
+        Tag map (TOML) naming each loop's tags and ranges (files only).
+    format : {"auto", "wide", "long", "ragged", "influx", "dcs"}, optional
+        Layout override (files only).
+    max_samples : int, optional
+        Samples kept per loop, the newest (default 100 000; 0 keeps all).
+    max_gap_s, min_samples, progress
+        As in `connectors.read_loops`.
+
+    Returns
+    -------
+    list of LoopRecord
+        One per loop per contiguous segment.
+
+    Raises
+    ------
+    DataError
+        One line naming the file (line, column) or frame column and what is wrong.
+    """
+    given = dict(op=op, pv=pv, sp=sp, mv=mv, time=time, ts_s=ts_s, tz=tz, dst=dst, loop=loop,
+                 max_samples=max_samples, max_gap_s=max_gap_s, min_samples=min_samples)
+    opts: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
+    if isinstance(data, LoopRecord):
+        given = sorted(k for k, v in dict(opts, tags=tags, format=format).items() if v is not None)
+        if given:
+            raise DataError(f"{', '.join(given)}: reading options apply to files and frames, not to a LoopRecord")
+        return [data]
+    if _is_frame(data):
+        for key, value in (("tags", tags), ("format", format)):
+            if value is not None:
+                raise DataError(f"{key}= applies to files, not to a DataFrame (name the columns with op=, pv=...)")
+        from connectors import read_frame
+
+        return read_frame(data, **opts)
+    import connectors
+
+    return connectors.read_loops(data, tags=tags, fmt=format, progress=progress, **opts)
+
+
+def choose_record(records: Sequence[LoopRecord], loop: str | None, source: str,
+                  verb: str = "identified") -> tuple[LoopRecord, tuple[Note, ...]]:
+    """The record to work on: the named (or only) loop's longest segment, and notes that say so."""
+    if not records:
+        raise DataError(f"{source}: no loop found")
+    names = list(dict.fromkeys(r.name for r in records))
+    if loop is not None:
+        chosen = [r for r in records if r.name == loop]
+        if not chosen:
+            raise DataError(f"{source}: no loop named {loop!r} (loops: {', '.join(names)})")
+    elif len(names) > 1:
+        raise DataError(f"{source} holds {len(names)} loops ({', '.join(names)}); choose one with --loop NAME "
+                        "(loop= in Python)")
+    else:
+        chosen = list(records)
+    rec = max(chosen, key=lambda r: r.n)
+    notes: tuple[Note, ...] = ()
+    if len(chosen) > 1:
+        notes = (Note("segments", f"the record is split into {len(chosen)} segments (gaps or mode changes); "
+                                  f"{verb} the longest ({rec.n} samples)"),)
+    return rec, notes
+
+
+def _label(data: Any) -> str:
+    if isinstance(data, (str, os.PathLike)):
+        return os.fspath(data)
+    if _is_frame(data):
+        return "the DataFrame"
+    return str(getattr(data, "name", None) or "the input")
+
+
+def load(data: Any, verb: str = "identified", **options: Any) -> tuple[LoopRecord, tuple[Note, ...]]:
+    """The one record a front-door function works on (``loop=`` picks among several loops; the
+    longest segment is taken) and the notes that say what was chosen. Options as `read_loops`."""
+    records = read_loops(data, **dict(options))
+    return choose_record(records, options.get("loop"), _label(data), verb)
+
+
+def identify(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | None = None,
+             pv: str | None = None, sp: str | None = None, mv: str | None = None, ts_s: float | None = None,
+             loop: str | None = None, tz: str | None = None, time: str | None = None, dst: str | None = None,
+             tags: Any = None, format: str | None = None, max_samples: int | None = None,
+             narx: bool = True) -> Identification:
+    """Identify stiction in one loop: verdict, S and J (% of valve span), class, evidence, process.
+
+    The same as ``stiction identify FILE``: the record is read as the command reads it (the stem
+    position MV is used when the data have one), identified by `diagnose.identification.identify`,
+    and the NARX-SP bank model nearest to the identified (S, J) is selected. ``result.to_dict()``
+    is the JSON object ``stiction identify --json`` prints.
+
+    Parameters
+    ----------
+    data : path, pandas.DataFrame or LoopRecord
+        A historian export, a DataFrame (a `DatetimeIndex`, a time column, or evenly spaced rows
+        with ``ts_s``), or a record. A file or frame with several loops needs ``loop``; of a loop
+        split at long gaps the longest segment is identified (a ``segments`` warning says so).
+    op, pv, sp, mv, ts_s, loop, tz, time, dst, tags, format, max_samples
+        Reading options, as in `read_loops` (they do not apply to a LoopRecord).
+    narx : bool
+        Select the NARX-SP bank model (``result.narx``); False leaves it None.
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    DataError
+        The data cannot be read or judged (too short, OP constant...).
+    """
+    from .identification import identify as identify_record
+
+    rec, notes = load(data, "identified", op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, loop=loop, tz=tz, time=time,
+                      dst=dst, tags=tags, format=format, max_samples=max_samples)
+    ident = identify_record(rec)
+    warnings = notes + ident.warnings
+    selection = None
+    if narx:
+        from .service.pipeline import select_narx
+
+        selection, note = select_narx(ident)
+        if note is not None:
+            warnings = warnings + (note,)
+    source = ident.source
+    if source is None and isinstance(data, (str, os.PathLike)):
+        source = os.fspath(data)
+    return dataclasses.replace(ident, warnings=warnings, narx=selection, source=source)
+
+
+def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | None = None,
+            pv: str | None = None, sp: str | None = None, mv: str | None = None, ts_s: float | None = None,
+            loop: str | None = None, tz: str | None = None, time: str | None = None, dst: str | None = None,
+            tags: Any = None, format: str | None = None, max_samples: int | None = None,
+            target: str = "auto", train_fraction: float = 0.65, hypotheses: Sequence[str] | None = None,
+            min_reduction: float = 0.10) -> Explanation:
+    """Locate where the identified model and the record disagree and name the missing physics.
+
+    The same as ``stiction explain FILE``: the record is read as `identify` reads it and passed to
+    `diagnose.physics.explain` (docs/missing-physics.md). It takes 10 s to 2 min per loop.
+
+    Parameters
+    ----------
+    data, op, pv, sp, mv, ts_s, loop, tz, time, dst, tags, format, max_samples
+        As in `identify`.
+    target : {"auto", "pv", "mv"}
+        ``auto``: OP -> PV, plus OP -> MV for valve-side effects when MV is recorded; ``pv``: OP/PV
+        only; ``mv``: the valve alone (needs MV).
+    train_fraction : float
+        Leading fraction of the record the fits may use; the rest is held out (0.3 to 0.9).
+    hypotheses : sequence of str, optional
+        Hypotheses to test (default: all registered, `diagnose.physics.REGISTRY`).
+    min_reduction : float
+        Smallest relative held-out RMSE reduction that names an effect (0 to 1).
+
+    Returns
+    -------
+    diagnose.physics.Explanation
+    """
+    from .physics import explain as explain_record
+
+    if not 0.3 <= train_fraction <= 0.9:
+        raise DataError(f"train_fraction {train_fraction}: use a value between 0.3 and 0.9")
+    if not 0.0 < min_reduction < 1.0:
+        raise DataError(f"min_reduction {min_reduction}: use a value between 0 and 1")
+    rec, notes = load(data, "explained", op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, loop=loop, tz=tz, time=time,
+                      dst=dst, tags=tags, format=format, max_samples=max_samples)
+    result = explain_record(rec, target=target, train_fraction=train_fraction,
+                            hypotheses=None if hypotheses is None else list(hypotheses), min_reduction=min_reduction)
+    if not notes:
+        return result
+    current = tuple(result.warnings)
+    # the explanation's warnings are Notes, or mappings (``dict(note)`` is a Note's JSON form)
+    added: tuple[Any, ...] = notes
+    if current and all(isinstance(w, dict) for w in current):
+        added = tuple(n.to_dict() for n in notes)
+    return dataclasses.replace(result, warnings=added + current)

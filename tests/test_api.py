@@ -1,0 +1,241 @@
+"""The Python front door: `diagnose.identify` on files, DataFrames and records gives what
+`stiction identify --json` prints; typed results; notebook display; the same options everywhere."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import diagnose
+from connectors.historian import write_wide
+from diagnose.service.cli import main
+from diagnose.simulate import sticky_loop
+
+
+def _cli_json(*argv: str) -> dict:
+    """What `stiction identify --json` prints, run in this process."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["identify", *argv, "--json"]) == 0
+    return json.loads(out.getvalue())
+
+
+def _json(ident) -> dict:
+    return json.loads(json.dumps(ident.to_dict(), allow_nan=False))
+
+
+@pytest.fixture(scope="module")
+def loop(tmp_path_factory):
+    """A sticky loop with its stem position, as a wide CSV export and as the frame pandas reads."""
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.03, load_walk_std=0.02, seed=6, name="FIC21")
+    path = tmp_path_factory.mktemp("api") / "fic21.csv"
+    write_wide(rec, path)
+    df = pd.read_csv(path, parse_dates=["time"]).set_index("time")
+    return rec, path, df, _cli_json(str(path))
+
+
+def test_import_is_cheap_and_names_load_on_first_use():
+    code = ("import sys, diagnose; "
+            "heavy = [m for m in ('numpy', 'pandas', 'scipy', 'matplotlib') if m in sys.modules]; "
+            "assert not heavy, heavy; f = diagnose.identify; import diagnose.api; assert f is diagnose.api.identify; "
+            "assert 'pandas' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)
+    for name in diagnose.__all__:
+        assert getattr(diagnose, name) is not None, name
+    assert (Path(diagnose.__file__).parent / "py.typed").exists()
+    with pytest.raises(AttributeError):
+        diagnose.no_such_thing  # noqa: B018
+
+
+def test_a_path_gives_what_the_command_prints(loop):
+    _, path, _, cli = loop
+    ident = diagnose.identify(path)
+    assert _json(ident) == cli
+    assert cli["method"] == "op_mv"                          # the stem position found by itself
+    assert cli["source"] == str(path) and cli["narx"]["model"] == ident.narx.model
+
+
+def test_a_frame_with_a_datetime_index_or_a_time_column_gives_the_same(loop):
+    _, _, df, cli = loop
+    want = {**cli, "source": None}
+    assert isinstance(df.index, pd.DatetimeIndex) and "FIC21.POS" in df.columns
+    assert _json(diagnose.identify(df)) == want
+    with_column = df.reset_index()
+    assert _json(diagnose.identify(with_column)) == want
+    renamed = with_column.rename(columns={"time": "when", "FIC21.OP": "out", "FIC21.PV": "meas"})
+    assert _json(diagnose.identify(renamed, time="when", op="out", pv="meas", mv="FIC21.POS",
+                                   sp="FIC21.SP")).items() >= {k: v for k, v in want.items() if k != "loop"}.items()
+
+
+def test_evenly_spaced_rows_with_ts_s(loop, tmp_path):
+    _, _, df, _ = loop
+    rows = df.reset_index(drop=True)
+    path = tmp_path / "rows.csv"
+    rows.to_csv(path, index=False)
+    cli = _cli_json(str(path), "--ts-s", "1")
+    assert _json(diagnose.identify(rows, ts_s=1.0)) == {**cli, "source": None}
+    assert cli["ts_s"] == 1.0
+    # the older spelling of the command line means the same
+    assert _cli_json(str(path), "--ts", "1") == cli
+
+
+def test_time_zones_across_a_clock_change(tmp_path):
+    rec = sticky_loop(3.0, 1.0, n=1500, ts_s=10.0, tau_s=60.0, delay_s=10.0, noise_std=0.03, load_walk_std=0.02,
+                      seed=8, name="TIC3")
+    utc = pd.date_range("2026-03-29 00:00", periods=rec.n, freq="10s", tz="UTC")      # DST starts 01:00 UTC
+    local = utc.tz_convert("Europe/Berlin").tz_localize(None)                           # wall clock jumps 1 h
+    df = pd.DataFrame({"TIC3.OP": rec.op, "TIC3.PV": rec.pv, "TIC3.SP": rec.sp}, index=local.rename("time"))
+    path = tmp_path / "tic3_local.csv"
+    df.to_csv(path, date_format="%Y-%m-%d %H:%M:%S")
+    cli = _cli_json(str(path), "--tz", "Europe/Berlin")
+    api = _json(diagnose.identify(df, tz="Europe/Berlin"))
+    assert api == {**cli, "source": None}
+    assert cli["n_samples"] == rec.n and cli["ts_s"] == 10.0
+    assert not [f for f in cli["data_quality"] if f["code"] in ("gap", "duplicates")]
+    aware = _json(diagnose.identify(df.set_axis(utc, axis=0)))                          # tz-aware: no tz needed
+    assert aware == api
+    # read as UTC the local times have an hour's gap: a different record
+    assert diagnose.read_loops(df)[0].n != rec.n
+
+
+def test_gaps_are_read_alike(loop, tmp_path):
+    _, _, df, _ = loop
+    holes = df.drop(df.index[700:704])                       # four missing rows: filled
+    path = tmp_path / "holes.csv"
+    holes.reset_index().to_csv(path, index=False, date_format="%Y-%m-%dT%H:%M:%SZ")
+    cli = _cli_json(str(path))
+    assert _json(diagnose.identify(holes)) == {**cli, "source": None}
+    assert any(f["code"] == "gap" for f in cli["data_quality"]) and cli["n_samples"] == len(df)
+    split = df.drop(df.index[300:500])                       # a long gap: two segments, the longest identified
+    path = tmp_path / "split.csv"
+    split.reset_index().to_csv(path, index=False, date_format="%Y-%m-%dT%H:%M:%SZ")
+    cli = _cli_json(str(path))
+    api = diagnose.identify(split)
+    assert _json(api) == {**cli, "source": None}
+    assert api.warnings[0].code == "segments" and api.n == len(df) - 500
+
+
+def test_a_record_gives_the_core_identification_with_its_bank_model(loop):
+    from diagnose.identification import identify
+
+    rec, _, _, _ = loop
+    ident = diagnose.identify(rec)
+    core = identify(rec)
+    assert core.narx is None and ident.narx is not None
+    added = [w.to_dict() for w in ident.warnings[len(core.warnings):]]      # the bank's note, if any
+    assert _json(ident) == {**_json(core), "narx": ident.narx.to_dict(), "warnings": [*_json(core)["warnings"], *added]}
+    with pytest.raises(diagnose.DataError, match="op: reading options apply to files and frames"):
+        diagnose.identify(rec, op="OP")
+
+
+def test_results_are_typed_all_the_way(loop):
+    from diagnose.evidence import Evidence
+    from diagnose.identification import Detection
+    from diagnose.narx.bank import Selection
+    from diagnose.notes import Note
+    from diagnose.process_model import ProcessModel
+    from diagnose.verdict import Verdict
+
+    rec, _, _, _ = loop
+    ident = diagnose.identify(rec.replace(mv=None))
+    assert isinstance(ident, diagnose.Identification) and ident.method == "op_pv"
+    assert isinstance(ident.detection, Detection) and ident.detection.insample_improvement is not None
+    assert isinstance(ident.process, ProcessModel) and isinstance(ident.verdict, Verdict)
+    assert isinstance(ident.narx, Selection)
+    assert ident.evidence and all(isinstance(e, Evidence) for e in ident.evidence)
+    assert all(isinstance(w, Note) for w in ident.warnings)
+    with pytest.raises(AttributeError):
+        ident.cls = "none"                                    # frozen
+    assert ident.to_dict()["detection"] == ident.detection.to_dict()
+
+
+def test_a_result_shows_itself_in_a_notebook(loop):
+    from matplotlib.figure import Figure
+
+    rec, _, _, _ = loop
+    ident = diagnose.identify(rec)
+    text = repr(ident)
+    assert text.startswith("Identification(loop='FIC21', stiction=True, cls=") and "S_pct=" in text
+    page = ident._repr_html_()
+    assert "<table>" in page and "Identification of FIC21" in page and f"{ident.S_pct:.3g}" in page
+    fig = ident.plot()
+    assert isinstance(fig, Figure) and len(fig.axes) == 2
+    t_end_min = rec.t_s[-1] / 60.0                            # the whole record, in minutes
+    assert max(float(np.max(ln.get_xdata())) for ln in fig.axes[1].get_lines()) == pytest.approx(t_end_min)
+    assert {ln.get_label() for ln in fig.axes[1].get_lines()} >= {"OP", "MV", "model valve"}
+    assert len(ident.plot("phase").axes) == 2 and ident.plot("surface").axes
+    with pytest.raises(diagnose.DataError, match="unknown figure"):
+        ident.plot("pie")
+    healthy = replace(ident, stiction=False, cls="none")
+    labels = {ln.get_label() for ln in healthy.plot().axes[1].get_lines()}
+    assert "model valve" not in labels                        # no sticky valve path on a healthy verdict
+
+
+def test_same_options_on_every_file_command():
+    from diagnose.service.cli import build_parser
+
+    shared = {"--op", "--pv", "--sp", "--mv", "--time", "--ts-s", "--tz", "--dst", "--format", "--tags", "--loop",
+              "--max-samples"}
+    for command in ("identify", "explain", "batch"):
+        parser = build_parser(command)
+        sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+        options = {s for a in sub._actions for s in a.option_strings}
+        assert shared <= options, (command, shared - options)
+        assert "--ts" in options                              # the older spelling still parses
+    for command in ("batch", "demo", "monitor"):
+        parser = build_parser(command)
+        sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+        explain = next(a for a in sub._actions if "--explain" in a.option_strings)
+        assert explain.choices == ["off", "auto", "on"] and explain.const == "on" and explain.default == "off"
+    from diagnose.api import READ_OPTIONS
+    import inspect
+
+    for fn in (diagnose.identify, diagnose.explain, diagnose.read_loops):
+        assert set(READ_OPTIONS) <= set(inspect.signature(fn).parameters), fn.__name__
+
+
+def test_batch_takes_loop_tz_and_max_samples(tmp_path):
+    from diagnose.service import batch as B
+
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for i, name in enumerate(("FIC1", "FIC2")):
+        rec = sticky_loop(3.0, 1.0, n=900, noise_std=0.03, load_walk_std=0.02, seed=20 + i, name=name)
+        write_wide(rec.replace(mv=None), folder / f"{name}.csv")
+    out = tmp_path / "out"
+    assert main(["batch", str(folder), "--out", str(out), "--workers", "1", "--no-pdf", "--no-narx", "--quiet",
+                 "--no-history", "--loop", "FIC2", "--tz", "Europe/Berlin", "--max-samples", "800"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert [r["loop"] for r in summary["loops"]] == ["FIC2"]
+    assert [Path(f["path"]).name for f in summary["skipped_files"]] == ["FIC1.csv"]
+    assert "no loop named 'FIC2'" in summary["skipped_files"][0]["reason"]
+    res = json.loads((out / "loops" / "FIC2" / "FIC2.json").read_text())
+    assert res["n_samples"] == 800 and any(f["code"] == "window" for f in res["data_quality"])
+    assert res["summary"]["loop"] == "FIC2"
+    assert B.BatchConfig(out_dir="x", read_options={"loop": "FIC2"}).options_key() != \
+        B.BatchConfig(out_dir="x").options_key()           # a different selection is a different result
+
+
+def test_explain_is_the_command_on_the_same_data(loop, capsys):
+    rec, path, df, _ = loop
+    short = df.iloc[:750]
+    opts = dict(hypotheses=["actuator_lag"], target="pv")
+    expl = diagnose.explain(short, **opts)
+    p = path.parent / "short.csv"
+    short.reset_index().to_csv(p, index=False, date_format="%Y-%m-%dT%H:%M:%SZ")
+    capsys.readouterr()
+    assert main(["explain", str(p), "--hypotheses", "actuator_lag", "--target", "pv", "--json"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    assert json.loads(json.dumps(expl.to_dict())) == cli
+    assert [h["name"] for h in cli["hypotheses"]] == ["actuator_lag"]
+    with pytest.raises(diagnose.DataError, match="train_fraction"):
+        diagnose.explain(short, train_fraction=0.95)
