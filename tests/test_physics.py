@@ -11,8 +11,9 @@ import pytest
 from diagnose.errors import DataError
 from diagnose.physics import REGISTRY, PhysicsHypothesis, explain, locate
 from diagnose.physics.concealed import EFFECTS, concealed_loop
-from diagnose.physics.hypotheses import Context, register
-from diagnose.physics.model import Stage, Structure, fit_initial_state, predict, refine_plain, train_sse
+from diagnose.physics.hypotheses import PlainModel, register
+from diagnose.physics.model import Stage, Structure, predict, train_sse
+from diagnose.physics.search import fit_initial_state, refine_plain
 from diagnose.physics.plant import (AsymmetricStictionValve, AugmentedValve, CharacteristicProcess,
                                     DriftingStictionValve, LaggedValve, equal_percentage)
 from diagnose.physics.valve import augmented_valve, characteristic
@@ -106,7 +107,7 @@ def test_initial_valve_state_is_recovered():
 def test_fine_valve_polish_reaches_the_sharp_minimum():
     # OP -> MV with an actuator lag: the output-error cost is V-shaped in S (1 % off moves slips by
     # samples); a start 5 % off in S and J (the 3 % grids' typical miss) is polished to the truth
-    from diagnose.physics.hypotheses import fine_valve
+    from diagnose.physics.search import fine_valve
 
     x = _walk(1500, 12)
     kw = dict(S_up=3.157, J_up=1.28, f0=1, ts_s=1.0, tau_lag_s=6.0)
@@ -127,7 +128,7 @@ def test_fine_valve_polish_reaches_the_sharp_minimum():
 def test_fine_asymmetric_polish_reaches_the_sharp_minimum():
     # OP -> MV with asymmetric stiction: a start 4-5 % off on each side (the one-direction scans step
     # S by 1-2 %, the coarse grid by 7 %) is polished to the truth on both sides
-    from diagnose.physics.hypotheses import _fine_asym
+    from diagnose.physics.hypotheses.asymmetric_stiction import fine_asym
 
     x = _walk(1500, 13)
     kw = dict(S_up=3.4, J_up=1.5, S_dn=1.8, J_dn=0.6, f0=1, ts_s=1.0)
@@ -139,7 +140,7 @@ def test_fine_asymmetric_polish_reaches_the_sharp_minimum():
     start = Structure(S_up_pct=3.55, J_up_pct=1.6, S_dn_pct=1.72, J_dn_pct=0.66, f0=1,
                       process=ProcessModel("foptd", 1.0, 0.0, 0.0, 0.0))
     start, c0 = fit_initial_state(stage, start)
-    best = _fine_asym(stage, start)
+    best = fine_asym(stage, start)
     c1 = float(train_sse(stage, [best])[0])
     assert c1 < 0.5 * c0
     assert c1 / train.sum() < 1.5 * 0.1 ** 2
@@ -153,8 +154,7 @@ def test_dynamics_restart_leaves_a_plain_fits_basin():
     # OP -> PV: the valve fixed at the truth but the process far off (a short lag with a long dead
     # time, as a plain fit of an augmented loop often has); the global dynamics grid finds the true
     # process's basin, which the local refit from the wrong one does not reach
-    from diagnose.physics.hypotheses import _dynamics_starts
-    from diagnose.physics.model import refit_dynamics
+    from diagnose.physics.search import dynamics_starts, refit_dynamics
 
     x = _walk(2000, 14)
     true = Structure(S_up_pct=3.0, J_up_pct=1.0, S_dn_pct=1.6, J_dn_pct=0.5, f0=1,
@@ -167,7 +167,7 @@ def test_dynamics_restart_leaves_a_plain_fits_basin():
     stage = Stage("loop", x, y, 1.0, train)
     wrong = true.replace(process=ProcessModel("foptd", 1.0, 4.0, 12.0, 0.0))
     _, c_local = refit_dynamics(stage, wrong, rounds=1)
-    starts = _dynamics_starts(stage, wrong, k=2)
+    starts = dynamics_starts(stage, wrong, k=2)
     assert 1 <= len(starts) <= 2
     costs = [float(train_sse(stage, [s])[0]) for s in starts]
     best = starts[int(np.argmin(costs))]
@@ -180,8 +180,7 @@ def test_joint_process_polish_trades_the_characteristic_against_the_dynamics():
     # OP -> PV through an installed characteristic: a start with the characteristic's exponent and
     # the process lag both off (and the valve's last direction wrong) is polished to the noise; the
     # one-at-a-time refits it replaced (exponent, then S and J, then dynamics) stay far above it
-    from diagnose.physics.hypotheses import _joint_process_polish
-    from diagnose.physics.model import best_of, refine_sj, refit_dynamics
+    from diagnose.physics.search import best_of, joint_process_polish, refine_sj, refit_dynamics
 
     rng = np.random.default_rng(15)
     n = 2000
@@ -198,7 +197,7 @@ def test_joint_process_polish_trades_the_characteristic_against_the_dynamics():
     one, _ = best_of(stage, [start.replace(char_c=float(1.6 + d)) for d in np.linspace(-0.4, 0.4, 9)])
     one, _ = refine_sj(stage, one, s_span=0.04, n_s=9, j_span=0.15, n_j=5, both_f0=False)
     _, c_one = refit_dynamics(stage, one, rounds=1)
-    best = _joint_process_polish(stage, start, "char_c")
+    best = joint_process_polish(stage, start, "char_c")
     c = float(train_sse(stage, [best])[0])
     assert c / train.sum() < 1.3 * 0.1 ** 2
     assert c < 0.2 * c_one
@@ -218,8 +217,8 @@ def test_load_periods_ranked_with_the_coarse_grid():
     plain = plain.replace(y0_pct=35.48)
     hyp = REGISTRY["external_disturbance"]
     y_hat, _, _ = predict(stage, plain)
-    periods = hyp.candidate_periods(stage, plain, Context(limit_cycle_period_s=truth["limit_cycle_period_s"],
-                                                          residual=stage.y - y_hat))
+    periods = hyp.candidate_periods(stage, PlainModel(plain, limit_cycle_period_s=truth["limit_cycle_period_s"],
+                                                      residual=stage.y - y_hat))
     ranked = hyp.rank_periods(stage, plain, periods)
     assert ranked[0][1].period_s == pytest.approx(truth["period_s"], rel=0.02)
     on_plain = [float(train_sse(stage, [st])[0]) for _, st, _ in ranked]
@@ -341,7 +340,7 @@ def test_every_registered_hypothesis_keeps_the_contract(name, small_stage):
     h = REGISTRY[name]
     assert isinstance(h, PhysicsHypothesis)
     assert h.name == name and h.param_names and h.n_extra >= 1 and h.side in ("valve", "process")
-    fitted = h.fit(stage, ref, Context(limit_cycle_period_s=None))
+    fitted = h.fit(stage, PlainModel(ref))
     assert fitted.name == name and fitted.stage == "loop"
     assert set(h.param_names) <= set(fitted.params)
     assert all(isinstance(v, float) for v in fitted.params.values())
@@ -356,7 +355,7 @@ def test_hypotheses_refuse_a_stage_they_cannot_test(small_stage):
     stage, ref, _ = small_stage
     vstage = Stage("valve", stage.x, stage.x, stage.ts_s, stage.train)
     with pytest.raises(DataError, match="cannot be tested"):
-        REGISTRY["external_disturbance"].fit(vstage, ref)
+        REGISTRY["external_disturbance"].fit(vstage, PlainModel(ref))
 
 
 # --- explain on concealed data (a few records; the benchmark runs many) -------------------------------

@@ -7,8 +7,8 @@ concealed-data generator is `diagnose.physics.concealed.concealed_loop`.
 """
 
 from .explain import Explanation, HypothesisResult, explain
-from .hypotheses import REGISTRY, Fitted, PhysicsHypothesis, register
+from .hypotheses import REGISTRY, Fitted, PhysicsHypothesis, PlainModel, register
 from .locate import Mismatch, locate
 
 __all__ = ["Explanation", "HypothesisResult", "explain", "REGISTRY", "Fitted", "PhysicsHypothesis",
-           "register", "Mismatch", "locate"]
+           "PlainModel", "register", "Mismatch", "locate"]

@@ -32,11 +32,11 @@ import numpy as np
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
 from ..record import LoopRecord
-from .baseline import Baseline, grid_baseline, make_baseline
-from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, fine_valve, get
+from .baseline import Baseline, make_baseline
+from .hypotheses import PROCESS_SIDE, VALVE_SIDE, ExternalDisturbance, PlainModel, get
 from .locate import Mismatch, locate, slips_and_reversals
-from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
-                    refine_plain, rmse)
+from .model import Stage, Structure, effective_n, predict, rmse
+from .search import best_of, fine_valve, fit_initial_state, global_sj, grid_baseline, refine_plain
 from .posterior import predictive_mean
 
 MIN_SAMPLES = 300
@@ -326,9 +326,9 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     mism = locate(stage.y - loc_hat, loc_stem, stage.x, stage.ts_s, train=stage.train,
                   response_s=_response_s(loc_struct, stage))
     mism.summary["located_on"] = located_on
-    ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat,
-                  baseline=base.structure)
-    fits = {h.name: h.fit(stage, ref, ctx) for h in hyps}
+    plain = PlainModel(ref, identified=base.structure, limit_cycle_period_s=mism.limit_cycle_period_s,
+                       residual=stage.y - ref_hat)
+    fits = {h.name: h.fit(stage, plain) for h in hyps}
     # Searches over rough output-error surfaces: a hypothesis may win only because its search found
     # a better plain valve. Project every fitted model back onto the plain one, refit, and let the
     # reference take the best; then refit the hypotheses from it and keep each one's better fit.
@@ -345,10 +345,10 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
     if best_sse < ref_sse * (1.0 - 1e-6):
         ref, ref_sse = best_ref, best_sse
         ref_hat, _, _ = predict(stage, ref)
-        ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat,
-                  baseline=base.structure)
+        plain = PlainModel(ref, identified=base.structure, limit_cycle_period_s=mism.limit_cycle_period_s,
+                           residual=stage.y - ref_hat)
         for h in hyps:
-            again = h.fit(stage, ref, ctx)
+            again = h.fit(stage, plain)
             if again.train_sse < fits[h.name].train_sse:
                 fits[h.name] = again
     # Every model is judged on the held-out part by its posterior-predictive mean (posterior.py):
@@ -631,6 +631,7 @@ def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
     if winner:
         h = winner[3]
         from .hypotheses import REGISTRY
+
         desc = REGISTRY[h.name].description if h.name in REGISTRY else h.name
         parts.append(f"Missing physics: {h.name} ({desc}; {_fmt_params(h.params)}). "
                      f"With it the held-out RMSE falls to {improved_rmse:.4g} "
