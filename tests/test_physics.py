@@ -293,14 +293,15 @@ def test_locate_finds_slips_direction_and_a_foreign_peak():
     r[(t // 50) % 2 == 1] += 0.3                  # residual mean depends on direction
     r += 0.5 * np.sin(2 * np.pi * t / 37.0)       # a load at 37 s, not a harmonic of 100 s
     m = locate(r, stem, stem, ts, response_s=0.0)
-    s = m.summary
-    assert s["events"]["n_slips"] == slips.size
-    assert s["events"]["after_slip_energy_ratio"] > 2.0
-    assert abs(s["direction"]["mean_difference"]) > 0.2
-    assert s["frequency"]["limit_cycle_period_s"] == pytest.approx(100.0)
-    assert s["frequency"]["residual_peak_period_s"] == pytest.approx(37.0, rel=0.03)
-    assert not s["frequency"]["peak_at_limit_cycle_harmonic"]
-    json.dumps(s, allow_nan=False)
+    assert m.events.n_slips == slips.size
+    assert m.events.after_slip_energy_ratio > 2.0
+    assert abs(m.direction.mean_difference) > 0.2
+    assert m.frequency.limit_cycle_period_s == pytest.approx(100.0)
+    assert m.frequency.residual_peak_period_s == pytest.approx(37.0, rel=0.03)
+    assert not m.frequency.peak_at_limit_cycle_harmonic
+    d = m.to_dict()
+    json.dumps(d, allow_nan=False)
+    assert d["events"]["n_slips"] == slips.size and d["direction"]["opening"]["n"] > 10
 
 
 def test_locate_marks_a_drifting_residual_and_its_windows():
@@ -309,8 +310,8 @@ def test_locate_marks_a_drifting_residual_and_its_windows():
     r = rng.normal(0, 0.1, n) * np.linspace(0.5, 4.0, n)
     stem = np.full(n, 50.0)
     m = locate(r, stem, stem + rng.normal(0, 1, n), 1.0)
-    assert m.summary["drift"]["last_over_first"] > 2.0
-    assert m.summary["windows"] and m.summary["windows"][0]["start_s"] > 1500
+    assert m.drift.last_over_first > 2.0
+    assert m.windows and m.windows[0].start_s > 1500
 
 
 # --- hypothesis registry contract ---------------------------------------------------------------------
@@ -457,11 +458,11 @@ def test_concealed_generator_draws_a_stuck_valve_again():
 def test_explain_warns_when_the_valve_never_moves():
     stuck, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True)
     ex = explain(stuck, target="mv", hypotheses=["actuator_lag"])
-    idle = [w for w in ex.warnings if w["code"] == "physics.valve_idle"]
-    assert len(idle) == 1 and "0 times in the training part" in idle[0]["message"]
+    idle = [w for w in ex.warnings if w.code == "physics.valve_idle"]
+    assert len(idle) == 1 and "0 times in the training part" in idle[0].message
     moving, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True, min_moves=(0.65, 10, 5))
     ex = explain(moving, target="mv", hypotheses=["actuator_lag"])
-    assert not any(w["code"] == "physics.valve_idle" for w in ex.warnings)
+    assert not any(w.code == "physics.valve_idle" for w in ex.warnings)
 
 
 def test_physics_models_hold_the_controllers_gain_sign():
@@ -495,7 +496,7 @@ def test_installed_characteristic_found_from_a_plain_fit_that_ratchets():
     assert ex.missing_physics == "valve_characteristic"
     (h,) = ex.hypotheses
     assert 3.0 < h.params["rangeability_R"] < 12.0 and truth["rangeability_R"] == pytest.approx(6.05, abs=0.01)
-    assert ex.improved_rmse < 0.2 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.2 * ex.mismatch.reference_rmse
 
 
 def test_asymmetry_from_op_pv_is_polished_with_the_dynamics():
@@ -504,7 +505,7 @@ def test_asymmetry_from_op_pv_is_polished_with_the_dynamics():
     rec, _ = concealed_loop("asymmetric_stiction", 5001, n=3000, min_moves=(0.65, 10, 5))
     ex = explain(rec, target="pv", hypotheses=["asymmetric_stiction"])
     assert ex.missing_physics == "asymmetric_stiction"
-    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.8 * ex.mismatch.reference_rmse
 
 
 # --- judged by the posterior-predictive mean ----------------------------------------------------------
@@ -567,7 +568,7 @@ def test_drift_with_the_stem_is_named_by_its_predictive_mean():
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses
     assert h.params["dS_pct_per_h"] < 0 and truth["dS_pct_per_h"] < 0
-    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.8 * ex.mismatch.reference_rmse
 
 
 def test_memory_burn_leaves_out_the_start_until_the_valve_has_slipped():
@@ -600,7 +601,7 @@ def test_asymmetry_along_a_ridge_is_named_by_its_predictive_mean():
     rec, _ = concealed_loop("asymmetric_stiction", 5003, n=3000, min_moves=(0.65, 10, 5))
     ex = explain(rec, target="pv", hypotheses=["asymmetric_stiction"])
     assert ex.missing_physics == "asymmetric_stiction"
-    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.8 * ex.mismatch.reference_rmse
 
 
 # --- searched jointly with the process dynamics from OP/PV ---------------------------------------------
@@ -611,7 +612,7 @@ def _named_from_op_pv(effect, seed):
     rec, truth = concealed_loop(effect, seed, n=3000, min_moves=(0.65, 10, 5))
     ex = explain(rec, target="pv", hypotheses=[effect])
     assert ex.missing_physics == effect
-    assert ex.improved_rmse < 0.6 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.6 * ex.mismatch.reference_rmse
     (h,) = ex.hypotheses
     return h, truth
 

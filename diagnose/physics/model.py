@@ -21,6 +21,8 @@ over the whole record. The searches that fit structures are in `diagnose.physics
 from __future__ import annotations
 
 import dataclasses
+import functools
+import operator
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -172,7 +174,7 @@ def stems(stage: Stage, structs: Sequence[Structure], n: int | None = None) -> n
                            ts_s=stage.ts_s)
 
 
-def linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):
+def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):
     u = characteristic(stem, struct.char_c) if struct.char_c else stem
     proc = struct.process
     z = u if (proc.tau_s == 0 and proc.delay_s == 0 and proc.kind != "integrating") \
@@ -201,19 +203,35 @@ def predict(stage: Stage, struct: Structure, stem: np.ndarray | None = None):
     """
     if stem is None:
         stem = stems(stage, [struct])[0]
-    y_hat, coef = linear_fit(stage, struct, stem, stage.n)
+    y_hat, coef = _linear_fit(stage, struct, stem, stage.n)
     return y_hat, stem, coef
 
 
-def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.ndarray:
+@functools.lru_cache(maxsize=64)
+def _extra_columns(period_s: float | None, ts_s: float, n: int, integ: bool) -> np.ndarray:
+    """The design's columns after [z, 1]: time (integrating process) and the load's sine and cosine
+    (read-only; the searches ask for the same ones many times)."""
     t = np.arange(n) * ts_s
     cols = []
     if integ:
         cols.append(t)
-    if struct.period_s is not None:
-        w = 2.0 * np.pi / struct.period_s
+    if period_s is not None:
+        w = 2.0 * np.pi / period_s
         cols += [np.sin(w * t), np.cos(w * t)]
-    return np.column_stack(cols) if cols else np.zeros((n, 0))
+    out = np.ascontiguousarray(np.column_stack(cols) if cols else np.zeros((n, 0)))
+    out.flags.writeable = False
+    return out
+
+
+_VALVE_FIELDS = operator.attrgetter("S_up_pct", "J_up_pct", "S_dn_pct", "J_dn_pct", "dS_pct_per_s", "dJ_pct_per_s",
+                                    "f0", "tau_lag_s", "char_c")
+
+
+def _row(s: Structure) -> tuple:
+    p = s.process
+    return _VALVE_FIELDS(s) + (p.tau_s, p.tau2_s if p.kind == "soptd" else -1.0, p.delay_s,
+                               np.nan if s.y0_pct is None else s.y0_pct,
+                               np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
 
 
 def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
@@ -236,12 +254,7 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     for (period, integ), idx in groups.items():
         sub = [structs[i] for i in idx]
         m = len(sub)
-        P = np.array([(s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, s.dS_pct_per_s, s.dJ_pct_per_s,
-                       s.f0, s.tau_lag_s, s.char_c, s.process.tau_s,
-                       s.process.tau2_s if s.process.kind == "soptd" else -1.0, s.process.delay_s,
-                       np.nan if s.y0_pct is None else s.y0_pct,
-                       np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
-                      for s in sub], dtype=np.float64).reshape(m, 14)
+        P = np.array([_row(s) for s in sub], dtype=np.float64).reshape(m, 14)
         if np.any(P[:, :4] < 0) or not np.all(np.isfinite(P[:, :4])):
             raise DataError("S and J must be finite and >= 0 % of span")
         tl = P[:, 7]
@@ -251,7 +264,7 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         t2 = P[:, 10]
         a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
         d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
-        E = np.ascontiguousarray(_extra_columns(sub[0], ts, n, integ))
+        E = _extra_columns(period, ts, n, integ)
         params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
                                   P[:, 12], P[:, 13]])
         out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, np.full(m, integ, np.bool_), ts, E, yv, tr,

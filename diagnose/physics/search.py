@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from ..process_model import ProcessModel
-from .model import IDENTITY, Stage, Structure, linear_fit, stems, train_sse
+from .model import IDENTITY, Stage, Structure, train_sse
 
 
 def best_distinct(cands: list, sse, key, k: int) -> list:
@@ -55,40 +55,26 @@ def best_of(stage: Stage, structs: Sequence[Structure]) -> tuple[Structure, floa
 
 
 def refit_dynamics(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Structure, float]:
-    """Refit the process time constants and dead time by a local grid (coordinate rounds)."""
+    """Refit the process time constants and dead time by a local grid (coordinate rounds): the lag
+    x 0.5-2 (then x 0.8-1.25) and the dead time +-2 samples, and the second lag of a SOPTD process."""
     if stage.fixed_dynamics:
         return best_of(stage, [struct])
-    n = stage.n_fit
-    stem = stems(stage, [struct], n)[0]
-    tr = stage.train[:n]
     ts = stage.ts_s
-
-    def cost(p: ProcessModel) -> float:
-        y_hat, _ = linear_fit(stage, struct.replace(process=p), stem, n)
-        e = (stage.y[:n] - y_hat)[tr]
-        return float(e @ e)
-
-    best = struct.process
-    best_c = cost(best)
+    best, best_c = best_of(stage, [struct])
     for r in range(rounds):
         span = (0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0) if r == 0 else (0.8, 0.9, 1.0, 1.1, 1.25)
-        d0 = int(round(best.delay_s / ts))
-        cands = []
-        tau0 = max(best.tau_s, ts)
-        for m in span:
-            for dd in (-2, -1, 0, 1, 2):
-                d = d0 + dd
-                if d < 0:
-                    continue
-                cands.append(dataclasses.replace(best, tau_s=tau0 * m, delay_s=d * ts))
-        if best.kind == "soptd":
-            tau20 = max(best.tau2_s, ts)
-            cands += [dataclasses.replace(best, tau2_s=tau20 * m) for m in span]
-        for p in cands:
-            c = cost(p)
-            if c < best_c:
-                best, best_c = p, c
-    return struct.replace(process=best), best_c
+        p0 = best.process
+        d0 = int(round(p0.delay_s / ts))
+        tau0 = max(p0.tau_s, ts)
+        cands = [dataclasses.replace(p0, tau_s=tau0 * m, delay_s=(d0 + dd) * ts)
+                 for m in span for dd in (-2, -1, 0, 1, 2) if d0 + dd >= 0]
+        if p0.kind == "soptd":
+            tau20 = max(p0.tau2_s, ts)
+            cands += [dataclasses.replace(p0, tau2_s=tau20 * m) for m in span]
+        b, c = best_of(stage, [best.replace(process=p) for p in cands])
+        if c < best_c:
+            best, best_c = b, c
+    return best, best_c
 
 
 def sj_local(S_pct: float, J_pct: float, *, s_span: float, n_s: int, j_span: float, n_j: int,
@@ -162,7 +148,6 @@ def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -
     limit cycle that can take hundreds of samples, which the plain start (stuck at the first OP
     sample) gets wrong. ``local``: a small grid around the current state only.
     """
-    x0 = float(np.clip(stage.x[0], 0.0, 100.0))
     s_max = max(struct.S_up_pct, struct.S_dn_pct, struct.J_up_pct, struct.J_dn_pct, 0.5)
     valve = stage.name == "valve"
     if local and struct.y0_pct is not None:
@@ -173,14 +158,7 @@ def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -
             b0 = best_of(stage, cands + [struct])[0]
             cands += [b0.replace(xs0_pct=float(b0.xs0_pct + d)) for d in np.linspace(-0.1, 0.1, 11) * s_max]
         return best_of(stage, cands + [struct])
-    ys = x0 + np.linspace(-1.2, 1.2, 33) * s_max
-    if valve:
-        # the target is the stem position itself: a fine grid around its first samples (the
-        # first slip's timing is sharp in where the stem stuck)
-        ys = np.append(ys, float(np.median(stage.y[:3])) + np.arange(-0.4, 0.401, 0.02))
-    cands = [struct.replace(y0_pct=float(np.clip(y, 0.0, 100.0)), xs0_pct=None, f0=f) for y in ys for f in (1, -1)]
-    cands += [struct.replace(y0_pct=None, xs0_pct=None, f0=f) for f in (1, -1)] + [struct]
-    best, sse = best_of(stage, cands)
+    best, sse = best_of(stage, start_grid(stage, struct))
     if best.y0_pct is None:
         return best, sse
     # the OP at which it stuck: where a moving valve stops (tied), or anywhere within reach of a
@@ -191,6 +169,22 @@ def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -
              for e in dy for d in np.linspace(-1.3, 1.3, 53) for f in (1, -1)] + [best]
     best, sse = best_of(stage, cands)
     return fit_initial_state(stage, best, local=True)
+
+
+def start_grid(stage: Stage, struct: Structure) -> list[Structure]:
+    """The first grid of `fit_initial_state`: the stem stuck at points around OP's first sample
+    (+-1.2 times the largest S or J; on the valve stage also finely around the first measured stem
+    positions), after a motion either way, with the input where a moving valve stops; at rest at
+    the first OP sample; and ``struct`` itself."""
+    x0 = float(np.clip(stage.x[0], 0.0, 100.0))
+    s_max = max(struct.S_up_pct, struct.S_dn_pct, struct.J_up_pct, struct.J_dn_pct, 0.5)
+    ys = x0 + np.linspace(-1.2, 1.2, 33) * s_max
+    if stage.name == "valve":
+        # the target is the stem position itself: a fine grid around its first samples (the
+        # first slip's timing is sharp in where the stem stuck)
+        ys = np.append(ys, float(np.median(stage.y[:3])) + np.arange(-0.4, 0.401, 0.02))
+    cands = [struct.replace(y0_pct=float(np.clip(y, 0.0, 100.0)), xs0_pct=None, f0=f) for y in ys for f in (1, -1)]
+    return cands + [struct.replace(y0_pct=None, xs0_pct=None, f0=f) for f in (1, -1)] + [struct]
 
 
 def y0_options(stage: Stage, reference: Structure) -> list:
@@ -275,8 +269,14 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Str
     return polish(stage, best, joint)
 
 
+#: values of `profile_ratio` (J/S x the extra) given the whole start search after the first grid
+PROFILE_FULL = 4
+
+
 def profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Structure:
-    """J/S over its whole range (x the extra at +-15 %), each with its own initial valve state.
+    """J/S over its whole range (x the extra at +-15 %), each with its own initial valve state: the
+    first start grid (`start_grid`) at every value, then for the best `PROFILE_FULL` values the
+    whole start search (`fit_initial_state`).
 
     Where the valve stuck at the first sample and J trade off: at a wrong J the best stuck point is
     another one, and at that stuck point the right J costs more (blind seed 10005 with MV: training
@@ -284,15 +284,19 @@ def profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Structu
     against the true 0.31). A grid over J with the start held sees a wall."""
     S0 = max(struct.S_up_pct, 0.05)
     e0 = getattr(struct, extra) if extra else 0.0
-    cands = []
+    combos = []
     for em in ((0.85, 1.0, 1.15) if e0 else (1.0,)):
         kw, de = _extra_scale(extra, e0, em)
-        for r in np.linspace(0.0, 1.45, 30):
-            c = struct.replace(J_up_pct=S0 * r, J_dn_pct=S0 * r, dS_pct_per_s=struct.dS_pct_per_s * de,
-                               dJ_pct_per_s=struct.dS_pct_per_s * r * de, **kw)
-            cands.append(fit_initial_state(stage, c))
+        combos += [struct.replace(J_up_pct=S0 * r, J_dn_pct=S0 * r, dS_pct_per_s=struct.dS_pct_per_s * de,
+                                  dJ_pct_per_s=struct.dS_pct_per_s * r * de, **kw)
+                   for r in np.linspace(0.0, 1.45, 30)]
+    # every value with the first start grid in one pass; the best few get the whole start search
+    grids = [start_grid(stage, c) for c in combos]
+    sse = train_sse(stage, [g for grid in grids for g in grid]).reshape(len(combos), -1)
+    sse = np.where(np.isfinite(sse), sse, np.inf).min(axis=1)
+    fitted = [fit_initial_state(stage, combos[int(i)]) for i in np.argsort(sse, kind="stable")[:PROFILE_FULL]]
     # the start itself first: it is kept unless a profiled value trains strictly better
-    return min([best_of(stage, [struct])] + cands, key=lambda t: t[1])[0]
+    return min([best_of(stage, [struct])] + fitted, key=lambda t: t[1])[0]
 
 
 def _extra_scale(extra: str | None, e0: float, em: float) -> tuple[dict, float]:

@@ -69,7 +69,9 @@ class ActuatorLag(PhysicsHypothesis):
             st = global_sj(stage, st)
             st, c = refit_dynamics(stage, st, rounds=1)
             results.append((c, st))
-        best = min(results, key=lambda t: t[0])[1]
+        return self._polish(stage, min(results, key=lambda t: t[0])[1])
+
+    def _polish(self, stage, best):
         t0 = best.tau_lag_s
         pairs = sj_local(best.S_up_pct, best.J_up_pct, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
         cands = [with_sj(best, s, j).replace(tau_lag_s=t0 * m)

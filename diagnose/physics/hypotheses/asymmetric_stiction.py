@@ -54,7 +54,12 @@ class AsymmetricStiction(PhysicsHypothesis):
             # asymmetry 5001: the unpolished fit trained worse than the plain reference and was
             # refused; polished, held-out 0.205 -> 0.135, named). No net gain on the benchmark:
             # fresh 5004 and 5005 train better and extrapolate worse polished (missing-physics.md)
-            best = fine_asym(stage, best)
+            best = self._polish(stage, best)
+        return best
+
+    def _polish(self, stage, best):
+        best = fine_asym(stage, best)
+        if not stage.fixed_dynamics:
             best, _ = refit_dynamics(stage, best, rounds=1)
             best = fine_asym(stage, best)
         return best

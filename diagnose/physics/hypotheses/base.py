@@ -22,7 +22,7 @@ import numpy as np
 
 from ...errors import DataError
 from ..model import Stage, Structure, predict
-from ..search import best_of, fit_initial_state
+from ..search import best_of, fit_initial_state, refine_sj, refit_dynamics
 
 #: smallest change a valve-side hypothesis must make to S or J, relative to S, to be named: a few
 #: per cent is within the resolution of the plain model's own S (a slightly wrong plain S drifts
@@ -138,6 +138,24 @@ class PhysicsHypothesis:
             raise DataError(f"hypothesis {self.name!r} needs at least {MIN_TRAIN_SAMPLES} training samples")
         return self._finish(stage, self._search(stage, baseline), baseline.structure)
 
+    def refit(self, stage: Stage, fitted: Fitted, baseline: PlainModel) -> Fitted:
+        """Polish ``fitted`` again after the plain model improved to ``baseline`` (a projection of
+        some fitted hypothesis onto the plain model trained better than the reference ``fitted``
+        started from): from ``fitted`` itself and from its extra physics carried over to the new
+        plain model (`transplants`), with the hypothesis's local polish (`_polish`) only. The
+        global searches of `fit` are not repeated: what they found is in ``fitted``."""
+        if not self.applicable(stage):
+            raise DataError(f"hypothesis {self.name!r} cannot be tested on the {stage.name} stage")
+        start, _ = best_of(stage, [fitted.structure] + transplants(stage, fitted.structure, baseline.structure))
+        return self._finish(stage, self._polish(stage, start), baseline.structure)
+
+    def _polish(self, stage: Stage, struct: Structure) -> Structure:
+        """The local end of the hypothesis's search (default: S and J on a local grid, then the
+        process dynamics)."""
+        struct, _ = refine_sj(stage, struct, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        struct, _ = refit_dynamics(stage, struct, rounds=1)
+        return struct
+
     def _finish(self, stage: Stage, struct: Structure, reference: Structure) -> Fitted:
         if struct.y0_pct is not None:
             # the valve's initial state moves a little with the added physics
@@ -163,3 +181,20 @@ class PhysicsHypothesis:
 
     def _params(self, struct: Structure, reference: Structure, stage: Stage, coef) -> dict:
         raise NotImplementedError
+
+
+def transplants(stage: Stage, fitted: Structure, plain: Structure) -> list[Structure]:
+    """A fitted augmented model carried over to another plain model: the augmented valve with the
+    plain model's process and start state (on the valve stage the process, i.e. the dead time, is
+    the augmented model's own), and the plain model with the fitted extra physics (a lag, a
+    characteristic, a load, a drift relative to S, an asymmetry relative to S)."""
+    process = fitted.process if stage.fixed_dynamics else plain.process
+    out = [fitted.replace(process=process, y0_pct=plain.y0_pct, xs0_pct=plain.xs0_pct, f0=plain.f0)]
+    s_mean = 0.5 * (fitted.S_up_pct + fitted.S_dn_pct)
+    k = plain.S_up_pct / s_mean if s_mean > 0 else 1.0
+    out.append(plain.replace(S_up_pct=fitted.S_up_pct * k, S_dn_pct=fitted.S_dn_pct * k,
+                             J_up_pct=fitted.J_up_pct * k, J_dn_pct=fitted.J_dn_pct * k,
+                             dS_pct_per_s=fitted.dS_pct_per_s * k, dJ_pct_per_s=fitted.dJ_pct_per_s * k,
+                             tau_lag_s=fitted.tau_lag_s, char_c=fitted.char_c, period_s=fitted.period_s,
+                             process=process))
+    return out

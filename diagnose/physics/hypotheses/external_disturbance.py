@@ -117,14 +117,19 @@ class ExternalDisturbance(PhysicsHypothesis):
             # can hold a load estimate that leads it nowhere (development seed 2011: from the best
             # start, training SSE 155, no gain; from the plain fit's start, 49)
             best = best_of(stage, [best] + [self._backfit(stage, st) for st in top])[0]
-        best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        best = self._polish(stage, best)
         if best.period_s is not None:
-            best = joint_process_polish(stage, best, "period_s")
             if not stage.fixed_dynamics:
                 # the polished load is a better estimate to take out: backfit once more
                 bf = self._backfit(stage, best)
                 if best_of(stage, [bf])[1] < best_of(stage, [best])[1]:
                     best = joint_process_polish(stage, bf, "period_s")
+        return best
+
+    def _polish(self, stage, best):
+        best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        if best.period_s is not None:
+            best = joint_process_polish(stage, best, "period_s")
         return best
 
     @staticmethod
@@ -135,20 +140,25 @@ class ExternalDisturbance(PhysicsHypothesis):
         does not see it."""
         from ...fit import fit_hammerstein
 
-        t = np.arange(stage.n) * stage.ts_s
+        n = stage.n_fit   # the samples after the training part are not scored: not simulated either
+        t = np.arange(n) * stage.ts_s
         w = 2.0 * np.pi / start.period_s
         best, best_c = start, best_of(stage, [start])[1]
         cur = start
+        last = None
         for _ in range(rounds):
             _, _, coef = predict(stage, cur)
-            y = stage.y - coef[-2] * np.sin(w * t) - coef[-1] * np.cos(w * t)
+            y = stage.y[:n] - coef[-2] * np.sin(w * t) - coef[-1] * np.cos(w * t)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", StictionWarning)
-                    res = fit_hammerstein(stage.x, y, stage.ts_s, train=stage.train,
+                    res = fit_hammerstein(stage.x[:n], y, stage.ts_s, train=stage.train[:n],
                                           gain_sign=stage.gain_sign or None, surface=False)
             except (StictionError, ValueError, np.linalg.LinAlgError):
                 break
+            if last is not None and _same_plain(res, last):
+                break   # the plain fit of the last round again: further rounds change little
+            last = res
             cur = start.replace(S_up_pct=float(res.S_pct), S_dn_pct=float(res.S_pct), J_up_pct=float(res.J_pct),
                                 J_dn_pct=float(res.J_pct), f0=int(res.f0), process=res.process)
             cur, _ = refit_dynamics(stage, cur, rounds=1)
@@ -177,3 +187,14 @@ class ExternalDisturbance(PhysicsHypothesis):
         if not period_s or not limit_cycle_period_s or not math.isfinite(period_s):
             return False
         return abs(period_s / limit_cycle_period_s - 1.0) < 0.08
+
+
+def _same_plain(a, b) -> bool:
+    """Two fits of the fitting stage agree: S and J within 1 % of S, the same direction, lags
+    within 2 %, the same dead time and kind."""
+    tol = 0.01 * max(a.S_pct, b.S_pct, 1e-9)
+    pa, pb = a.process, b.process
+    return (abs(a.S_pct - b.S_pct) <= tol and abs(a.J_pct - b.J_pct) <= tol and a.f0 == b.f0
+            and pa.kind == pb.kind and pa.delay_s == pb.delay_s
+            and abs(pa.tau_s - pb.tau_s) <= 0.02 * max(pa.tau_s, pb.tau_s, 1e-9)
+            and abs(pa.tau2_s - pb.tau2_s) <= 0.02 * max(pa.tau2_s, pb.tau2_s, 1e-9))

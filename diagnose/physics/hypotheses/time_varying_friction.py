@@ -35,25 +35,30 @@ class TimeVaryingFriction(PhysicsHypothesis):
         if stage.name == "valve":
             return fine_valve(stage, best, "dS_pct_per_s")
         cost = best_of(stage, [best])[1]
-
-        def restart(st: Structure, around: set) -> None:
-            nonlocal best, cost
-            b = self._grid(stage, st.replace(dS_pct_per_s=0.0, dJ_pct_per_s=0.0), around, T, extra=[st])
-            b, c = best_of(stage, [b])
-            if c < cost:
-                best, cost = b, c
-
         # from a joint grid of drifting valves x dynamics (the plain fit's process can be far off:
         # concealed drift 5004, training SSE 37 from the search above, 11 from this grid; held-out
         # 0.22 -> 0.12)
         for st in _coarse_drift_starts(stage, reference):
-            restart(st, {round(st.S_up_pct, 6)})
+            best, cost = self._restart(stage, st, {round(st.S_up_pct, 6)}, T, best, cost)
         # valve and process co-adapt: search the drifting valve's own process globally, then the
         # drift again from it (around the drift's mid-span S and the reference's)
         mid = 0.5 * T
         for st in dynamics_starts(stage, best):
-            restart(st, centres | {round(max(best.S_up_pct + best.dS_pct_per_s * mid, 0.2), 6)})
+            around = centres | {round(max(best.S_up_pct + best.dS_pct_per_s * mid, 0.2), 6)}
+            best, cost = self._restart(stage, st, around, T, best, cost)
         return best
+
+    def _restart(self, stage, st, around, T, best, cost):
+        """The drift search again from ``st`` (its drift kept as a candidate): the better of its
+        result and (best, cost)."""
+        b = self._grid(stage, st.replace(dS_pct_per_s=0.0, dJ_pct_per_s=0.0), around, T, extra=[st])
+        b, c = best_of(stage, [b])
+        return (b, c) if c < cost else (best, cost)
+
+    def _polish(self, stage, best):
+        if stage.name == "valve":
+            return fine_valve(stage, best, "dS_pct_per_s")
+        return self._rounds(stage, best, max(stage.n_fit * stage.ts_s, stage.ts_s))
 
     def _grid(self, stage, reference, centres, T, extra=()):
         """The drift search around one plain start: S at the start and the end of the fitted span
@@ -84,6 +89,12 @@ class TimeVaryingFriction(PhysicsHypothesis):
                                 dS_pct_per_s=(c.S_up_pct + c.dS_pct_per_s * T) * q / T - c.S_up_pct * m / T)
                       for m in (0.985, 1.0, 1.015) for q in (0.985, 1.0, 1.015)]
         best, _ = best_of(stage, cands + tops)
+        return self._rounds(stage, best, T)
+
+    @staticmethod
+    def _rounds(stage, best, T):
+        """Local polish rounds: S at the start with the drift rate, then J with its rate, then the
+        dynamics; twice, the second finer."""
         for rnd in range(2):
             s0, j0 = best.S_up_pct, max(best.J_up_pct, 0.05)
             rs = best.dS_pct_per_s * T / max(s0, 1e-9)

@@ -54,7 +54,9 @@ class ValveCharacteristic(PhysicsHypothesis):
             st, c = best_of(stage, [st.replace(char_c=float(c0 + d)) for d in np.linspace(-0.4, 0.4, 9)
                                     if abs(c0 + d) > 1e-6])
             results.append((c, st))
-        best = min(results, key=lambda t: t[0])[1]
+        return self._polish(stage, min(results, key=lambda t: t[0])[1])
+
+    def _polish(self, stage, best):
         best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5, both_f0=False)
         best, _ = refit_dynamics(stage, best, rounds=1)
         if best.char_c:
