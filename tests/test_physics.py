@@ -82,6 +82,43 @@ def test_fused_training_sse_equals_simulate_then_least_squares():
         assert g == pytest.approx(float(e @ e), rel=1e-6)
 
 
+@pytest.mark.parametrize("gain_sign", [0, 1, -1])
+def test_fused_kernel_is_the_same_at_every_vector_width(gain_sign):
+    # the lanes run the process and the sums of LANES candidates at once; a candidate's SSE must not
+    # depend on the width, nor on the other candidates sharing its vector (different dead times,
+    # lags, characteristics, integrators and extra columns side by side)
+    from diagnose import kernels
+
+    rng = np.random.default_rng(21)
+    x = _walk(900, 21)
+    y = 0.5 * x + rng.normal(0, 0.3, x.size)
+    train = np.zeros(x.size, bool)
+    train[50:600] = True
+    stage = Stage("loop", x, y, 1.0, train, gain_sign)
+    structs = []
+    for i in range(23):
+        kind = ["foptd", "soptd", "integrating"][i % 3]
+        proc = ProcessModel(kind, 1.0, float(rng.uniform(0, 25)), float(rng.integers(0, 9)), 0.0,
+                            **({"tau2_s": float(rng.uniform(0, 6))} if kind == "soptd" else {}))
+        S = float(rng.uniform(0.3, 5))
+        structs.append(Structure(S_up_pct=S, J_up_pct=rng.uniform(0, 1.5) * S, S_dn_pct=S, J_dn_pct=0.3 * S,
+                                 f0=1 if i % 2 else -1, tau_lag_s=[0.0, 2.0][i % 2], char_c=[0.0, 2.0, -1.5][i % 3],
+                                 process=proc, period_s=[None, 77.0][(i // 3) % 2]))
+    out = {}
+    try:
+        for level in range(kernels.max_isa_level() + 1):
+            kernels.set_isa(level)
+            out[level] = train_sse(stage, structs)
+    finally:
+        kernels.set_isa(None)
+    for level in out:
+        assert np.array_equal(out[level], out[0])
+    for s, g in zip(structs, out[0]):
+        y_hat, _, _ = predict(stage, s)
+        e = (y - y_hat)[train]
+        assert g == pytest.approx(float(e @ e), rel=1e-6)
+
+
 def test_initial_valve_state_is_recovered():
     # a valve stuck at the start away from OP (stem at 45.5 % after closing, OP at 47 %): the default
     # start (stuck at the first OP sample) misses the first slips; the fitted state does not
@@ -345,11 +382,20 @@ def test_every_registered_hypothesis_keeps_the_contract(name, small_stage):
     assert fitted.name == name and fitted.stage == "loop"
     assert set(h.param_names) <= set(fitted.params)
     assert all(isinstance(v, float) for v in fitted.params.values())
+    with pytest.raises(TypeError):
+        fitted.params["x"] = 1.0          # results are read-only
     # the augmented model nests the plain one: its search must not train (much) worse
     assert fitted.train_sse <= ref_sse * 1.02
     assert fitted.train_sse == pytest.approx(train_sse(stage, [fitted.structure])[0], rel=1e-6)
     y_hat, _, _ = predict(stage, fitted.structure)
     assert y_hat.shape == (stage.n,) and np.all(np.isfinite(y_hat))
+    # polished again from a plain model that trains better (S nudged onto a better plain fit): no
+    # worse than that plain model, and never worse than the fit it starts from
+    better, better_sse = refine_plain(stage, ref.replace(S_up_pct=ref.S_up_pct * 1.03, S_dn_pct=ref.S_dn_pct * 1.03))
+    again = h.refit(stage, fitted, PlainModel(better))
+    assert again.name == name and set(h.param_names) <= set(again.params)
+    assert again.train_sse <= min(better_sse, ref_sse) * (1 + 1e-9)
+    assert again.train_sse == pytest.approx(train_sse(stage, [again.structure])[0], rel=1e-6)
 
 
 def test_hypotheses_refuse_a_stage_they_cannot_test(small_stage):
@@ -376,9 +422,22 @@ def _check_json(ex):
 
 
 def test_explain_leaves_a_clean_loop_alone():
+    from diagnose.physics import ExplainWarning, HypothesisResult, StageMismatch
+
     rec, _ = concealed_loop("none", 3, n=1500)
     ex = explain(rec, target="pv")
     d = _check_json(ex)
+    # typed results: the JSON is to_dict() of the frozen objects, nothing else
+    assert isinstance(ex.mismatch, StageMismatch) and all(isinstance(h, HypothesisResult) for h in ex.hypotheses)
+    assert d["mismatch"]["reference_rmse"] == pytest.approx(ex.mismatch.reference_rmse)
+    assert d["mismatch"]["windows"] == [w.to_dict() for w in ex.mismatch.windows]
+    assert [h["name"] for h in d["hypotheses"]] == [h.name for h in ex.hypotheses]
+    note = ExplainWarning("segments", "the longest segment was explained")
+    more = ex.with_warnings((note,))
+    assert more.warnings[0] == note and more.warnings[1:] == ex.warnings
+    assert more.to_dict()["warnings"][0] == {"code": "segments", "message": "the longest segment was explained"}
+    with pytest.raises(AttributeError):
+        ex.missing_physics = "actuator_lag"   # frozen
     assert d["missing_physics"] is None
     assert not any(h["accepted"] for h in d["hypotheses"])
     # each refused hypothesis says which rule refused it, and the explanation quotes the best one's
@@ -416,6 +475,21 @@ def test_explain_rejects_what_it_cannot_use():
         explain(rec, hypotheses=["gremlins"])
     with pytest.raises(DataError, match="train_fraction"):
         explain(rec, train_fraction=0.99)
+
+
+def test_explain_reuses_an_identification():
+    # the identification a caller already has is the baseline: its valve, process and start state,
+    # not a second fit on the training part
+    from diagnose.identify import identify
+    from diagnose.physics.baseline import from_hammerstein
+
+    rec, _ = concealed_loop("time_varying_friction", 101, n=3000)
+    ident = identify(rec)
+    ex = explain(rec, target="pv", hypotheses=["time_varying_friction"], identification=ident)
+    assert ex.baseline_source == "identify"
+    (loop,) = ex.stages
+    assert loop.baseline == from_hammerstein(ident.fit)
+    assert ex.missing_physics == "time_varying_friction"
 
 
 def test_concealed_generator_is_seeded_and_complete():

@@ -219,7 +219,7 @@ def polish(stage: Stage, struct: Structure, one_round, rounds: int = 2, tol: flo
     return best
 
 
-def fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Structure:
+def fine_valve(stage: Stage, struct: Structure, extra: str | None = None, *, profile: bool = True) -> Structure:
     """Fine polish of a symmetric valve on the valve stage (OP -> MV), where the output-error cost
     is V-shaped and sharp: 1 % off in S moves every slip by a sample or two and can cost ten times
     the noise, and the grids step S by 3 %.
@@ -228,7 +228,8 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Str
     Then S(t) scaled in 0.5 % steps over +-12 % with J(t)/S(t) over its whole range (and ``extra``,
     ``tau_lag_s`` or ``dS_pct_per_s``, +-30 %), then S in 0.1 % and J in 1 % steps, then the
     initial state; twice. Last S (+-1 %), J (+-30 %) and the extra (+-10 %) on one grid, then the
-    initial state; twice. A drift is scaled with S (J drifts in proportion)."""
+    initial state; twice. A drift is scaled with S (J drifts in proportion). ``profile=False``
+    leaves out the profile (for a start whose J/S was profiled already)."""
     def one_round(best: Structure) -> Structure:
         S0, dS0 = max(best.S_up_pct, 0.05), best.dS_pct_per_s
         e0 = getattr(best, extra) if extra else 0.0
@@ -265,7 +266,7 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None) -> Str
                       for m in 1.0 + np.linspace(-0.01, 0.01, 9) for mj in 1.0 + np.linspace(-0.3, 0.3, 25)]
         return best_of(stage, cands + [best])[0]
 
-    best = polish(stage, profile_ratio(stage, struct, extra), one_round)
+    best = polish(stage, profile_ratio(stage, struct, extra) if profile else struct, one_round)
     return polish(stage, best, joint)
 
 

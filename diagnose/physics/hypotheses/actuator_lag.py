@@ -71,7 +71,7 @@ class ActuatorLag(PhysicsHypothesis):
             results.append((c, st))
         return self._polish(stage, min(results, key=lambda t: t[0])[1])
 
-    def _polish(self, stage, best):
+    def _polish(self, stage, best, again=False):
         t0 = best.tau_lag_s
         pairs = sj_local(best.S_up_pct, best.J_up_pct, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
         cands = [with_sj(best, s, j).replace(tau_lag_s=t0 * m)
@@ -81,7 +81,7 @@ class ActuatorLag(PhysicsHypothesis):
         best, _ = refit_dynamics(stage, best, rounds=1)
         best, _ = refine_sj(stage, best, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
         if stage.name == "valve":
-            best = fine_valve(stage, best, "tau_lag_s")
+            best = fine_valve(stage, best, "tau_lag_s", profile=not again)
         return best
 
     def _params(self, struct, reference, stage, coef):

@@ -57,7 +57,7 @@ class AsymmetricStiction(PhysicsHypothesis):
             best = self._polish(stage, best)
         return best
 
-    def _polish(self, stage, best):
+    def _polish(self, stage, best, again=False):
         best = fine_asym(stage, best)
         if not stage.fixed_dynamics:
             best, _ = refit_dynamics(stage, best, rounds=1)

@@ -147,11 +147,12 @@ class PhysicsHypothesis:
         if not self.applicable(stage):
             raise DataError(f"hypothesis {self.name!r} cannot be tested on the {stage.name} stage")
         start, _ = best_of(stage, [fitted.structure] + transplants(stage, fitted.structure, baseline.structure))
-        return self._finish(stage, self._polish(stage, start), baseline.structure)
+        return self._finish(stage, self._polish(stage, start, again=True), baseline.structure)
 
-    def _polish(self, stage: Stage, struct: Structure) -> Structure:
+    def _polish(self, stage: Stage, struct: Structure, again: bool = False) -> Structure:
         """The local end of the hypothesis's search (default: S and J on a local grid, then the
-        process dynamics)."""
+        process dynamics). ``again``: polishing a fitted model again (`refit`), whose own search
+        profiled what is slow to profile."""
         struct, _ = refine_sj(stage, struct, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
         struct, _ = refit_dynamics(stage, struct, rounds=1)
         return struct

@@ -126,7 +126,7 @@ class ExternalDisturbance(PhysicsHypothesis):
                     best = joint_process_polish(stage, bf, "period_s")
         return best
 
-    def _polish(self, stage, best):
+    def _polish(self, stage, best, again=False):
         best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
         if best.period_s is not None:
             best = joint_process_polish(stage, best, "period_s")

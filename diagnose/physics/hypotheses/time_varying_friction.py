@@ -55,9 +55,9 @@ class TimeVaryingFriction(PhysicsHypothesis):
         b, c = best_of(stage, [b])
         return (b, c) if c < cost else (best, cost)
 
-    def _polish(self, stage, best):
+    def _polish(self, stage, best, again=False):
         if stage.name == "valve":
-            return fine_valve(stage, best, "dS_pct_per_s")
+            return fine_valve(stage, best, "dS_pct_per_s", profile=not again)
         return self._rounds(stage, best, max(stage.n_fit * stage.ts_s, stage.ts_s))
 
     def _grid(self, stage, reference, centres, T, extra=()):

@@ -56,7 +56,7 @@ class ValveCharacteristic(PhysicsHypothesis):
             results.append((c, st))
         return self._polish(stage, min(results, key=lambda t: t[0])[1])
 
-    def _polish(self, stage, best):
+    def _polish(self, stage, best, again=False):
         best, _ = refine_sj(stage, best, s_span=0.04, n_s=9, j_span=0.15, n_j=5, both_f0=False)
         best, _ = refit_dynamics(stage, best, rounds=1)
         if best.char_c:
