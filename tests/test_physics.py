@@ -103,7 +103,7 @@ def test_fused_kernel_is_the_same_at_every_vector_width(gain_sign):
         S = float(rng.uniform(0.3, 5))
         structs.append(Structure(S_up_pct=S, J_up_pct=rng.uniform(0, 1.5) * S, S_dn_pct=S, J_dn_pct=0.3 * S,
                                  f0=1 if i % 2 else -1, tau_lag_s=[0.0, 2.0][i % 2], char_c=[0.0, 2.0, -1.5][i % 3],
-                                 process=proc, period_s=[None, 77.0][(i // 3) % 2]))
+                                 process=proc, period_s=[None, 77.0 + 3.0 * i][(i // 3) % 2]))
     out = {}
     try:
         for level in range(kernels.max_isa_level() + 1):
@@ -117,6 +117,25 @@ def test_fused_kernel_is_the_same_at_every_vector_width(gain_sign):
         y_hat, _, _ = predict(stage, s)
         e = (y - y_hat)[train]
         assert g == pytest.approx(float(e @ e), rel=1e-6)
+    # a load's sine and cosine made in the kernel (rotated between exact values) are the columns
+    # numpy makes: the same SSE as the kernel with those columns given
+    loaded = [s for s in structs if s.period_s is not None]
+    n = stage.n_fit
+    t = np.arange(n) * 1.0
+    for s, g in zip(loaded, train_sse(stage, loaded)):
+        wl = 2.0 * np.pi / s.period_s
+        cols = ([t] if s.process.kind == "integrating" else []) + [np.sin(wl * t), np.cos(wl * t)]
+        got = train_sse(stage, [s.replace(period_s=None)])   # the same model without its load ...
+        assert got[0] >= g * (1 - 1e-9)                     # ... trains no better
+        P = kernels.fused_sse(x[:n], np.array([[s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, 0.0, 0.0, s.f0,
+                                                math.exp(-1.0 / s.tau_lag_s) if s.tau_lag_s else 0.0, np.nan,
+                                                np.nan]]), [s.char_c],
+                              [math.exp(-1.0 / s.process.tau_s) if s.process.tau_s else 0.0],
+                              [(math.exp(-1.0 / s.process.tau2_s) if s.process.tau2_s else 0.0)
+                               if s.process.kind == "soptd" else -1.0],
+                              [int(round(s.process.delay_s))], [s.process.kind == "integrating"], 1.0,
+                              np.column_stack(cols), y[:n], train[:n].astype(float), float(gain_sign))
+        assert g == pytest.approx(P[0], rel=1e-12)
 
 
 def test_initial_valve_state_is_recovered():

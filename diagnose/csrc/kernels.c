@@ -25,7 +25,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 3
+#define KERNELS_ABI 4
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -93,6 +93,8 @@ static int solve_small(double *A, double *b, int p, double *c)
 }
 
 #define FUSED_MAXP 16
+/* samples between the exact sines and cosines of fused_load (rotations in between) */
+#define LOAD_ANCHOR 64
 
 /*
  * The augmented model after the valve: the installed characteristic c (100 (e^(c u/100) - 1) /
@@ -375,6 +377,17 @@ static const fused_fn FUSED[] = {
     fused_avx2, fused_avx512,
 #endif
 };
+typedef int (*fused_load_fn)(const double *, int64_t, int64_t, const double *, const double *, const double *,
+                             const double *, const double *, const double *, const double *, const double *,
+                             const double *, const double *, const double *, const double *, const double *,
+                             const int64_t *, const uint8_t *, double, const double *, int, const double *,
+                             const double *, double, double *);
+static const fused_load_fn FUSED_LOAD[] = {
+    fused_load_base,
+#ifdef HAVE_X86_VARIANTS
+    fused_load_avx2, fused_load_avx512,
+#endif
+};
 static const char *const ISA_NAMES[] = {"baseline (2 lanes)", "avx2 (4 lanes)", "avx512 (8 lanes)"};
 
 static int max_isa = -1;
@@ -460,6 +473,23 @@ int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const d
     ensure_isa();
     return FUSED[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                              ts_s, E, q, y, w, sgn, out);
+}
+
+/*
+ * fused_sse with each candidate's own sinusoidal load (wload, rad/s) as the extra columns, after a
+ * time column when with_t (an integrating process): [z, 1, (t), sin(w t), cos(w t)]. Returns 0, or -1
+ * when memory runs out.
+ */
+int fused_sse_load(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+                   const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+                   const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                   const double *cc, const double *a1, const double *a2, const int64_t *d,
+                   const uint8_t *integ, double ts_s, const double *wload, int with_t, const double *y,
+                   const double *w, double sgn, double *out)
+{
+    ensure_isa();
+    return FUSED_LOAD[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+                                  ts_s, wload, with_t, y, w, sgn, out);
 }
 
 /* ---- a Python module, so that pip builds and installs this file as an extension ---------------- */

@@ -97,6 +97,22 @@ class Structure:
 
 
 _STRUCT_FIELDS = frozenset(f.name for f in dataclasses.fields(Structure))
+_PROCESS_TIMES = frozenset(("tau_s", "tau2_s", "delay_s"))
+
+
+def with_times(p: ProcessModel, **times: float) -> ProcessModel:
+    """``p`` with other time constants or dead time (``tau_s``, ``tau2_s``, ``delay_s``, seconds, >= 0):
+    `dataclasses.replace` without re-running the validation of every other field, for the
+    searches' grids of dynamics."""
+    if not _PROCESS_TIMES.issuperset(times):
+        raise TypeError(f"with_times sets {sorted(_PROCESS_TIMES)}, not {sorted(set(times) - _PROCESS_TIMES)}")
+    if any(not v >= 0 for v in times.values()):
+        raise DataError("process time constants and dead time must be >= 0 seconds")
+    new = object.__new__(ProcessModel)
+    d = new.__dict__
+    d.update(p.__dict__)
+    d.update({k: float(v) for k, v in times.items()})
+    return new
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,18 +223,10 @@ def predict(stage: Stage, struct: Structure, stem: np.ndarray | None = None):
     return y_hat, stem, coef
 
 
-@functools.lru_cache(maxsize=64)
-def _extra_columns(period_s: float | None, ts_s: float, n: int, integ: bool) -> np.ndarray:
-    """The design's columns after [z, 1]: time (integrating process) and the load's sine and cosine
-    (read-only; the searches ask for the same ones many times)."""
-    t = np.arange(n) * ts_s
-    cols = []
-    if integ:
-        cols.append(t)
-    if period_s is not None:
-        w = 2.0 * np.pi / period_s
-        cols += [np.sin(w * t), np.cos(w * t)]
-    out = np.ascontiguousarray(np.column_stack(cols) if cols else np.zeros((n, 0)))
+@functools.lru_cache(maxsize=16)
+def _time_column(ts_s: float, n: int, integ: bool) -> np.ndarray:
+    """The design's time column of an integrating process (none otherwise), read-only."""
+    out = np.ascontiguousarray((np.arange(n) * ts_s)[:, None] if integ else np.zeros((n, 0)))
     out.flags.writeable = False
     return out
 
@@ -237,9 +245,9 @@ def _row(s: Structure) -> tuple:
 def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     """Training sum of squared errors of each structure (simulated through the training part).
 
-    One fused compiled pass per candidate (`diagnose.kernels.fused_sse`: the valve step,
-    characteristic, lags, least squares): memory does not grow with the number of candidates times
-    the record length.
+    One fused compiled pass per candidate (`diagnose.kernels.fused_sse`, `fused_sse_load` for
+    candidates with a load: the valve step, characteristic, lags, least squares): memory does not
+    grow with the number of candidates times the record length.
     """
     n = stage.n_fit
     structs = list(structs)
@@ -250,8 +258,10 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     out = np.empty(len(structs))
     groups: dict = {}
     for i, s in enumerate(structs):
-        groups.setdefault((s.period_s, s.process.kind == "integrating"), []).append(i)
-    for (period, integ), idx in groups.items():
+        # candidates with a load take its sine and cosine per candidate (a search over periods, or
+        # the posterior's draws, would otherwise be one call per period)
+        groups.setdefault((s.period_s is not None, s.process.kind == "integrating"), []).append(i)
+    for (load, integ), idx in groups.items():
         sub = [structs[i] for i in idx]
         m = len(sub)
         P = np.array([_row(s) for s in sub], dtype=np.float64).reshape(m, 14)
@@ -264,11 +274,16 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         t2 = P[:, 10]
         a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
         d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
-        E = _extra_columns(period, ts, n, integ)
         params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
                                   P[:, 12], P[:, 13]])
-        out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, np.full(m, integ, np.bool_), ts, E, yv, tr,
-                                     float(stage.gain_sign))
+        ig = np.full(m, integ, np.bool_)
+        if load:
+            wl = np.array([2.0 * np.pi / s.period_s for s in sub])
+            out[idx] = kernels.fused_sse_load(x, params, P[:, 8], a1, a2, d, ig, ts, wl, integ, yv, tr,
+                                              float(stage.gain_sign))
+        else:
+            E = _time_column(ts, n, integ)
+            out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, ig, ts, E, yv, tr, float(stage.gain_sign))
     return out
 
 

@@ -20,14 +20,13 @@ points, local grids and rounds of them polish.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Sequence
 
 import numpy as np
 
 from ..process_model import ProcessModel
-from .model import IDENTITY, Stage, Structure, train_sse
+from .model import IDENTITY, Stage, Structure, train_sse, with_times
 
 
 def best_distinct(cands: list, sse, key, k: int) -> list:
@@ -66,11 +65,11 @@ def refit_dynamics(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[St
         p0 = best.process
         d0 = int(round(p0.delay_s / ts))
         tau0 = max(p0.tau_s, ts)
-        cands = [dataclasses.replace(p0, tau_s=tau0 * m, delay_s=(d0 + dd) * ts)
+        cands = [with_times(p0, tau_s=tau0 * m, delay_s=(d0 + dd) * ts)
                  for m in span for dd in (-2, -1, 0, 1, 2) if d0 + dd >= 0]
         if p0.kind == "soptd":
             tau20 = max(p0.tau2_s, ts)
-            cands += [dataclasses.replace(p0, tau2_s=tau20 * m) for m in span]
+            cands += [with_times(p0, tau2_s=tau20 * m) for m in span]
         b, c = best_of(stage, [best.replace(process=p) for p in cands])
         if c < best_c:
             best, best_c = b, c
@@ -335,7 +334,7 @@ def joint_process_polish(stage: Stage, struct: Structure, effect: str, rounds: i
             extra = [{"period_s": float(1.0 / (f1 + 0.1 * d / T))} for d in steps if f1 + 0.1 * d / T > 0]
         d0 = int(round(p.delay_s / ts))
         tau0 = max(p.tau_s, ts)
-        cands = [best.replace(process=dataclasses.replace(p, tau_s=float(tau0 * m), delay_s=float(dd * ts)), **e)
+        cands = [best.replace(process=with_times(p, tau_s=tau0 * m, delay_s=dd * ts), **e)
                  for m in taus for dd in range(max(d0 - 2, 0), d0 + 3)
                  for e in extra]
         b, _ = best_of(stage, cands + [best])
@@ -361,7 +360,7 @@ def dynamics_starts(stage: Stage, struct: Structure, k: int = 2) -> list[Structu
                       + [max(p0.tau_s, ts) * m for m in (0.7, 1.0, 1.4)]))
     d0 = int(round(p0.delay_s / ts))
     delays = sorted(set(range(0, 16)) | {d0})
-    cands = [struct.replace(process=dataclasses.replace(p0, tau_s=float(t), delay_s=d * ts))
+    cands = [struct.replace(process=with_times(p0, tau_s=t, delay_s=d * ts))
              for t in taus for d in delays]
     sse = train_sse(stage, cands)
     tops = best_distinct(cands, sse, lambda c: (round(math.log(max(c.process.tau_s, ts)) / 0.35),

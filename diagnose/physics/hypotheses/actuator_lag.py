@@ -3,12 +3,11 @@ a positioner), with a dead time of whole samples on the valve stage."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 
-from ..model import Structure, train_sse
+from ..model import Structure, train_sse, with_times
 from ..search import best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_options
 from .base import VALVE_SIDE, PhysicsHypothesis
 
@@ -36,7 +35,7 @@ class ActuatorLag(PhysicsHypothesis):
         def with_delay(s: Structure, d) -> Structure:
             if d is None:
                 return s
-            return s.replace(process=dataclasses.replace(s.process, delay_s=d * ts))
+            return s.replace(process=with_times(s.process, delay_s=d * ts))
 
         # J relative to S over its whole range: a lag changes the plain fit's J the most
         pairs = [(S * m, S * m * r) for m in (0.85, 0.93, 1.0, 1.07, 1.15)

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 
-from ..model import Stage, Structure, train_sse
+from ..model import Stage, Structure, train_sse, with_times
 from ..search import (best_of, coarse_starts, global_sj, joint_process_polish, refine_sj, refit_dynamics,
                       sj_local, with_sj)
 from ..valve import characteristic
@@ -104,7 +103,7 @@ class ValveCharacteristic(PhysicsHypothesis):
         (S, J/S, direction) grid with those dynamics."""
         T = max(stage.train.sum() * stage.ts_s, 12.0 * stage.ts_s)
         lin = with_sj(reference, 0.0, 0.0).replace(char_c=float(c), y0_pct=None, xs0_pct=None)
-        cands = [lin.replace(process=dataclasses.replace(reference.process, tau_s=float(t), delay_s=float(d * stage.ts_s)))
+        cands = [lin.replace(process=with_times(reference.process, tau_s=t, delay_s=d * stage.ts_s))
                  for t in np.geomspace(stage.ts_s, T / 6.0, 40) for d in range(16)]
         best, _ = best_of(stage, cands)
         best, _ = refit_dynamics(stage, best, rounds=2)
