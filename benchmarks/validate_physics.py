@@ -30,8 +30,6 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-
 import numpy as np
 
 from diagnose.physics import explain
@@ -48,11 +46,11 @@ NAMES = ["none", "actuator_lag", "asymmetric_stiction", "valve_characteristic", 
 MIN_MOVES = (0.65, 10, 5)
 
 
-def run_one(effect: str, seed: int, with_mv: bool, n: int, raw: bool = False) -> dict:
+def run_one(effect: str, seed: int, with_mv: bool, n: int, raw: bool = False, threads: int | None = None) -> dict:
     moves = None if raw else MIN_MOVES
     rec, truth = concealed_loop(effect, seed, n=n, with_mv=with_mv, min_moves=moves)
     t0 = time.perf_counter()
-    ex = explain(rec, target="auto" if with_mv else "pv")
+    ex = explain(rec, target="auto" if with_mv else "pv", threads=threads)
     dt = time.perf_counter() - t0
     named = ex.missing_physics or "none"
     acc = {h.name: h.accepted for h in ex.hypotheses}
@@ -68,9 +66,9 @@ def run_one(effect: str, seed: int, with_mv: bool, n: int, raw: bool = False) ->
             exposure = max(exposure, float(np.sqrt(np.mean((rec.mv - twin.mv) ** 2)) / 0.1))
     return {"effect": effect, "seed": seed, "with_mv": with_mv, "named": named, "target": ex.target,
             "baseline_rmse": ex.baseline_rmse, "improved_rmse": ex.improved_rmse,
-            "reference_rmse": ex.mismatch.get("reference_rmse"),
+            "reference_rmse": ex.mismatch.reference_rmse,
             "reduction": 1.0 - ex.improved_rmse / ex.baseline_rmse if ex.baseline_rmse > 0 else 0.0,
-            "accepted": acc, "delta_bic_heldout_train_reduction": dbic, "exposure": exposure, "warnings": [w["code"] for w in ex.warnings], "seconds": dt,
+            "accepted": acc, "delta_bic_heldout_train_reduction": dbic, "exposure": exposure, "warnings": [w.code for w in ex.warnings], "seconds": dt,
             "truth": {k: (float(v) if isinstance(v, (int, float, np.floating)) else v) for k, v in truth.items()}}
 
 
@@ -121,6 +119,8 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1,
                     help="worker processes (records are independent; timings per record are then "
                          "measured side by side)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="threads of each explain (default: explain's own, 1 with --jobs > 1)")
     ap.add_argument("--real", action="store_true",
                     help="run on the real recordings in --data instead (prints a table, draws figures)")
     ap.add_argument("--examples", action="store_true",
@@ -159,7 +159,8 @@ def main(argv=None) -> int:
         jobs = [j for j in jobs if wanted(*j)]
     rows = []
     t_all = time.perf_counter()
-    todo = [(e, seed, mv, args.n, args.raw_draws) for e, seed, mv in jobs if (e, seed, mv) not in done]
+    threads = args.threads if args.threads is not None else (1 if args.jobs > 1 else None)
+    todo = [(e, seed, mv, args.n, args.raw_draws, threads) for e, seed, mv in jobs if (e, seed, mv) not in done]
     if args.jobs > 1:
         import multiprocessing as mp
 
@@ -294,13 +295,13 @@ def real_data(args) -> int:
         t0 = time.perf_counter()
         ex = explain(rec, **eopts)
         dt = time.perf_counter() - t0
-        ref = ex.mismatch.get("reference_rmse")
+        ref = ex.mismatch.reference_rmse
         named = ex.missing_physics or "none"
         params = ""
         if ex.missing_physics:
             h = next(h for h in ex.hypotheses if h.name == ex.missing_physics)
             params = ", ".join(f"{k} {v:.3g}" for k, v in h.params.items())
-        warn = "; ".join(w["code"] for w in ex.warnings)
+        warn = "; ".join(w.code for w in ex.warnings)
         fall_b = 1 - ex.improved_rmse / ex.baseline_rmse if ex.baseline_rmse else 0.0
         fall_r = 1 - ex.improved_rmse / ref if ref else 0.0
         rows.append(f"| {label} | {rec.n} | {ex.target} | {ex.baseline_rmse:.4g} | {ref:.4g} | {named} | "

@@ -2,7 +2,8 @@
 
 The stiction model's valve step is written once, in C (``diagnose/csrc/valve_step.h``); every
 kernel below runs it: many candidate valves over one input (`valve_run`), the output-error scoring
-of valve x process candidates (`score`), the augmented model of `stiction explain` (`fused_sse`),
+of valve x process candidates (`score`), the augmented model of `stiction explain` (`fused_sse`, and
+`fused_sse_load` with each candidate's own load period),
 and one sample at a time for the simulator (`ValveState`). The library carries vector variants
 for the x86-64 baseline, AVX2 and AVX-512 and uses the widest the CPU supports (`isa`); every
 variant returns the same numbers.
@@ -21,7 +22,7 @@ import numpy as np
 
 from .errors import StictionError
 
-ABI = 3
+ABI = 4
 
 
 class KernelsMissingError(StictionError, ImportError):
@@ -50,6 +51,8 @@ for _name, _args, _res in (
     ("score", [_P, _I, _P, _I, _P, _I, _D, _D, _P, _P, _P, _I, _P, _D, _P, _D], _C),
     ("fused_sse", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I, _P,
                    _P, _D, _P], _C),
+    ("fused_sse_load", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _C, _P,
+                        _P, _D, _P], _C),
     ("valve_step1", [_P, _P, _D], _D),
     ("valve_start1", [_P, _P, _D, _D, _D, _D], _D),
     ("lag_filter", [_P, _I, _D, _D, _I, _C, _D, _P], None),
@@ -168,6 +171,28 @@ def fused_sse(x, params: np.ndarray, cc, a1, a2, d, integ, ts_s: float, E, y, w,
                             _ptr(ib), float(ts_s), _ptr(E), q, _ptr(y), _ptr(w), float(sgn), _ptr(out))
         if rc != 0:
             raise MemoryError("fused_sse: out of memory or too many extra columns")
+    return out
+
+
+def fused_sse_load(x, params: np.ndarray, cc, a1, a2, d, integ, ts_s: float, wload, with_t: bool, y, w,
+                   sgn: float) -> np.ndarray:
+    """`fused_sse` with each candidate's own sinusoidal load: the extra columns are [t] (``with_t``)
+    and sin(w t), cos(w t) with ``w = wload[i]`` rad/s (see ``fused_sse_load`` in kernels.c)."""
+    x, y, w = _f64(x), _f64(y), _f64(w)
+    cols = [np.ascontiguousarray(params[:, j], dtype=np.float64) for j in range(10)]
+    cc, a1, a2, wl = _f64(cc), _f64(a1), _f64(a2), _f64(wload)
+    d = np.ascontiguousarray(d, dtype=np.int64)
+    ib = np.ascontiguousarray(integ, dtype=np.bool_).view(np.uint8)
+    m, n = cols[0].shape[0], x.shape[0]
+    if y.shape[0] != n or w.shape[0] != n or any(a.shape[0] != m for a in (cc, a1, a2, d, ib, wl)):
+        raise ValueError("fused_sse_load: inconsistent shapes")
+    out = np.empty(m)
+    if m and n:
+        rc = _lib.fused_sse_load(_ptr(x), n, m, *(_ptr(c) for c in cols), _ptr(cc), _ptr(a1), _ptr(a2), _ptr(d),
+                                 _ptr(ib), float(ts_s), _ptr(wl), int(bool(with_t)), _ptr(y), _ptr(w), float(sgn),
+                                 _ptr(out))
+        if rc != 0:
+            raise MemoryError("fused_sse_load: out of memory")
     return out
 
 

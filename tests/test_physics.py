@@ -11,8 +11,9 @@ import pytest
 from diagnose.errors import DataError
 from diagnose.physics import REGISTRY, PhysicsHypothesis, explain, locate
 from diagnose.physics.concealed import EFFECTS, concealed_loop
-from diagnose.physics.hypotheses import Context, register
-from diagnose.physics.model import Stage, Structure, fit_initial_state, predict, refine_plain, train_sse
+from diagnose.physics.hypotheses import PlainModel, register
+from diagnose.physics.model import Stage, Structure, predict, train_sse
+from diagnose.physics.search import fit_initial_state, refine_plain
 from diagnose.physics.plant import (AsymmetricStictionValve, AugmentedValve, CharacteristicProcess,
                                     DriftingStictionValve, LaggedValve, equal_percentage)
 from diagnose.physics.valve import augmented_valve, characteristic
@@ -81,6 +82,62 @@ def test_fused_training_sse_equals_simulate_then_least_squares():
         assert g == pytest.approx(float(e @ e), rel=1e-6)
 
 
+@pytest.mark.parametrize("gain_sign", [0, 1, -1])
+def test_fused_kernel_is_the_same_at_every_vector_width(gain_sign):
+    # the lanes run the process and the sums of LANES candidates at once; a candidate's SSE must not
+    # depend on the width, nor on the other candidates sharing its vector (different dead times,
+    # lags, characteristics, integrators and extra columns side by side)
+    from diagnose import kernels
+
+    rng = np.random.default_rng(21)
+    x = _walk(900, 21)
+    y = 0.5 * x + rng.normal(0, 0.3, x.size)
+    train = np.zeros(x.size, bool)
+    train[50:600] = True
+    stage = Stage("loop", x, y, 1.0, train, gain_sign)
+    structs = []
+    for i in range(23):
+        kind = ["foptd", "soptd", "integrating"][i % 3]
+        proc = ProcessModel(kind, 1.0, float(rng.uniform(0, 25)), float(rng.integers(0, 9)), 0.0,
+                            **({"tau2_s": float(rng.uniform(0, 6))} if kind == "soptd" else {}))
+        S = float(rng.uniform(0.3, 5))
+        structs.append(Structure(S_up_pct=S, J_up_pct=rng.uniform(0, 1.5) * S, S_dn_pct=S, J_dn_pct=0.3 * S,
+                                 f0=1 if i % 2 else -1, tau_lag_s=[0.0, 2.0][i % 2], char_c=[0.0, 2.0, -1.5][i % 3],
+                                 process=proc, period_s=[None, 77.0 + 3.0 * i][(i // 3) % 2]))
+    out = {}
+    try:
+        for level in range(kernels.max_isa_level() + 1):
+            kernels.set_isa(level)
+            out[level] = train_sse(stage, structs)
+    finally:
+        kernels.set_isa(None)
+    for level in out:
+        assert np.array_equal(out[level], out[0])
+    for s, g in zip(structs, out[0]):
+        y_hat, _, _ = predict(stage, s)
+        e = (y - y_hat)[train]
+        assert g == pytest.approx(float(e @ e), rel=1e-6)
+    # a load's sine and cosine made in the kernel (rotated between exact values) are the columns
+    # numpy makes: the same SSE as the kernel with those columns given
+    loaded = [s for s in structs if s.period_s is not None]
+    n = stage.n_fit
+    t = np.arange(n) * 1.0
+    for s, g in zip(loaded, train_sse(stage, loaded)):
+        wl = 2.0 * np.pi / s.period_s
+        cols = ([t] if s.process.kind == "integrating" else []) + [np.sin(wl * t), np.cos(wl * t)]
+        got = train_sse(stage, [s.replace(period_s=None)])   # the same model without its load ...
+        assert got[0] >= g * (1 - 1e-9)                     # ... trains no better
+        P = kernels.fused_sse(x[:n], np.array([[s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, 0.0, 0.0, s.f0,
+                                                math.exp(-1.0 / s.tau_lag_s) if s.tau_lag_s else 0.0, np.nan,
+                                                np.nan]]), [s.char_c],
+                              [math.exp(-1.0 / s.process.tau_s) if s.process.tau_s else 0.0],
+                              [(math.exp(-1.0 / s.process.tau2_s) if s.process.tau2_s else 0.0)
+                               if s.process.kind == "soptd" else -1.0],
+                              [int(round(s.process.delay_s))], [s.process.kind == "integrating"], 1.0,
+                              np.column_stack(cols), y[:n], train[:n].astype(float), float(gain_sign))
+        assert g == pytest.approx(P[0], rel=1e-12)
+
+
 def test_initial_valve_state_is_recovered():
     # a valve stuck at the start away from OP (stem at 45.5 % after closing, OP at 47 %): the default
     # start (stuck at the first OP sample) misses the first slips; the fitted state does not
@@ -106,7 +163,7 @@ def test_initial_valve_state_is_recovered():
 def test_fine_valve_polish_reaches_the_sharp_minimum():
     # OP -> MV with an actuator lag: the output-error cost is V-shaped in S (1 % off moves slips by
     # samples); a start 5 % off in S and J (the 3 % grids' typical miss) is polished to the truth
-    from diagnose.physics.hypotheses import fine_valve
+    from diagnose.physics.search import fine_valve
 
     x = _walk(1500, 12)
     kw = dict(S_up=3.157, J_up=1.28, f0=1, ts_s=1.0, tau_lag_s=6.0)
@@ -127,7 +184,7 @@ def test_fine_valve_polish_reaches_the_sharp_minimum():
 def test_fine_asymmetric_polish_reaches_the_sharp_minimum():
     # OP -> MV with asymmetric stiction: a start 4-5 % off on each side (the one-direction scans step
     # S by 1-2 %, the coarse grid by 7 %) is polished to the truth on both sides
-    from diagnose.physics.hypotheses import _fine_asym
+    from diagnose.physics.hypotheses.asymmetric_stiction import fine_asym
 
     x = _walk(1500, 13)
     kw = dict(S_up=3.4, J_up=1.5, S_dn=1.8, J_dn=0.6, f0=1, ts_s=1.0)
@@ -139,7 +196,7 @@ def test_fine_asymmetric_polish_reaches_the_sharp_minimum():
     start = Structure(S_up_pct=3.55, J_up_pct=1.6, S_dn_pct=1.72, J_dn_pct=0.66, f0=1,
                       process=ProcessModel("foptd", 1.0, 0.0, 0.0, 0.0))
     start, c0 = fit_initial_state(stage, start)
-    best = _fine_asym(stage, start)
+    best = fine_asym(stage, start)
     c1 = float(train_sse(stage, [best])[0])
     assert c1 < 0.5 * c0
     assert c1 / train.sum() < 1.5 * 0.1 ** 2
@@ -153,8 +210,7 @@ def test_dynamics_restart_leaves_a_plain_fits_basin():
     # OP -> PV: the valve fixed at the truth but the process far off (a short lag with a long dead
     # time, as a plain fit of an augmented loop often has); the global dynamics grid finds the true
     # process's basin, which the local refit from the wrong one does not reach
-    from diagnose.physics.hypotheses import _dynamics_starts
-    from diagnose.physics.model import refit_dynamics
+    from diagnose.physics.search import dynamics_starts, refit_dynamics
 
     x = _walk(2000, 14)
     true = Structure(S_up_pct=3.0, J_up_pct=1.0, S_dn_pct=1.6, J_dn_pct=0.5, f0=1,
@@ -167,7 +223,7 @@ def test_dynamics_restart_leaves_a_plain_fits_basin():
     stage = Stage("loop", x, y, 1.0, train)
     wrong = true.replace(process=ProcessModel("foptd", 1.0, 4.0, 12.0, 0.0))
     _, c_local = refit_dynamics(stage, wrong, rounds=1)
-    starts = _dynamics_starts(stage, wrong, k=2)
+    starts = dynamics_starts(stage, wrong, k=2)
     assert 1 <= len(starts) <= 2
     costs = [float(train_sse(stage, [s])[0]) for s in starts]
     best = starts[int(np.argmin(costs))]
@@ -180,8 +236,7 @@ def test_joint_process_polish_trades_the_characteristic_against_the_dynamics():
     # OP -> PV through an installed characteristic: a start with the characteristic's exponent and
     # the process lag both off (and the valve's last direction wrong) is polished to the noise; the
     # one-at-a-time refits it replaced (exponent, then S and J, then dynamics) stay far above it
-    from diagnose.physics.hypotheses import _joint_process_polish
-    from diagnose.physics.model import best_of, refine_sj, refit_dynamics
+    from diagnose.physics.search import best_of, joint_process_polish, refine_sj, refit_dynamics
 
     rng = np.random.default_rng(15)
     n = 2000
@@ -198,7 +253,7 @@ def test_joint_process_polish_trades_the_characteristic_against_the_dynamics():
     one, _ = best_of(stage, [start.replace(char_c=float(1.6 + d)) for d in np.linspace(-0.4, 0.4, 9)])
     one, _ = refine_sj(stage, one, s_span=0.04, n_s=9, j_span=0.15, n_j=5, both_f0=False)
     _, c_one = refit_dynamics(stage, one, rounds=1)
-    best = _joint_process_polish(stage, start, "char_c")
+    best = joint_process_polish(stage, start, "char_c")
     c = float(train_sse(stage, [best])[0])
     assert c / train.sum() < 1.3 * 0.1 ** 2
     assert c < 0.2 * c_one
@@ -218,8 +273,8 @@ def test_load_periods_ranked_with_the_coarse_grid():
     plain = plain.replace(y0_pct=35.48)
     hyp = REGISTRY["external_disturbance"]
     y_hat, _, _ = predict(stage, plain)
-    periods = hyp.candidate_periods(stage, plain, Context(limit_cycle_period_s=truth["limit_cycle_period_s"],
-                                                          residual=stage.y - y_hat))
+    periods = hyp.candidate_periods(stage, PlainModel(plain, limit_cycle_period_s=truth["limit_cycle_period_s"],
+                                                      residual=stage.y - y_hat))
     ranked = hyp.rank_periods(stage, plain, periods)
     assert ranked[0][1].period_s == pytest.approx(truth["period_s"], rel=0.02)
     on_plain = [float(train_sse(stage, [st])[0]) for _, st, _ in ranked]
@@ -294,14 +349,15 @@ def test_locate_finds_slips_direction_and_a_foreign_peak():
     r[(t // 50) % 2 == 1] += 0.3                  # residual mean depends on direction
     r += 0.5 * np.sin(2 * np.pi * t / 37.0)       # a load at 37 s, not a harmonic of 100 s
     m = locate(r, stem, stem, ts, response_s=0.0)
-    s = m.summary
-    assert s["events"]["n_slips"] == slips.size
-    assert s["events"]["after_slip_energy_ratio"] > 2.0
-    assert abs(s["direction"]["mean_difference"]) > 0.2
-    assert s["frequency"]["limit_cycle_period_s"] == pytest.approx(100.0)
-    assert s["frequency"]["residual_peak_period_s"] == pytest.approx(37.0, rel=0.03)
-    assert not s["frequency"]["peak_at_limit_cycle_harmonic"]
-    json.dumps(s, allow_nan=False)
+    assert m.events.n_slips == slips.size
+    assert m.events.after_slip_energy_ratio > 2.0
+    assert abs(m.direction.mean_difference) > 0.2
+    assert m.frequency.limit_cycle_period_s == pytest.approx(100.0)
+    assert m.frequency.residual_peak_period_s == pytest.approx(37.0, rel=0.03)
+    assert not m.frequency.peak_at_limit_cycle_harmonic
+    d = m.to_dict()
+    json.dumps(d, allow_nan=False)
+    assert d["events"]["n_slips"] == slips.size and d["direction"]["opening"]["n"] > 10
 
 
 def test_locate_marks_a_drifting_residual_and_its_windows():
@@ -310,8 +366,8 @@ def test_locate_marks_a_drifting_residual_and_its_windows():
     r = rng.normal(0, 0.1, n) * np.linspace(0.5, 4.0, n)
     stem = np.full(n, 50.0)
     m = locate(r, stem, stem + rng.normal(0, 1, n), 1.0)
-    assert m.summary["drift"]["last_over_first"] > 2.0
-    assert m.summary["windows"] and m.summary["windows"][0]["start_s"] > 1500
+    assert m.drift.last_over_first > 2.0
+    assert m.windows and m.windows[0].start_s > 1500
 
 
 # --- hypothesis registry contract ---------------------------------------------------------------------
@@ -341,22 +397,31 @@ def test_every_registered_hypothesis_keeps_the_contract(name, small_stage):
     h = REGISTRY[name]
     assert isinstance(h, PhysicsHypothesis)
     assert h.name == name and h.param_names and h.n_extra >= 1 and h.side in ("valve", "process")
-    fitted = h.fit(stage, ref, Context(limit_cycle_period_s=None))
+    fitted = h.fit(stage, PlainModel(ref))
     assert fitted.name == name and fitted.stage == "loop"
     assert set(h.param_names) <= set(fitted.params)
     assert all(isinstance(v, float) for v in fitted.params.values())
+    with pytest.raises(TypeError):
+        fitted.params["x"] = 1.0          # results are read-only
     # the augmented model nests the plain one: its search must not train (much) worse
     assert fitted.train_sse <= ref_sse * 1.02
     assert fitted.train_sse == pytest.approx(train_sse(stage, [fitted.structure])[0], rel=1e-6)
     y_hat, _, _ = predict(stage, fitted.structure)
     assert y_hat.shape == (stage.n,) and np.all(np.isfinite(y_hat))
+    # polished again from a plain model that trains better (S nudged onto a better plain fit): no
+    # worse than that plain model, and never worse than the fit it starts from
+    better, better_sse = refine_plain(stage, ref.replace(S_up_pct=ref.S_up_pct * 1.03, S_dn_pct=ref.S_dn_pct * 1.03))
+    again = h.refit(stage, fitted, PlainModel(better))
+    assert again.name == name and set(h.param_names) <= set(again.params)
+    assert again.train_sse <= min(better_sse, ref_sse) * (1 + 1e-9)
+    assert again.train_sse == pytest.approx(train_sse(stage, [again.structure])[0], rel=1e-6)
 
 
 def test_hypotheses_refuse_a_stage_they_cannot_test(small_stage):
     stage, ref, _ = small_stage
     vstage = Stage("valve", stage.x, stage.x, stage.ts_s, stage.train)
     with pytest.raises(DataError, match="cannot be tested"):
-        REGISTRY["external_disturbance"].fit(vstage, ref)
+        REGISTRY["external_disturbance"].fit(vstage, PlainModel(ref))
 
 
 # --- explain on concealed data (a few records; the benchmark runs many) -------------------------------
@@ -376,9 +441,22 @@ def _check_json(ex):
 
 
 def test_explain_leaves_a_clean_loop_alone():
+    from diagnose.physics import ExplainWarning, HypothesisResult, StageMismatch
+
     rec, _ = concealed_loop("none", 3, n=1500)
     ex = explain(rec, target="pv")
     d = _check_json(ex)
+    # typed results: the JSON is to_dict() of the frozen objects, nothing else
+    assert isinstance(ex.mismatch, StageMismatch) and all(isinstance(h, HypothesisResult) for h in ex.hypotheses)
+    assert d["mismatch"]["reference_rmse"] == pytest.approx(ex.mismatch.reference_rmse)
+    assert d["mismatch"]["windows"] == [w.to_dict() for w in ex.mismatch.windows]
+    assert [h["name"] for h in d["hypotheses"]] == [h.name for h in ex.hypotheses]
+    note = ExplainWarning("segments", "the longest segment was explained")
+    more = ex.with_warnings((note,))
+    assert more.warnings[0] == note and more.warnings[1:] == ex.warnings
+    assert more.to_dict()["warnings"][0] == {"code": "segments", "message": "the longest segment was explained"}
+    with pytest.raises(AttributeError):
+        ex.missing_physics = "actuator_lag"   # frozen
     assert d["missing_physics"] is None
     assert not any(h["accepted"] for h in d["hypotheses"])
     # each refused hypothesis says which rule refused it, and the explanation quotes the best one's
@@ -416,6 +494,21 @@ def test_explain_rejects_what_it_cannot_use():
         explain(rec, hypotheses=["gremlins"])
     with pytest.raises(DataError, match="train_fraction"):
         explain(rec, train_fraction=0.99)
+
+
+def test_explain_reuses_an_identification():
+    # the identification a caller already has is the baseline: its valve, process and start state,
+    # not a second fit on the training part
+    from diagnose.identify import identify
+    from diagnose.physics.baseline import from_hammerstein
+
+    rec, _ = concealed_loop("time_varying_friction", 101, n=3000)
+    ident = identify(rec)
+    ex = explain(rec, target="pv", hypotheses=["time_varying_friction"], identification=ident)
+    assert ex.baseline_source == "identify"
+    (loop,) = ex.stages
+    assert loop.baseline == from_hammerstein(ident.fit)
+    assert ex.missing_physics == "time_varying_friction"
 
 
 def test_concealed_generator_is_seeded_and_complete():
@@ -458,11 +551,11 @@ def test_concealed_generator_draws_a_stuck_valve_again():
 def test_explain_warns_when_the_valve_never_moves():
     stuck, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True)
     ex = explain(stuck, target="mv", hypotheses=["actuator_lag"])
-    idle = [w for w in ex.warnings if w["code"] == "physics.valve_idle"]
-    assert len(idle) == 1 and "0 times in the training part" in idle[0]["message"]
+    idle = [w for w in ex.warnings if w.code == "physics.valve_idle"]
+    assert len(idle) == 1 and "0 times in the training part" in idle[0].message
     moving, _ = concealed_loop("time_varying_friction", 5002, n=3000, with_mv=True, min_moves=(0.65, 10, 5))
     ex = explain(moving, target="mv", hypotheses=["actuator_lag"])
-    assert not any(w["code"] == "physics.valve_idle" for w in ex.warnings)
+    assert not any(w.code == "physics.valve_idle" for w in ex.warnings)
 
 
 def test_physics_models_hold_the_controllers_gain_sign():
@@ -496,7 +589,7 @@ def test_installed_characteristic_found_from_a_plain_fit_that_ratchets():
     assert ex.missing_physics == "valve_characteristic"
     (h,) = ex.hypotheses
     assert 3.0 < h.params["rangeability_R"] < 12.0 and truth["rangeability_R"] == pytest.approx(6.05, abs=0.01)
-    assert ex.improved_rmse < 0.2 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.2 * ex.mismatch.reference_rmse
 
 
 def test_asymmetry_from_op_pv_is_polished_with_the_dynamics():
@@ -505,7 +598,7 @@ def test_asymmetry_from_op_pv_is_polished_with_the_dynamics():
     rec, _ = concealed_loop("asymmetric_stiction", 5001, n=3000, min_moves=(0.65, 10, 5))
     ex = explain(rec, target="pv", hypotheses=["asymmetric_stiction"])
     assert ex.missing_physics == "asymmetric_stiction"
-    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.8 * ex.mismatch.reference_rmse
 
 
 # --- judged by the posterior-predictive mean ----------------------------------------------------------
@@ -568,7 +661,7 @@ def test_drift_with_the_stem_is_named_by_its_predictive_mean():
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses
     assert h.params["dS_pct_per_h"] < 0 and truth["dS_pct_per_h"] < 0
-    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.8 * ex.mismatch.reference_rmse
 
 
 def test_memory_burn_leaves_out_the_start_until_the_valve_has_slipped():
@@ -601,7 +694,7 @@ def test_asymmetry_along_a_ridge_is_named_by_its_predictive_mean():
     rec, _ = concealed_loop("asymmetric_stiction", 5003, n=3000, min_moves=(0.65, 10, 5))
     ex = explain(rec, target="pv", hypotheses=["asymmetric_stiction"])
     assert ex.missing_physics == "asymmetric_stiction"
-    assert ex.improved_rmse < 0.8 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.8 * ex.mismatch.reference_rmse
 
 
 # --- searched jointly with the process dynamics from OP/PV ---------------------------------------------
@@ -612,7 +705,7 @@ def _named_from_op_pv(effect, seed):
     rec, truth = concealed_loop(effect, seed, n=3000, min_moves=(0.65, 10, 5))
     ex = explain(rec, target="pv", hypotheses=[effect])
     assert ex.missing_physics == effect
-    assert ex.improved_rmse < 0.6 * ex.mismatch["reference_rmse"]
+    assert ex.improved_rmse < 0.6 * ex.mismatch.reference_rmse
     (h,) = ex.hypotheses
     return h, truth
 

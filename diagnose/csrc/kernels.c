@@ -25,7 +25,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 3
+#define KERNELS_ABI 4
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -93,89 +93,73 @@ static int solve_small(double *A, double *b, int p, double *c)
 }
 
 #define FUSED_MAXP 16
+/* samples between the exact sines and cosines of fused_load (rotations in between) */
+#define LOAD_ANCHOR 64
 
 /*
- * The training SSE of one augmented model from its (lagged) stem zv[0..n): the installed
- * characteristic c (100 (e^(c u/100) - 1) / (e^c - 1), c = 0 linear), the dead time d (samples,
- * a ring buffer of d + 1 slots in `ring`), the lags a1, a2 (< 0: first order), an optional
- * integrator, and the weighted least squares of y on [z, 1, E] (E: n x q extra columns; a ridge of
- * 1e-9 of each diagonal term keeps a singular design solvable). sgn (+1, -1; 0 free) is the sign
- * the coefficient of z must have: a fit with the other sign is refit with that coefficient 0.
+ * The augmented model after the valve: the installed characteristic c (100 (e^(c u/100) - 1) /
+ * (e^c - 1), c = 0 linear), the dead time d (samples), the lags a1, a2 (< 0: first order), an
+ * optional integrator, and the weighted least squares of y on [z, 1, E] (E: n x q extra columns;
+ * a ridge of 1e-9 of each diagonal term keeps a singular design solvable). sgn (+1, -1; 0 free) is
+ * the sign the coefficient of z must have: a fit with the other sign is refit with that coefficient
+ * 0. The lanes of kernels_lanes.h run the process and the candidate's sums; the sums that do not
+ * depend on the candidate (those of 1, E and y) are made once per call (`fused_fixed`), in the
+ * same sample order and with the same products as a per-candidate loop would, so every candidate's
+ * normal equations are the same numbers whichever way they are made.
  */
-static double fused_rest(const double *zv, int64_t n, double c_i, double a1i, double a2i, int64_t di, int ig,
-                         double ts_s, const double *E, int64_t q, const double *y, const double *w, double sgn,
-                         double *ring)
+typedef struct {
+    double sw, sy, syy;                        /* sum w, sum w y, sum w y y */
+    double sE[FUSED_MAXP], sEy[FUSED_MAXP];    /* sum w E_j, sum (w E_j) y */
+    double sEE[FUSED_MAXP * FUSED_MAXP];       /* sum (w E_j) E_l */
+} fused_fixed_t;
+
+static void fused_fixed(int64_t n, const double *E, int64_t q, const double *y, const double *w,
+                        fused_fixed_t *f)
 {
-    int p = 2 + (int)q;
-    double A[FUSED_MAXP * FUSED_MAXP], b[FUSED_MAXP], col[FUSED_MAXP], coef[FUSED_MAXP];
-    double Aw[FUSED_MAXP * FUSED_MAXP], bw[FUSED_MAXP], sub[FUSED_MAXP];
-    for (int r = 0; r < p; r++) {
-        b[r] = 0.0;
-        for (int c2 = 0; c2 < p; c2++)
-            A[r * p + c2] = 0.0;
-    }
-    double yy = 0.0;
-    int lin = fabs(c_i) < 1e-9;
-    double den = lin ? 1.0 : expm1(c_i);
-    int64_t L = di + 1;
-    int second = a2i >= 0.0;
-    double u0 = lin ? zv[0] : 100.0 * expm1(c_i * zv[0] / 100.0) / den;
-    for (int64_t j = 0; j < L; j++)
-        ring[j] = u0;
-    double z1 = u0, z2 = u0, acc = 0.0;
-    int64_t wpos = 0;           /* ring slot of sample k */
+    memset(f, 0, sizeof(*f));
     for (int64_t k = 0; k < n; k++) {
-        double uk = k == 0 ? u0 : (lin ? zv[k] : 100.0 * expm1(c_i * zv[k] / 100.0) / den);
-        double ud;
-        /* dead time: ring buffer of the last d + 1 inputs (slot wpos holds sample k, the next slot
-         * sample k - d) */
-        if (di == 0) {
-            ud = uk;
-        } else {
-            ring[wpos] = uk;
-            wpos++;
-            if (wpos == L)
-                wpos = 0;
-            ud = k >= di ? ring[wpos] : u0;
-        }
-        z1 = a1i * z1 + (1.0 - a1i) * ud;
-        if (second)
-            z2 = a2i * z2 + (1.0 - a2i) * z1;
-        else
-            z2 = z1;
-        double zk;
-        if (ig) {
-            acc += ts_s * z2;
-            zk = acc;
-        } else {
-            zk = z2;
-        }
         double wk = w[k];
         if (wk == 0.0)
             continue;
         double yk = y[k];
-        if (q == 0) {
-            A[0] += wk * zk * zk;
-            A[1] += wk * zk;
-            A[3] += wk;
-            b[0] += wk * zk * yk;
-            b[1] += wk * yk;
-            yy += wk * yk * yk;
-            continue;
+        f->sw += wk;
+        f->sy += wk * yk;
+        f->syy += wk * yk * yk;
+        for (int64_t j = 0; j < q; j++) {
+            double we = wk * E[k * q + j];
+            f->sE[j] += we;
+            f->sEy[j] += we * yk;
+            for (int64_t l = 0; l < q; l++)
+                f->sEE[j * q + l] += we * E[k * q + l];
         }
-        col[0] = zk;
-        col[1] = 1.0;
-        for (int64_t j = 0; j < q; j++)
-            col[2 + j] = E[k * q + j];
-        for (int r = 0; r < p; r++) {
-            b[r] += wk * col[r] * yk;
-            for (int c2 = 0; c2 < p; c2++)
-                A[r * p + c2] += wk * col[r] * col[c2];
-        }
-        yy += wk * yk * yk;
     }
-    if (q == 0)
-        A[2] = A[1];
+}
+
+/* The SSE of one candidate from its sums: szz = sum (w z) z, sz = sum w z, szy = sum (w z) y,
+ * szE[j] = sum (w z) E_j, sEz[j] = sum (w E_j) z. */
+static double fused_solve(double szz, double sz, double szy, const double *szE, const double *sEz,
+                          const fused_fixed_t *f, int64_t q, double sgn)
+{
+    int p = 2 + (int)q;
+    double A[FUSED_MAXP * FUSED_MAXP], b[FUSED_MAXP], coef[FUSED_MAXP];
+    double Aw[FUSED_MAXP * FUSED_MAXP], bw[FUSED_MAXP], sub[FUSED_MAXP];
+    A[0] = szz;
+    A[1] = sz;
+    A[p] = sz;
+    A[p + 1] = f->sw;
+    b[0] = szy;
+    b[1] = f->sy;
+    for (int64_t j = 0; j < q; j++) {
+        int r = 2 + (int)j;
+        A[r] = szE[j];
+        A[r * p] = sEz[j];
+        A[p + r] = f->sE[j];
+        A[r * p + 1] = f->sE[j];
+        b[r] = f->sEy[j];
+        for (int64_t l = 0; l < q; l++)
+            A[r * p + 2 + (int)l] = f->sEE[j * q + l];
+    }
+    double yy = f->syy;
     for (int r = 0; r < p; r++)
         A[r * p + r] += 1e-9 * (A[r * p + r] + 1e-12);
     memcpy(Aw, A, sizeof(double) * (size_t)(p * p));
@@ -204,6 +188,25 @@ static double fused_rest(const double *zv, int64_t n, double c_i, double a1i, do
         cac += coef[r] * s;
     }
     return nmax(yy - 2.0 * cb + cac, 0.0);
+}
+
+/* The installed characteristic in place over a stem row (c = 0: left linear). A stem that stays
+ * where it stuck gives the same flow: computed once per stay. */
+static void characteristic_row(double *row, int64_t n, double c)
+{
+    if (fabs(c) < 1e-9 || n <= 0)
+        return;
+    double den = expm1(c);
+    double zp = row[0], up = 100.0 * expm1(c * zp / 100.0) / den;
+    row[0] = up;
+    for (int64_t k = 1; k < n; k++) {
+        double z = row[k];
+        if (z != zp) {
+            zp = z;
+            up = 100.0 * expm1(c * z / 100.0) / den;
+        }
+        row[k] = up;
+    }
 }
 
 /* ---- the vectorised kernels, once per instruction set ---------------------------------------- */
@@ -374,6 +377,17 @@ static const fused_fn FUSED[] = {
     fused_avx2, fused_avx512,
 #endif
 };
+typedef int (*fused_load_fn)(const double *, int64_t, int64_t, const double *, const double *, const double *,
+                             const double *, const double *, const double *, const double *, const double *,
+                             const double *, const double *, const double *, const double *, const double *,
+                             const int64_t *, const uint8_t *, double, const double *, int, const double *,
+                             const double *, double, double *);
+static const fused_load_fn FUSED_LOAD[] = {
+    fused_load_base,
+#ifdef HAVE_X86_VARIANTS
+    fused_load_avx2, fused_load_avx512,
+#endif
+};
 static const char *const ISA_NAMES[] = {"baseline (2 lanes)", "avx2 (4 lanes)", "avx512 (8 lanes)"};
 
 static int max_isa = -1;
@@ -446,7 +460,7 @@ int score(const double *x, int64_t n, const double *valves, int64_t m, const dou
 /*
  * Training SSE of m candidate augmented models (`stiction explain`): the valve (valve_step.h, per
  * direction S and J drifting linearly in time, actuator lag a_lag, start y0 / xs0), run LANES
- * candidates at a time, then per candidate `fused_rest`. Returns 0, or -1 when memory runs out or
+ * candidates at a time, then their process and sums in the same lanes. Returns 0, or -1 when memory runs out or
  * q is too large.
  */
 int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
@@ -459,6 +473,23 @@ int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const d
     ensure_isa();
     return FUSED[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                              ts_s, E, q, y, w, sgn, out);
+}
+
+/*
+ * fused_sse with each candidate's own sinusoidal load (wload, rad/s) as the extra columns, after a
+ * time column when with_t (an integrating process): [z, 1, (t), sin(w t), cos(w t)]. Returns 0, or -1
+ * when memory runs out.
+ */
+int fused_sse_load(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+                   const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+                   const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                   const double *cc, const double *a1, const double *a2, const int64_t *d,
+                   const uint8_t *integ, double ts_s, const double *wload, int with_t, const double *y,
+                   const double *w, double sgn, double *out)
+{
+    ensure_isa();
+    return FUSED_LOAD[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+                                  ts_s, wload, with_t, y, w, sgn, out);
 }
 
 /* ---- a Python module, so that pip builds and installs this file as an extension ---------------- */

@@ -265,7 +265,12 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
     return 0;
 }
 
-/* fused_sse for this instruction set: the valves of LANES candidates at a time, then fused_rest. */
+/*
+ * fused_sse for this instruction set: LANES candidates at a time, their valves (valve_lanes), the
+ * characteristic on each stem row, then the process and the candidate's normal-equation sums in
+ * the same lanes; fused_solve finishes each candidate. Each lane performs exactly the operations
+ * of a one-candidate loop over the samples, so the result does not depend on the width.
+ */
 KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                          const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
                          const double *f0, const double *a_lag, const double *y0, const double *xs0,
@@ -281,24 +286,202 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
     for (int64_t i = 0; i < m; i++)
         if (d[i] > maxd)
             maxd = d[i];
-    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * n + maxd + 1));
+    /* each lane's row: maxd samples of its first input (what a dead time sees before the record),
+     * then its n samples */
+    int64_t nb = n + maxd;
+    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
     if (buf == NULL)
         return -1;
-    double *ring = buf + LANES * n;
+    fused_fixed_t fx;
+    fused_fixed(n, E, q, y, w, &fx);
+    VT szE[FUSED_MAXP], sEz[FUSED_MAXP];
     for (int64_t i0 = 0; i0 < m; i0 += LANES) {
         double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
         double yv[LANES], sv[LANES];
         double *rows[LANES];
+        const double *up[LANES];
+        VT A1, B1, A2, B2, I, N, u0;
         for (int g = 0; g < LANES; g++) {
-            int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last valve */
+            int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last candidate */
             su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
             ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
-            rows[g] = buf + g * n;
+            rows[g] = buf + g * nb + maxd;
+            up[g] = rows[g] - d[i];
+            A1[g] = a1[i];
+            B1[g] = 1.0 - a1[i];
+            /* first order: z2 = 0 z2 + 1 z1, which is z1 exactly */
+            A2[g] = a2[i] >= 0.0 ? a2[i] : 0.0;
+            B2[g] = a2[i] >= 0.0 ? 1.0 - a2[i] : 1.0;
+            I[g] = integ[i] ? ts_s : 0.0;
+            N[g] = integ[i] ? 0.0 : 1.0;
         }
         V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+        for (int g = 0; g < LANES; g++) {
+            int64_t i = i0 + g < m ? i0 + g : m - 1;
+            characteristic_row(rows[g], n, cc[i]);
+            u0[g] = rows[g][0];
+            for (int64_t k = 1; k <= maxd; k++)
+                rows[g][-k] = u0[g];
+        }
+        VT z1 = u0, z2 = u0, ac = {0.0}, szz = {0.0}, sz = {0.0}, szy = {0.0};
+        for (int64_t j = 0; j < q; j++) {
+            szE[j] = (VT){0.0};
+            sEz[j] = (VT){0.0};
+        }
+        for (int64_t k = 0; k < n; k++) {
+            VT ud;
+            for (int g = 0; g < LANES; g++)
+                ud[g] = up[g][k];
+            z1 = A1 * z1 + B1 * ud;
+            z2 = A2 * z2 + B2 * z1;
+            ac += I * z2;
+            VT v = N * z2 + ac;
+            double wk = w[k];
+            if (wk == 0.0)
+                continue;
+            double yk = y[k];
+            VT wz = wk * v;
+            szz += wz * v;
+            sz += wz;
+            szy += wz * yk;
+            for (int64_t j = 0; j < q; j++) {
+                double ej = E[k * q + j];
+                szE[j] += wz * ej;
+                sEz[j] += (wk * ej) * v;
+            }
+        }
         for (int g = 0; g < LANES && i0 + g < m; g++) {
-            int64_t i = i0 + g;
-            out[i] = fused_rest(rows[g], n, cc[i], a1[i], a2[i], d[i], integ[i] != 0, ts_s, E, q, y, w, sgn, ring);
+            double se[FUSED_MAXP], es[FUSED_MAXP];
+            for (int64_t j = 0; j < q; j++) {
+                se[j] = szE[j][g];
+                es[j] = sEz[j][g];
+            }
+            out[i0 + g] = fused_solve(szz[g], sz[g], szy[g], se, es, &fx, q, sgn);
+        }
+    }
+    free(buf);
+    return 0;
+}
+
+/*
+ * fused_sse with a sinusoidal load of its own per candidate: the extra columns are [t] (with_t: an
+ * integrating process) and sin(w_i t), cos(w_i t) with t = k ts and w_i = wload[i] (rad/s), so the
+ * sums of 1, E and y are the candidate's own too. The sine and cosine are computed with libm at
+ * every `LOAD_ANCHOR`-th sample and rotated by w_i ts in between (relative error about 1e-14).
+ */
+KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
+                              const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
+                              const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                              const double *cc, const double *a1, const double *a2, const int64_t *d,
+                              const uint8_t *integ, double ts_s, const double *wload, int with_t,
+                              const double *y, const double *w, double sgn, double *out)
+{
+    const int64_t q = with_t ? 3 : 2;
+    if (m <= 0 || n <= 0)
+        return 0;
+    int64_t maxd = 0;
+    for (int64_t i = 0; i < m; i++)
+        if (d[i] > maxd)
+            maxd = d[i];
+    int64_t nb = n + maxd;
+    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
+    if (buf == NULL)
+        return -1;
+    fused_fixed_t base;
+    fused_fixed(n, NULL, 0, y, w, &base);
+    for (int64_t i0 = 0; i0 < m; i0 += LANES) {
+        double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
+        double yv[LANES], sv[LANES], wl[LANES];
+        double *rows[LANES];
+        const double *up[LANES];
+        VT A1, B1, A2, B2, I, N, u0, rs, rc;
+        for (int g = 0; g < LANES; g++) {
+            int64_t i = i0 + g < m ? i0 + g : m - 1;
+            su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
+            ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
+            rows[g] = buf + g * nb + maxd;
+            up[g] = rows[g] - d[i];
+            A1[g] = a1[i];
+            B1[g] = 1.0 - a1[i];
+            A2[g] = a2[i] >= 0.0 ? a2[i] : 0.0;
+            B2[g] = a2[i] >= 0.0 ? 1.0 - a2[i] : 1.0;
+            I[g] = integ[i] ? ts_s : 0.0;
+            N[g] = integ[i] ? 0.0 : 1.0;
+            wl[g] = wload[i];
+            rs[g] = sin(wl[g] * ts_s);
+            rc[g] = cos(wl[g] * ts_s);
+        }
+        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+        for (int g = 0; g < LANES; g++) {
+            int64_t i = i0 + g < m ? i0 + g : m - 1;
+            characteristic_row(rows[g], n, cc[i]);
+            u0[g] = rows[g][0];
+            for (int64_t k = 1; k <= maxd; k++)
+                rows[g][-k] = u0[g];
+        }
+        VT zero = {0.0};
+        VT z1 = u0, z2 = u0, ac = zero, szz = zero, sz = zero, szy = zero, sn = zero, cs = zero;
+        VT szE[3], sEz[3], sE[3], sEy[3], sEE[9];
+        for (int j = 0; j < 3; j++) {
+            szE[j] = zero; sEz[j] = zero; sE[j] = zero; sEy[j] = zero;
+        }
+        for (int j = 0; j < 9; j++)
+            sEE[j] = zero;
+        for (int64_t k = 0; k < n; k++) {
+            double tk = (double)k * ts_s;
+            if (k % LOAD_ANCHOR == 0) {
+                for (int g = 0; g < LANES; g++) {
+                    double ang = wl[g] * tk;
+                    sn[g] = sin(ang);
+                    cs[g] = cos(ang);
+                }
+            }
+            VT ud;
+            for (int g = 0; g < LANES; g++)
+                ud[g] = up[g][k];
+            z1 = A1 * z1 + B1 * ud;
+            z2 = A2 * z2 + B2 * z1;
+            ac += I * z2;
+            VT v = N * z2 + ac;
+            double wk = w[k];
+            if (wk != 0.0) {
+                double yk = y[k];
+                VT e[3];
+                int j0 = 0;
+                if (with_t)
+                    e[j0++] = zero + tk;
+                e[j0] = sn;
+                e[j0 + 1] = cs;
+                VT wz = wk * v;
+                szz += wz * v;
+                sz += wz;
+                szy += wz * yk;
+                for (int j = 0; j < q; j++) {
+                    VT we = wk * e[j];
+                    szE[j] += wz * e[j];
+                    sEz[j] += we * v;
+                    sE[j] += we;
+                    sEy[j] += we * yk;
+                    for (int l = 0; l < q; l++)
+                        sEE[j * q + l] += we * e[l];
+                }
+            }
+            VT sn1 = sn * rc + cs * rs;
+            cs = cs * rc - sn * rs;
+            sn = sn1;
+        }
+        for (int g = 0; g < LANES && i0 + g < m; g++) {
+            fused_fixed_t fx = base;
+            double se[FUSED_MAXP], es[FUSED_MAXP];
+            for (int j = 0; j < q; j++) {
+                se[j] = szE[j][g];
+                es[j] = sEz[j][g];
+                fx.sE[j] = sE[j][g];
+                fx.sEy[j] = sEy[j][g];
+                for (int l = 0; l < q; l++)
+                    fx.sEE[j * q + l] = sEE[j * q + l][g];
+            }
+            out[i0 + g] = fused_solve(szz[g], sz[g], szy[g], se, es, &fx, q, sgn);
         }
     }
     free(buf);

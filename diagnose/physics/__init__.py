@@ -6,9 +6,10 @@ one), `locate`, and in `diagnose.physics.plant` the simulator parts that hide ea
 concealed-data generator is `diagnose.physics.concealed.concealed_loop`.
 """
 
-from .explain import Explanation, HypothesisResult, explain
-from .hypotheses import REGISTRY, Fitted, PhysicsHypothesis, register
+from .explain import explain
+from .hypotheses import REGISTRY, Fitted, PhysicsHypothesis, PlainModel, register
 from .locate import Mismatch, locate
+from .result import ExplainWarning, Explanation, HypothesisResult, StageMismatch
 
 __all__ = ["Explanation", "HypothesisResult", "explain", "REGISTRY", "Fitted", "PhysicsHypothesis",
-           "register", "Mismatch", "locate"]
+           "PlainModel", "register", "Mismatch", "locate", "ExplainWarning", "StageMismatch"]

@@ -1,8 +1,11 @@
-"""The baseline each stage starts from: the fitting stage's model, or (when it is not available or
-fails) a small grid fit of the same structure.
+"""The baseline each stage starts from: the fitting stage's model, the identification a caller
+already has, given parameters, or (when none is available or the fitting stage fails) a grid fit of
+the same structure.
 
-* loop stage (OP -> PV): `diagnose.fit.fit_hammerstein` fitted on the training samples;
-* valve stage (OP -> MV): the plain part (S, J, f0) of `diagnose.fit.fit_valve`, else the grid.
+* loop stage (OP -> PV): `diagnose.fit.fit_hammerstein` fitted on the training samples, or the
+  Hammerstein fit of an identification (`diagnose.identify.Identification.fit`);
+* valve stage (OP -> MV): the plain part (S, J, f0, start) of `diagnose.valve_fit.fit_valve`, or
+  of an identification's valve fit.
 """
 
 from __future__ import annotations
@@ -13,9 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import StictionError, StictionWarning
-from ..process_model import ProcessModel
-from .model import (IDENTITY, Stage, Structure, _linear_fit, global_sj, refine_plain, refit_dynamics, stems,
-                    train_sse)
+from .model import IDENTITY, Stage, Structure, predict
+from .search import grid_baseline, refine_plain
+
+#: ``Baseline.source`` values
+SOURCES = ("fit_hammerstein", "fit_valve", "identify", "given", "grid")
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,7 +36,9 @@ class Baseline:
     stem_hat : ndarray (n,)
         Simulated stem position.
     source : str
-        ``fit_hammerstein``, ``fit_valve``, ``grid`` or ``given``.
+        One of `SOURCES`: the fitting stage on the training part (``fit_hammerstein``,
+        ``fit_valve``), an identification passed in (``identify``: fitted on the whole record, its
+        gain and offset refit on the training part), parameters passed in (``given``) or the grid.
     """
 
     structure: Structure
@@ -40,96 +47,73 @@ class Baseline:
     source: str
 
 
-def _global_sj(stage: Stage, struct: Structure, span: float, step: float = 0.025) -> Structure:
-    return global_sj(stage, struct, span, step)
+def _of(stage: Stage, struct: Structure, source: str) -> Baseline:
+    y_hat, stem, _ = predict(stage, struct)
+    return Baseline(struct, y_hat, stem, source)
 
 
-def grid_baseline(stage: Stage, start: Structure | None = None, n_starts: int = 3,
-                   template: Structure | None = None, coarse: list | None = None) -> Structure:
-    """Global search of the plain model: coarse (S, J, f0) x FOPTD dynamics grid, then a fine global
-    (S, J, f0) grid and the dynamics in turn. ``template`` carries extra physics held fixed during
-    the search (e.g. a load period); ``coarse``: the coarse grid's starts when already computed
-    (`coarse_starts` with the same template)."""
-    x = stage.x
-    span = float(np.ptp(x[: stage.n_fit]))
-    if stage.fixed_dynamics:
-        best = _global_sj(stage, Structure.plain(0.0, 0.0, 1, IDENTITY), span)
-        return best
-    starts = [st for _, st in (coarse if coarse is not None else coarse_starts(stage, n_starts, template))]
-    if start is not None:
-        starts.append(start)
-    results = []
-    for st in starts:
-        best = st
-        for _ in range(2):
-            best = _global_sj(stage, best, span)
-            best, c = refit_dynamics(stage, best, rounds=2)
-        results.append((c, best))
-    return min(results, key=lambda t: t[0])[1]
+def _start_state(fit) -> dict:
+    """A fit's valve state at the first sample as `Structure` fields: stuck at ``start_stem_pct``
+    (the input then at ``start_stuck_pct``), or at rest at ``start_op_pct`` instead of OP's first
+    sample."""
+    stem = getattr(fit, "start_stem_pct", None)
+    if stem is not None:
+        return {"y0_pct": float(stem), "xs0_pct": None if fit.start_stuck_pct is None
+                else float(fit.start_stuck_pct)}
+    at = getattr(fit, "start_op_pct", None)
+    if at is not None:
+        return {"y0_pct": float(at), "xs0_pct": float(at)}
+    return {}
 
 
-def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = None) -> list:
-    """The coarse (S, J, f0) x FOPTD dynamics grid of `grid_baseline`: the best candidate of each
-    of the ``n_starts`` best dynamics, as (training SSE, Structure), cheapest first. ``template``
-    carries extra physics held fixed (e.g. a load period)."""
-    x = stage.x
-    span = float(np.ptp(x[: stage.n_fit]))
-    S_grid = [0.0] + list(np.geomspace(0.2, max(0.8 * span, 0.3), 24))
-    ratios = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
-    T = stage.train.sum() * stage.ts_s
-    taus = np.geomspace(stage.ts_s, max(T / 8, 2 * stage.ts_s), 5)
-    dyn = [ProcessModel("foptd", 1.0, float(t), d * stage.ts_s, 0.0) for t in taus
-           for d in (0, 2, 4, 7, 12)]
-    valves = [Structure.plain(s, s * r, f, IDENTITY) for s in S_grid for r in ratios for f in (1, -1)
-              if not (s == 0 and (r > 0 or f < 0))]
-    if template is not None:
-        valves = [template.replace(S_up_pct=v.S_up_pct, S_dn_pct=v.S_dn_pct, J_up_pct=v.J_up_pct,
-                                   J_dn_pct=v.J_dn_pct, f0=v.f0) for v in valves]
-    cands = [v.replace(process=p) for p in dyn for v in valves]
-    sse = train_sse(stage, cands).reshape(len(dyn), len(valves))
-    best_per_dyn = sse.min(axis=1)
-    return [(float(best_per_dyn[i]), cands[int(i) * len(valves) + int(np.argmin(sse[i]))])
-            for i in np.argsort(best_per_dyn)[:n_starts]]
+def from_hammerstein(fit) -> Structure:
+    """The plain `Structure` of a `diagnose.fit.HammersteinFit`: its valve, process and the valve's
+    state at the first sample (OP shifted by the fit's ``op_offset_pct`` is not supported: the
+    stage shifts OP itself)."""
+    return Structure.plain(float(fit.S_pct), float(fit.J_pct), int(fit.f0), fit.process).replace(**_start_state(fit))
+
+
+def from_valve_fit(fit) -> Structure:
+    """The plain `Structure` of a `diagnose.valve_fit.ValveFit` on the valve stage: (S, J, f0) and
+    where the stem stood at the first sample; its own lag and dead time are left out (they are what
+    the actuator_lag hypothesis tests)."""
+    s = Structure.plain(float(fit.S_pct), float(fit.J_pct), int(getattr(fit, "f0", 1)), IDENTITY)
+    if getattr(fit, "start_pct", None) is not None:
+        s = s.replace(y0_pct=float(fit.start_pct))
+    return s
 
 
 def _from_fit_module(stage: Stage) -> Baseline | None:
     from ..fit import fit_hammerstein
     from ..valve_fit import fit_valve
-    train = stage.train
     try:
         if stage.name == "loop":
-            res = fit_hammerstein(stage.x, stage.y, stage.ts_s, train=train, gain_sign=stage.gain_sign or None)
+            res = fit_hammerstein(stage.x, stage.y, stage.ts_s, train=stage.train,
+                                  gain_sign=stage.gain_sign or None, surface=False)
             struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(res.f0), res.process)
             stem_hat, y_hat = res.simulate(stage.x)
-            return Baseline(struct, np.asarray(y_hat, float), np.asarray(stem_hat, float),
-                            "fit_hammerstein")
-        if stage.name == "valve":
-            # the plain valve: fit_valve's (S, J, f0); its own actuator lag and dead time, when it
-            # fits them, are left out here (they are what the actuator_lag hypothesis tests)
-            res = fit_valve(stage.x, stage.y, stage.ts_s, train=train)
-            struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(getattr(res, "f0", 1)),
-                                     IDENTITY)
-            stem = stems(stage, [struct])[0]
-            y_hat, _ = _linear_fit(stage, struct, stem, stage.n)
-            return Baseline(struct, y_hat, stem, "fit_valve")
+            return Baseline(struct, np.asarray(y_hat, float), np.asarray(stem_hat, float), "fit_hammerstein")
+        # the plain valve: fit_valve's (S, J, f0); its own actuator lag and dead time, when it fits
+        # them, are left out here (they are what the actuator_lag hypothesis tests)
+        res = fit_valve(stage.x, stage.y, stage.ts_s, train=stage.train, surface=False)
+        struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(getattr(res, "f0", 1)), IDENTITY)
+        return _of(stage, struct, "fit_valve")
     except StictionError as exc:
         warnings.warn(f"the fitting stage failed on the {stage.name} stage ({exc}); "
                       "using the grid baseline", StictionWarning, stacklevel=3)
     return None
 
 
-def make_baseline(stage: Stage, given: Structure | None = None, *, use_fit_module: bool = True) -> Baseline:
-    """The stage's baseline: given, from the fitting stage, or from the grid (refined locally)."""
+def make_baseline(stage: Stage, given: Structure | None = None, *, source: str = "given",
+                  use_fit_module: bool = True) -> Baseline:
+    """The stage's baseline: ``given`` (``source`` says where it came from), from the fitting stage,
+    or from the grid (refined locally)."""
     if given is not None:
-        stem = stems(stage, [given])[0]
-        y_hat, _ = _linear_fit(stage, given, stem, stage.n)
-        return Baseline(given, y_hat, stem, "given")
+        return _of(stage, given, source)
     if use_fit_module:
         b = _from_fit_module(stage)
         if b is not None:
             return b
     struct = grid_baseline(stage)
     struct, _ = refine_plain(stage, struct)
-    stem = stems(stage, [struct])[0]
-    y_hat, _ = _linear_fit(stage, struct, stem, stage.n)
-    return Baseline(struct, y_hat, stem, "grid")
+    return _of(stage, struct, "grid")

@@ -4,40 +4,48 @@ fit a model that has it, and show the held-out error fall.
 Procedure (per stage: ``loop`` OP -> PV always, ``valve`` OP -> MV when the record has the stem
 position):
 
-1. baseline: the fitting stage's model (`diagnose.fit.fit_hammerstein`) fitted on the first
-   ``train_fraction`` of the record; the whole record is simulated from OP, only the rest is judged;
-2. locate the mismatch on the baseline's residual (`locate.locate`);
-3. reference: the plain model refit by the same local searches the hypotheses use;
-4. every registered hypothesis that applies to the stage is fitted on the training part;
-   valve-side hypotheses go to the valve stage when MV is there (else to the loop stage),
-   process-side ones to the loop stage;
-5. a hypothesis is *accepted* when, on the held-out part, (a) its RMSE is at least
-   ``min_reduction`` below the reference's, (b) also below the baseline's by half that, and (c) its
-   held-out BIC, ``n_eff ln(SSE_h / SSE_ref) + k ln(n_eff)`` with ``n_eff`` the effective number of
-   independent held-out residuals and ``k`` the added parameters, is below ``STRONG_BIC`` (-6). The accepted one
-   with the lowest held-out BIC (ranked with one ``n_eff`` per stage, the reference's) is named; none
-   accepted -> ``missing_physics = None``.
+1. baseline: the fitting stage's model (`diagnose.fit.fit_hammerstein`, or `fit_valve` on the
+   valve stage) fitted on the first ``train_fraction`` of the record, or the identification the
+   caller passes; the whole record is simulated from OP, only the rest is judged;
+2. reference: the plain model refit by the shared searches (`diagnose.physics.search`) with the
+   valve's initial state;
+3. locate the mismatch on the residual of the better-trained plain model (`locate.locate`);
+4. every registered hypothesis that applies to the stage is fitted on the training part from the
+   reference (`PhysicsHypothesis.fit`); valve-side hypotheses go to the valve stage when MV is
+   there (else to the loop stage), process-side ones to the loop stage;
+5. every fitted model projected back onto the plain one and refit may improve the reference; the
+   hypotheses are then polished from it (`PhysicsHypothesis.refit`);
+6. every model is judged on the held-out part by its posterior-predictive mean
+   (`posterior.predictive_mean`); a hypothesis is *accepted* when it passes the rules of `_judge`
+   (held-out RMSE at least ``min_reduction`` below the reference's and half that below the
+   baseline's, held-out BIC at most `STRONG_BIC`, training BIC negative, a material effect). The
+   accepted one with the lowest held-out BIC (one ``n_eff`` per stage, the reference's) is named;
+   none accepted -> ``missing_physics = None``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
 from ..record import LoopRecord
-from .baseline import Baseline, grid_baseline, make_baseline
-from .hypotheses import PROCESS_SIDE, VALVE_SIDE, Context, ExternalDisturbance, fine_valve, get
+from .baseline import Baseline, from_hammerstein, from_valve_fit, make_baseline
+from .hypotheses import PROCESS_SIDE, VALVE_SIDE, ExternalDisturbance, Fitted, PhysicsHypothesis, PlainModel, get
 from .locate import Mismatch, locate, slips_and_reversals
-from .model import (Stage, Structure, best_of, effective_n, fit_initial_state, global_sj, predict,
-                    refine_plain, rmse)
+from .model import Stage, Structure, effective_n, predict, rmse
 from .posterior import predictive_mean
+from .result import (TARGETS, ExplainWarning, Explanation, FigureData, HypothesisResult, OtherStage, StageMismatch,
+                     StageModels)
+from .search import best_of, fine_valve, fit_initial_state, global_sj, grid_baseline, refine_plain
 
 MIN_SAMPLES = 300
 #: held-out BIC difference an augmented model must reach: "strong" evidence on the usual BIC scale
@@ -49,122 +57,17 @@ STRONG_BIC = -6.0
 MIN_SLIPS_TRAIN, MIN_SLIPS_HELDOUT = 5, 3
 
 
-@dataclass(frozen=True)
-class HypothesisResult:
-    """One tested hypothesis."""
-
-    name: str
-    params: Mapping[str, float]
-    heldout_rmse: float
-    accepted: bool
-    stage: str
-    train_rmse: float
-    reduction: float
-    delta_bic: float
-    n_extra: int
-    train_delta_bic: float = float("nan")
-    #: why it was not accepted (the first rule it failed, in words); empty when accepted
-    refused: str = ""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "params": {k: _num(v) for k, v in self.params.items()},
-                "heldout_rmse": _num(self.heldout_rmse), "accepted": bool(self.accepted),
-                "stage": self.stage, "target": _TARGET[self.stage], "train_rmse": _num(self.train_rmse),
-                "heldout_reduction": _num(self.reduction), "delta_bic": _num(self.delta_bic),
-                "train_delta_bic": _num(self.train_delta_bic),
-                "n_extra_params": int(self.n_extra), "refused": self.refused}
+def _threads(threads: int | None) -> int:
+    return max(1, int(threads)) if threads is not None else max(1, min(os.cpu_count() or 1, 4))
 
 
-_TARGET = {"loop": "pv", "valve": "mv"}
-
-
-def _num(v: Any) -> Any:
-    if isinstance(v, (float, np.floating)):
-        v = float(v)
-        return v if math.isfinite(v) else None
-    return v
-
-
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return [_clean(v) for v in obj.tolist()]
-    return _num(obj)
-
-
-@dataclass(frozen=True, eq=False)
-class Explanation:
-    """Result of `explain`.
-
-    Attributes
-    ----------
-    missing_physics : str or None
-        Name of the accepted hypothesis, None when the baseline is good enough or nothing helps.
-    baseline_rmse, improved_rmse : float
-        Held-out RMSE of the baseline and of the named model (equal when None), in the target's
-        units (PV units on the loop stage, % of span on the valve stage).
-    hypotheses : tuple of HypothesisResult
-    mismatch : dict
-        Localisation of the baseline's residual on the reported stage (JSON-ready).
-    explanation : str
-        A few sentences for an engineer.
-    warnings : tuple of dict
-        ``{"code", "message"}``.
-    target : {"pv", "mv"}
-        What the reported RMSEs measure.
-    arrays : dict of ndarray
-        Figure data (see `figure_data`).
-    """
-
-    missing_physics: str | None
-    baseline_rmse: float
-    improved_rmse: float
-    hypotheses: tuple[HypothesisResult, ...]
-    mismatch: Mapping[str, Any]
-    explanation: str
-    warnings: tuple[Mapping[str, str], ...]
-    target: str = "pv"
-    loop: str = ""
-    baseline_source: str = ""
-    arrays: Mapping[str, Any] = field(default_factory=dict, repr=False)
-    stages: Mapping[str, Any] = field(default_factory=dict, repr=False)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The issue-7 JSON object (plus ``loop``, ``target`` and ``baseline_source``)."""
-        return _clean({
-            "loop": self.loop,
-            "missing_physics": self.missing_physics,
-            "baseline_rmse": self.baseline_rmse,
-            "improved_rmse": self.improved_rmse,
-            "target": self.target,
-            "baseline_source": self.baseline_source,
-            "hypotheses": [h.to_dict() for h in self.hypotheses],
-            "mismatch": dict(self.mismatch),
-            "explanation": self.explanation,
-            "warnings": [dict(w) for w in self.warnings],
-        })
-
-    def figure_data(self) -> dict[str, Any]:
-        """Arrays for the report: residual over time with located windows, conditioned residuals,
-        baseline and improved fits.
-
-        Keys: ``t_s``, ``observed``, ``baseline``, ``improved``, ``residual_baseline``,
-        ``residual_improved``, ``train_end_s``, ``windows`` (list of (start_s, end_s)),
-        ``window_t_s``/``window_rms``, ``after_slip_profile``/``profile_lag_s``,
-        ``op_bin_centres_pct``/``op_bin_rms``, ``direction_rms`` (opening, closing),
-        ``freq_hz``/``residual_psd``, ``limit_cycle_period_s``, ``target``, ``missing_physics``.
-        """
-        a = dict(self.arrays)
-        a["target"] = self.target
-        a["missing_physics"] = self.missing_physics
-        return a
+def _map(fn: Callable, items: Sequence, threads: int) -> list:
+    """``[fn(i) for i in items]``, on ``threads`` threads when more than one (the compiled kernels
+    release the interpreter lock); the order and the results do not depend on it."""
+    if threads <= 1 or len(items) <= 1:
+        return [fn(i) for i in items]
+    with ThreadPoolExecutor(max_workers=min(threads, len(items))) as pool:
+        return list(pool.map(fn, items))
 
 
 def _stage_for(record: LoopRecord, name: str, train: np.ndarray) -> Stage:
@@ -238,6 +141,8 @@ def _response_s(struct: Structure, stage: Stage) -> float:
 
 @dataclass
 class _StageRun:
+    """One stage's models and results while `explain` runs."""
+
     stage: Stage
     baseline: Baseline
     base_rmse: float
@@ -245,12 +150,13 @@ class _StageRun:
     ref_hat: np.ndarray
     ref_rmse: float
     mismatch: Mismatch
-    fitted: list = field(default_factory=list)   # (Fitted, y_hat, HypothesisResult)
-    loc_hat: np.ndarray | None = None
-    loc_stem: np.ndarray | None = None
+    located_on: str
+    loc_hat: np.ndarray
+    loc_stem: np.ndarray
     n_eff: float = 1.0   # effective number of independent held-out residuals of the reference
+    fitted: list = field(default_factory=list)   # (Fitted, y_hat, HypothesisResult)
 
-    def rank_bic(self, res: "HypothesisResult") -> float:
+    def rank_bic(self, res: HypothesisResult) -> float:
         """Held-out BIC difference of an accepted hypothesis for ranking: the same form as
         ``delta_bic`` but with one ``n_eff`` for the whole stage (the reference's), so that the
         ranking follows the held-out error and the parameter count rather than the colour of each
@@ -260,22 +166,31 @@ class _StageRun:
         return 2.0 * n * math.log(ratio) + res.n_extra * math.log(n)
 
 
-def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: bool,
-               min_reduction: float) -> _StageRun:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", StictionWarning)
-        base = make_baseline(stage, given, use_fit_module=use_fit_module)
-        burn = _burn_in(base, stage)
-        if burn > int(np.argmax(stage.train)):
-            train = stage.train.copy()
-            train[:burn] = False
-            stage = dataclasses.replace(stage, train=train)
-            if given is None:
-                base = make_baseline(stage, given, use_fit_module=use_fit_module)
-    ho = stage.heldout
-    base_rmse = rmse((stage.y - base.y_hat)[ho])
-    # reference: the plain model refit by the hypotheses' searches, from the baseline and (when the
-    # baseline came from elsewhere) from the grid, whichever trains better
+def _without_start(stage: Stage, k: int) -> Stage:
+    train = stage.train.copy()
+    train[:k] = False
+    return dataclasses.replace(stage, train=train)
+
+
+def _baseline_stage(stage: Stage, given: Structure | None, source: str,
+                    use_fit_module: bool) -> tuple[Stage, Baseline]:
+    """The baseline, and the stage with the start it cannot simulate left out of the training part
+    (the baseline refit on what is left when it was fitted here)."""
+    base = make_baseline(stage, given, source=source, use_fit_module=use_fit_module)
+    burn = _burn_in(base, stage)
+    if burn > int(np.argmax(stage.train)):
+        stage = _without_start(stage, burn)
+        if given is None:
+            base = make_baseline(stage, None, use_fit_module=use_fit_module)
+    return stage, base
+
+
+def _reference(stage: Stage, base: Baseline) -> tuple[Stage, Structure, float]:
+    """The plain model refit by the shared searches, with the valve's initial state, and the stage
+    it is scored on (the start scored again except the process's own response time, and any
+    leading stretch the plain model still cannot follow left out)."""
+    # from the baseline and (when the baseline came from elsewhere) from the grid, whichever trains
+    # better
     ref, ref_sse = refine_plain(stage, base.structure)
     if base.source != "grid":
         alt = grid_baseline(stage, start=ref)
@@ -304,112 +219,13 @@ def _run_stage(stage: Stage, hyps, *, given: Structure | None, use_fit_module: b
         # OP -> MV: the cost is sharp in S; every valve-stage hypothesis gets the same fine polish
         ref = fine_valve(stage, ref)
         ref, ref_sse = best_of(stage, [ref])
-    ref_hat, ref_stem, _ = predict(stage, ref)
     # a leading stretch the plain model still cannot follow at all (far above the rest) is not
     # scored
     burn2 = _leading_misfit(stage, ref)
     if burn2 > int(np.argmax(stage.train)):
-        train = stage.train.copy()
-        train[:burn2] = False
-        stage = dataclasses.replace(stage, train=train)
+        stage = _without_start(stage, burn2)
         ref, ref_sse = refine_plain(stage, ref)
-        ref_hat, ref_stem, _ = predict(stage, ref)
-        ho = stage.heldout
-    # locate on the residual of the better-trained of the two plain models (the fitting stage's
-    # baseline, or the same structure refit by the searches here)
-    tr = stage.train
-    base_tr = float(np.sum((stage.y - base.y_hat)[tr] ** 2))
-    if ref_sse < base_tr:
-        located_on, loc_hat, loc_stem, loc_struct = "reference", ref_hat, ref_stem, ref
-    else:
-        located_on, loc_hat, loc_stem, loc_struct = "baseline", base.y_hat, base.stem_hat, base.structure
-    mism = locate(stage.y - loc_hat, loc_stem, stage.x, stage.ts_s, train=stage.train,
-                  response_s=_response_s(loc_struct, stage))
-    mism.summary["located_on"] = located_on
-    ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat,
-                  baseline=base.structure)
-    fits = {h.name: h.fit(stage, ref, ctx) for h in hyps}
-    # Searches over rough output-error surfaces: a hypothesis may win only because its search found
-    # a better plain valve. Project every fitted model back onto the plain one, refit, and let the
-    # reference take the best; then refit the hypotheses from it and keep each one's better fit.
-    best_ref, best_sse = ref, ref_sse
-    for f in fits.values():
-        mid = int(np.mean(np.flatnonzero(stage.train))) if stage.train.any() else 0
-        for p in _plain_projections(f.structure, mid, stage.ts_s):
-            r, c = refine_plain(stage, p, rounds=1)
-            if c < best_sse:
-                best_ref, best_sse = r, c
-    if stage.name == "valve" and best_ref is not ref:
-        best_ref = fine_valve(stage, best_ref)
-        best_sse = best_of(stage, [best_ref])[1]
-    if best_sse < ref_sse * (1.0 - 1e-6):
-        ref, ref_sse = best_ref, best_sse
-        ref_hat, _, _ = predict(stage, ref)
-        ctx = Context(limit_cycle_period_s=mism.limit_cycle_period_s, residual=stage.y - ref_hat,
-                  baseline=base.structure)
-        for h in hyps:
-            again = h.fit(stage, ref, ctx)
-            if again.train_sse < fits[h.name].train_sse:
-                fits[h.name] = again
-    # Every model is judged on the held-out part by its posterior-predictive mean (posterior.py):
-    # one fitted parameter set of a stiction model extrapolates by luck as much as by physics.
-    n_eff_tr = effective_n((stage.y - ref_hat)[stage.train])
-    ref_hat = predictive_mean(stage, ref, n_eff_tr).y_hat
-    ref_rmse = rmse((stage.y - ref_hat)[ho])
-    run = _StageRun(stage, base, base_rmse, ref, ref_hat, ref_rmse, mism)
-    run.loc_hat, run.loc_stem = loc_hat, loc_stem
-    e_ref = (stage.y - ref_hat)[ho]
-    sse_ref = float(e_ref @ e_ref)
-    n_eff = effective_n(e_ref)
-    run.n_eff = n_eff
-    ref_tr_rms = math.sqrt(ref_sse / max(int(stage.train.sum()), 1))   # for the materiality rules
-    for h in hyps:
-        fitted = fits[h.name]
-        y_point, _, _ = predict(stage, fitted.structure)
-        y_hat = predictive_mean(stage, fitted.structure, n_eff_tr).y_hat
-        e = (stage.y - y_hat)[ho]
-        sse = float(e @ e)
-        r_h = rmse(e)
-        red = 1.0 - r_h / ref_rmse if ref_rmse > 0 else 0.0
-        # independent samples: counted on the better model's residual (a missing effect leaves the
-        # reference's residual slow and correlated; the right model's is closer to the noise)
-        n_h = max(n_eff, effective_n(e)) if sse < sse_ref else n_eff
-        dbic = n_h * math.log(max(sse, 1e-300) / max(sse_ref, 1e-300)) + fitted.n_extra * math.log(n_h)
-        need = min_reduction
-        on_lc = (fitted.name == "external_disturbance" and ExternalDisturbance.at_limit_cycle(
-            fitted.params.get("period_s"), mism.limit_cycle_period_s))
-        if on_lc:
-            need = 2.0 * min_reduction   # a load on the loop's own period: stricter
-        # the added physics must also explain the training data significantly better (a model that
-        # trains no better but happens to extrapolate better is search luck, not physics)
-        n_tr = n_eff_tr
-        if fitted.train_sse < ref_sse:
-            n_tr = max(n_eff_tr, effective_n((stage.y - y_point)[stage.train]))
-        dbic_tr = (n_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
-                   + fitted.n_extra * math.log(n_tr))
-        checks = [
-            # one sign convention in every line: a change is signed, negative = the error falls
-            (red >= need, f"held-out RMSE change {-100 * red:+.0f} % against the refit plain model, "
-                          f"{-100 * need:+.0f} % or less needed" + (" (a load at the loop's own oscillation period)"
-                                                                    if on_lc else "")),
-            (r_h <= base_rmse * (1.0 - 0.5 * min_reduction),
-             f"held-out RMSE not {50 * min_reduction:.0f} % below the baseline's"),
-            (dbic <= STRONG_BIC, f"held-out BIC change {dbic:+.1f}, {STRONG_BIC:+.0f} needed"),
-            (dbic_tr < 0, f"trains no better than the plain model for its extra parameters "
-                          f"(training BIC change {dbic_tr:+.1f})"),
-            (all(math.isfinite(v) for v in fitted.params.values()), "parameters not finite"),
-            (h.material(fitted.params, stage.n * stage.ts_s, ref_tr_rms), "too small to matter"),
-        ]
-        failed = [why for passed, why in checks if not passed]
-        ok = not failed
-        tr = stage.train
-        tr_rmse = rmse((stage.y - y_point)[tr])
-        res = HypothesisResult(name=fitted.name, params=dict(fitted.params), heldout_rmse=r_h,
-                               accepted=ok, stage=stage.name, train_rmse=tr_rmse, reduction=red,
-                               delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr,
-                               refused=failed[0] if failed else "")
-        run.fitted.append((fitted, y_hat, res))
-    return run
+    return stage, ref, ref_sse
 
 
 def _plain_projections(s: Structure, n_mid: int = 0, ts_s: float = 1.0) -> list[Structure]:
@@ -431,9 +247,149 @@ def _plain_projections(s: Structure, n_mid: int = 0, ts_s: float = 1.0) -> list[
     return out
 
 
+def _better_reference(stage: Stage, ref: Structure, ref_sse: float, fits: Iterable[Fitted],
+                      threads: int) -> tuple[Structure, float]:
+    """The reference, or a better plain model: every fitted hypothesis with its extra physics
+    removed, refit. Searches over rough output-error surfaces: a hypothesis may win only because
+    its search found a better plain valve."""
+    mid = int(np.mean(np.flatnonzero(stage.train))) if stage.train.any() else 0
+    proj = [p for f in fits for p in _plain_projections(f.structure, mid, stage.ts_s)]
+    refits = _map(lambda p: refine_plain(stage, p, rounds=1), proj, threads)
+    best_ref, best_sse = ref, ref_sse
+    for r, c in refits:
+        if c < best_sse:
+            best_ref, best_sse = r, c
+    if stage.name == "valve" and best_ref is not ref:
+        best_ref = fine_valve(stage, best_ref)
+        best_sse = best_of(stage, [best_ref])[1]
+    if best_sse < ref_sse * (1.0 - 1e-6):
+        return best_ref, best_sse
+    return ref, ref_sse
+
+
+def _run_stage(stage: Stage, hyps: Sequence[PhysicsHypothesis], *, given: Structure | None, source: str,
+               use_fit_module: bool, min_reduction: float, threads: int) -> _StageRun:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", StictionWarning)
+        stage, base = _baseline_stage(stage, given, source, use_fit_module)
+    base_rmse = rmse((stage.y - base.y_hat)[stage.heldout])
+    stage, ref, ref_sse = _reference(stage, base)
+    ref_hat, ref_stem, _ = predict(stage, ref)
+    # locate on the residual of the better-trained of the two plain models (the fitting stage's
+    # baseline, or the same structure refit by the searches here)
+    base_tr = float(np.sum((stage.y - base.y_hat)[stage.train] ** 2))
+    if ref_sse < base_tr:
+        located_on, loc_hat, loc_stem, loc_struct = "reference", ref_hat, ref_stem, ref
+    else:
+        located_on, loc_hat, loc_stem, loc_struct = "baseline", base.y_hat, base.stem_hat, base.structure
+    mism = locate(stage.y - loc_hat, loc_stem, stage.x, stage.ts_s, train=stage.train,
+                  response_s=_response_s(loc_struct, stage))
+    plain = PlainModel(ref, identified=base.structure, limit_cycle_period_s=mism.limit_cycle_period_s,
+                       residual=stage.y - ref_hat)
+    # the longest searches first, so that threads finish together
+    order = sorted(hyps, key=lambda h: -_COST_RANK.get(h.name, 0))
+    fits = dict(zip([h.name for h in order], _map(lambda h: h.fit(stage, plain), order, threads)))
+    better, better_sse = _better_reference(stage, ref, ref_sse, [fits[h.name] for h in hyps], threads)
+    if better is not ref:
+        ref, ref_sse = better, better_sse
+        ref_hat, _, _ = predict(stage, ref)
+        plain = PlainModel(ref, identified=base.structure, limit_cycle_period_s=mism.limit_cycle_period_s,
+                           residual=stage.y - ref_hat)
+        again = _map(lambda h: h.refit(stage, fits[h.name], plain), order, threads)
+        for h, f in zip(order, again):
+            if f.train_sse < fits[h.name].train_sse:
+                fits[h.name] = f
+    run = _StageRun(stage, base, base_rmse, ref, ref_hat, float("nan"), mism, located_on, loc_hat, loc_stem)
+    _judge(run, [fits[h.name] for h in hyps], {h.name: h for h in hyps}, ref_sse, min_reduction, threads)
+    return run
+
+
+#: hypotheses whose searches take longest go to the threads first
+_COST_RANK = {"external_disturbance": 4, "time_varying_friction": 3, "valve_characteristic": 2,
+              "asymmetric_stiction": 1}
+
+
+def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypothesis], ref_sse: float,
+           min_reduction: float, threads: int) -> None:
+    """Judge the reference and every fitted hypothesis on the held-out part by their
+    posterior-predictive means (one fitted parameter set of a stiction model extrapolates by luck
+    as much as by physics), and apply the acceptance rules (module docstring)."""
+    stage, ho = run.stage, run.stage.heldout
+    n_eff_tr = effective_n((stage.y - run.ref_hat)[stage.train])
+    means = _map(lambda s: predictive_mean(stage, s, n_eff_tr).y_hat, [run.reference] + [f.structure for f in fits],
+                 threads)
+    run.ref_hat = means[0]
+    run.ref_rmse = ref_rmse = rmse((stage.y - run.ref_hat)[ho])
+    e_ref = (stage.y - run.ref_hat)[ho]
+    sse_ref = float(e_ref @ e_ref)
+    n_eff = effective_n(e_ref)
+    run.n_eff = n_eff
+    ref_tr_rms = math.sqrt(ref_sse / max(int(stage.train.sum()), 1))   # for the materiality rules
+    plc = run.mismatch.limit_cycle_period_s
+    for fitted, y_hat in zip(fits, means[1:]):
+        h = by_name[fitted.name]
+        y_point, _, _ = predict(stage, fitted.structure)
+        e = (stage.y - y_hat)[ho]
+        sse = float(e @ e)
+        r_h = rmse(e)
+        red = 1.0 - r_h / ref_rmse if ref_rmse > 0 else 0.0
+        # independent samples: counted on the better model's residual (a missing effect leaves the
+        # reference's residual slow and correlated; the right model's is closer to the noise)
+        n_h = max(n_eff, effective_n(e)) if sse < sse_ref else n_eff
+        dbic = n_h * math.log(max(sse, 1e-300) / max(sse_ref, 1e-300)) + fitted.n_extra * math.log(n_h)
+        need = min_reduction
+        on_lc = (fitted.name == "external_disturbance"
+                 and ExternalDisturbance.at_limit_cycle(fitted.params.get("period_s"), plc))
+        if on_lc:
+            need = 2.0 * min_reduction   # a load on the loop's own period: stricter
+        # the added physics must also explain the training data significantly better (a model that
+        # trains no better but happens to extrapolate better is search luck, not physics)
+        n_tr = n_eff_tr
+        if fitted.train_sse < ref_sse:
+            n_tr = max(n_eff_tr, effective_n((stage.y - y_point)[stage.train]))
+        dbic_tr = (n_tr * math.log(max(fitted.train_sse, 1e-300) / max(ref_sse, 1e-300))
+                   + fitted.n_extra * math.log(n_tr))
+        checks = [
+            # one sign convention in every line: a change is signed, negative = the error falls
+            (red >= need, f"held-out RMSE change {-100 * red:+.0f} % against the refit plain model, "
+                          f"{-100 * need:+.0f} % or less needed" + (" (a load at the loop's own oscillation period)"
+                                                                    if on_lc else "")),
+            (r_h <= run.base_rmse * (1.0 - 0.5 * min_reduction),
+             f"held-out RMSE not {50 * min_reduction:.0f} % below the baseline's"),
+            (dbic <= STRONG_BIC, f"held-out BIC change {dbic:+.1f}, {STRONG_BIC:+.0f} needed"),
+            (dbic_tr < 0, f"trains no better than the plain model for its extra parameters "
+                          f"(training BIC change {dbic_tr:+.1f})"),
+            (all(math.isfinite(v) for v in fitted.params.values()), "parameters not finite"),
+            (h.material(fitted.params, stage.n * stage.ts_s, ref_tr_rms), "too small to matter"),
+        ]
+        failed = [why for passed, why in checks if not passed]
+        res = HypothesisResult(name=fitted.name, params=fitted.params, heldout_rmse=r_h, accepted=not failed,
+                               stage=stage.name, train_rmse=rmse((stage.y - y_point)[stage.train]), reduction=red,
+                               delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr,
+                               refused=failed[0] if failed else "")
+        run.fitted.append((fitted, y_hat, res))
+
+
+def _given_structures(identification: Any, baseline: Mapping[str, Structure] | None
+                      ) -> tuple[dict[str, Structure], str]:
+    """The baselines passed in, per stage, and their source."""
+    if baseline is not None:
+        return dict(baseline), "given"
+    out: dict[str, Structure] = {}
+    if identification is not None:
+        fit = getattr(identification, "fit", identification)
+        if fit is not None and getattr(fit, "process", None) is not None:
+            out["loop"] = from_hammerstein(fit)
+        vfit = getattr(identification, "valve_fit", None)
+        if vfit is not None:
+            out["valve"] = from_valve_fit(vfit)
+    return out, "identify"
+
+
 def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float = 0.65,
             hypotheses: Sequence[str] | None = None, min_reduction: float = 0.10,
-            baseline: Mapping[str, Structure] | None = None, use_fit_module: bool = True) -> Explanation:
+            identification: Any = None, baseline: Mapping[str, Structure] | None = None,
+            use_fit_module: bool = True, threads: int | None = None) -> Explanation:
     """Locate the baseline's mismatch, test the missing-physics hypotheses, name the best.
 
     Parameters
@@ -449,11 +405,21 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
         Names from `diagnose.physics.REGISTRY` (default: all).
     min_reduction : float
         Smallest relative held-out RMSE reduction that can name an effect.
+    identification : diagnose.identify.Identification or diagnose.fit.HammersteinFit, optional
+        The identification of this record the caller already has: its Hammerstein fit (valve,
+        process and the valve's start state) is the loop stage's baseline and its valve fit the
+        valve stage's, instead of fitting them again on the training part. Their gain and offset
+        are refit on the training part, but their other parameters saw the whole record, so the
+        baseline's held-out RMSE is then not strictly held out (the reference, refit here on the
+        training part, is what every hypothesis is judged against).
     baseline : mapping stage -> Structure, optional
-        Use these baselines instead of fitting (``{"loop": ..., "valve": ...}``), e.g. the true
-        parameters of a simulation.
+        Use these baselines (``{"loop": ..., "valve": ...}``), e.g. the true parameters of a
+        simulation (wins over ``identification``).
     use_fit_module : bool
-        Fit the baseline with `diagnose.fit` (False: the built-in grid).
+        Fit a baseline not given with `diagnose.fit` (False: the built-in grid).
+    threads : int, optional
+        Threads the independent searches run on (None: the machine's cores, at most 4; 1 when the
+        caller runs records in parallel itself). The result does not depend on it.
 
     Returns
     -------
@@ -480,12 +446,12 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
         stage_names.append("loop")
     if has_mv:
         stage_names.append("valve")
-    warn: list[dict[str, str]] = []
-    for f in record.findings:
-        if f.severity in ("warning", "error"):
-            warn.append({"code": f"data_quality.{f.code}", "message": f.message})
+    warn: list[ExplainWarning] = [ExplainWarning(f"data_quality.{f.code}", f.message) for f in record.findings
+                                  if f.severity in ("warning", "error")]
+    given, source = _given_structures(identification, baseline)
+    nthreads = _threads(threads)
 
-    runs: dict[str, _StageRun] = {}
+    jobs = []
     for sn in stage_names:
         stage = _stage_for(record, sn, train)
         if np.ptp(stage.y) <= 0 or np.ptp(stage.x) <= 0:
@@ -495,16 +461,23 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
             mine = [h for h in hyps if h.side == PROCESS_SIDE or (h.side == VALVE_SIDE and not has_mv)]
         else:
             mine = [h for h in hyps if h.side == VALVE_SIDE]
-        given = None if baseline is None else baseline.get(sn)
-        runs[sn] = _run_stage(stage, mine, given=given, use_fit_module=use_fit_module,
-                              min_reduction=min_reduction)
+        jobs.append((sn, stage, mine))
+    # the stages are independent: with two, each gets half the threads
+    per = max(1, nthreads // len(jobs))
+    done = _map(lambda j: _run_stage(j[1], j[2], given=given.get(j[0]), source=source,
+                                     use_fit_module=use_fit_module, min_reduction=min_reduction, threads=per),
+                jobs, min(nthreads, len(jobs)))
+    runs: dict[str, _StageRun] = {j[0]: r for j, r in zip(jobs, done)}
+    return _assemble(record, runs, hyps, warn, train_fraction, n_tr)
 
+
+def _assemble(record: LoopRecord, runs: dict[str, _StageRun], hyps: Sequence[PhysicsHypothesis],
+              warn: list[ExplainWarning], train_fraction: float, n_tr: int) -> Explanation:
     all_results = [(sn, f, yh, res) for sn, r in runs.items() for f, yh, res in r.fitted]
     accepted = [t for t in all_results if t[3].accepted]
     # two accepted on one stage: the one that explains the held-out data best for its parameters
     winner = min(accepted, key=lambda t: runs[t[0]].rank_bic(t[3])) if accepted else None
-    report_stage = winner[0] if winner else ("valve" if "valve" in runs and "loop" not in runs else
-                                             ("loop" if "loop" in runs else "valve"))
+    report_stage = winner[0] if winner else ("loop" if "loop" in runs else "valve")
     run = runs[report_stage]
     stage = run.stage
     base_rmse = run.base_rmse
@@ -515,72 +488,64 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
     if winner:
         w = winner[3]
         if w.name == "actuator_lag" and report_stage == "loop":
-            warn.append({"code": "physics.indistinguishable",
-                         "message": "from OP and PV alone a first-order lag after the friction cannot be told "
-                                    "apart from a second lag in the process; the stem position (MV) would "
-                                    "tell them apart"})
+            warn.append(ExplainWarning(
+                "physics.indistinguishable",
+                "from OP and PV alone a first-order lag after the friction cannot be told apart from a second "
+                "lag in the process; the stem position (MV) would tell them apart"))
         close = [t[3] for t in accepted if t is not winner and t[3].heldout_rmse <= w.heldout_rmse * 1.05
                  and t[0] == winner[0]]
         for c in close:
-            warn.append({"code": "physics.ambiguous",
-                         "message": f"{c.name} explains the held-out data almost as well as {w.name} "
-                                    f"(RMSE {c.heldout_rmse:.4g} vs {w.heldout_rmse:.4g}); the data cannot "
-                                    "tell them apart"})
+            warn.append(ExplainWarning(
+                "physics.ambiguous",
+                f"{c.name} explains the held-out data almost as well as {w.name} (RMSE {c.heldout_rmse:.4g} vs "
+                f"{w.heldout_rmse:.4g}); the data cannot tell them apart"))
         if w.name == "external_disturbance" and ExternalDisturbance.at_limit_cycle(
                 w.params.get("period_s"), runs[winner[0]].mismatch.limit_cycle_period_s):
-            warn.append({"code": "physics.entrained",
-                         "message": "the load's period is the loop's own oscillation period: an external "
-                                    "oscillation entraining the loop, or a model error at the limit cycle, "
-                                    "cannot be told apart from these data"})
-        if w.params.get("tau_s") is not None and w.name == "actuator_lag" and w.params["tau_s"] < 0.75 * record.ts_s:
-            warn.append({"code": "physics.sub_sample",
-                         "message": "the fitted lag is shorter than one sample; the sampling is too coarse to "
-                                    "resolve it"})
+            warn.append(ExplainWarning(
+                "physics.entrained",
+                "the load's period is the loop's own oscillation period: an external oscillation entraining the "
+                "loop, or a model error at the limit cycle, cannot be told apart from these data"))
+        if w.name == "actuator_lag" and w.params.get("tau_s", math.inf) < 0.75 * record.ts_s:
+            warn.append(ExplainWarning(
+                "physics.sub_sample",
+                "the fitted lag is shorter than one sample; the sampling is too coarse to resolve it"))
     else:
         ss = np.std(stage.y[stage.heldout]) or 1.0
         if min(base_rmse, run.ref_rmse) > 0.5 * ss:
-            warn.append({"code": "physics.unexplained",
-                         "message": "the baseline misses much of the held-out data but no hypothesis "
-                                    "explains it significantly; see the located windows"})
-
-    for sn, r in runs.items():
+            warn.append(ExplainWarning(
+                "physics.unexplained",
+                "the baseline misses much of the held-out data but no hypothesis explains it significantly; "
+                "see the located windows"))
+    for r in runs.values():
         idle = _idle_valve(r)
         if idle:
-            warn.append({"code": "physics.valve_idle", "message": idle})
+            warn.append(ExplainWarning("physics.valve_idle", idle))
             break
     text = _text(record, winner, runs, report_stage, base_rmse, improved_rmse)
-    summary = dict(run.mismatch.summary)
-    summary["stage"] = report_stage
-    summary["train_fraction"] = float(train_fraction)
-    summary["heldout_start_s"] = float(n_tr * record.ts_s)
-    summary["reference_rmse"] = float(run.ref_rmse)
-    if len(runs) > 1:
-        summary["other_stages"] = {sn: {"baseline_rmse": r.base_rmse, "reference_rmse": r.ref_rmse,
-                                        "hints": r.mismatch.summary.get("hints", [])}
-                                   for sn, r in runs.items() if sn != report_stage}
-    arrays = _arrays(run, improved_hat, record, n_tr)
+    others = tuple(OtherStage(sn, r.base_rmse, r.ref_rmse, r.mismatch.hints)
+                   for sn, r in runs.items() if sn != report_stage)
+    mismatch = StageMismatch.of(run.mismatch, located_on=run.located_on, stage=report_stage,
+                                train_fraction=float(train_fraction), heldout_start_s=float(n_tr * record.ts_s),
+                                reference_rmse=float(run.ref_rmse), other_stages=others)
     order = {h.name: i for i, h in enumerate(hyps)}
     results = tuple(sorted((t[3] for t in all_results), key=lambda h: order.get(h.name, 99)))
     return Explanation(missing_physics=winner[3].name if winner else None,
                        baseline_rmse=float(base_rmse), improved_rmse=float(improved_rmse),
-                       hypotheses=results, mismatch=summary, explanation=text, warnings=tuple(warn),
-                       target=_TARGET[report_stage], loop=record.name,
-                       baseline_source=run.baseline.source, arrays=arrays,
-                       stages={sn: {"baseline": r.baseline.structure, "reference": r.reference}
-                               for sn, r in runs.items()})
+                       hypotheses=results, mismatch=mismatch, explanation=text, warnings=tuple(warn),
+                       target=TARGETS[report_stage], loop=record.name, baseline_source=run.baseline.source,
+                       arrays=_figure_data(run, improved_hat, record, n_tr),
+                       stages=tuple(StageModels(sn, r.baseline.structure, r.reference, r.baseline.source)
+                                    for sn, r in runs.items()))
 
 
 def _idle_valve(run: _StageRun) -> str | None:
     """Message when the identified valve hardly moves in the training or the held-out part."""
-    if run.loc_stem is None or run.loc_hat is None:
-        return None
     if run.stage.name == "valve":
         # the predicted MV: a fit to a stuck stem may slip with no gain (least-squares scale ~ 0)
         slips, _ = slips_and_reversals(np.asarray(run.loc_hat, float), eps=0.01)
     else:
         slips, _ = slips_and_reversals(np.asarray(run.loc_stem, float))
-    tr = run.stage.train
-    n_tr = int(np.sum(tr[slips]))
+    n_tr = int(np.sum(run.stage.train[slips]))
     n_ho = int(np.sum(run.stage.heldout[slips]))
     if n_tr >= MIN_SLIPS_TRAIN and n_ho >= MIN_SLIPS_HELDOUT:
         return None
@@ -590,28 +555,20 @@ def _idle_valve(run: _StageRun) -> str | None:
             "the loop cycles, is needed")
 
 
-def _arrays(run: _StageRun, improved_hat: np.ndarray, record: LoopRecord, n_tr: int) -> dict[str, Any]:
-    st = run.stage
-    m = run.mismatch
+def _figure_data(run: _StageRun, improved_hat: np.ndarray, record: LoopRecord, n_tr: int) -> FigureData:
+    st, m = run.stage, run.mismatch
     a = m.arrays
-    t = np.arange(st.n) * st.ts_s
-    s = m.summary
-    return {
-        "t_s": t, "observed": st.y, "baseline": run.baseline.y_hat, "reference": run.ref_hat,
-        "improved": improved_hat, "residual_baseline": st.y - run.baseline.y_hat,
-        "residual_located": st.y - run.loc_hat, "located_on": s.get("located_on", "baseline"),
-        "residual_improved": st.y - improved_hat,
-        "op_pct": st.x, "stem_hat_pct": run.loc_stem, "train_end_s": float(n_tr * st.ts_s),
-        "train_start_s": float(int(np.argmax(st.train)) * st.ts_s),
-        "windows": [(w["start_s"], w["end_s"]) for w in s["windows"]],
-        "window_t_s": a["window_t_s"], "window_rms": a["window_rms"],
-        "profile_lag_s": a["profile_lag_s"], "after_slip_profile": a["after_slip_profile"],
-        "op_bin_centres_pct": a["op_bin_centres_pct"], "op_bin_rms": a["op_bin_rms"],
-        "direction_rms": (s["direction"]["opening"]["rms"], s["direction"]["closing"]["rms"]),
-        "freq_hz": a["freq_hz"], "residual_psd": a["residual_psd"],
-        "limit_cycle_period_s": m.limit_cycle_period_s, "slip_t_s": a["slips"] * st.ts_s,
-        "units": "% of span" if st.name == "valve" else (record.units.get("pv") or "PV units"),
-    }
+    return FigureData(
+        t_s=np.arange(st.n) * st.ts_s, observed=st.y, baseline=run.baseline.y_hat, reference=run.ref_hat,
+        improved=improved_hat, residual_baseline=st.y - run.baseline.y_hat, residual_located=st.y - run.loc_hat,
+        residual_improved=st.y - improved_hat, located_on=run.located_on, op_pct=st.x, stem_hat_pct=run.loc_stem,
+        train_start_s=float(int(np.argmax(st.train)) * st.ts_s), train_end_s=float(n_tr * st.ts_s),
+        windows=tuple((w.start_s, w.end_s) for w in m.windows), window_t_s=a.window_t_s, window_rms=a.window_rms,
+        profile_lag_s=a.profile_lag_s, after_slip_profile=a.after_slip_profile,
+        op_bin_centres_pct=a.op_bin_centres_pct, op_bin_rms=a.op_bin_rms,
+        direction_rms=(m.direction.opening.rms, m.direction.closing.rms), freq_hz=a.freq_hz,
+        residual_psd=a.residual_psd, limit_cycle_period_s=m.limit_cycle_period_s, slip_t_s=a.slips * st.ts_s,
+        units="% of span" if st.name == "valve" else (record.units.get("pv") or "PV units"))
 
 
 def _fmt_params(params: Mapping[str, float]) -> str:
@@ -620,17 +577,19 @@ def _fmt_params(params: Mapping[str, float]) -> str:
     return ", ".join(f"{k} = {duration(v) if k.endswith('_s') else number(v)}" for k, v in params.items())
 
 
-def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
+def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: str, base_rmse: float,
+          improved_rmse: float) -> str:
+    from .hypotheses import REGISTRY
+
     run = runs[report_stage]
     what = "MV (stem position) from OP" if report_stage == "valve" else "PV from OP"
-    hints = run.mismatch.summary.get("hints", [])
+    hints = run.mismatch.hints
     parts = [f"Baseline ({run.baseline.source}) simulating {what}: held-out RMSE {base_rmse:.4g}; "
              f"the same structure refit here: {run.ref_rmse:.4g}."]
     if hints:
         parts.append("Residual: " + "; ".join(hints) + ".")
     if winner:
         h = winner[3]
-        from .hypotheses import REGISTRY
         desc = REGISTRY[h.name].description if h.name in REGISTRY else h.name
         parts.append(f"Missing physics: {h.name} ({desc}; {_fmt_params(h.params)}). "
                      f"With it the held-out RMSE falls to {improved_rmse:.4g} "
@@ -640,7 +599,7 @@ def _text(record, winner, runs, report_stage, base_rmse, improved_rmse) -> str:
                    default=None)
         if best is not None:
             parts.append(f"No missing physics named: the best hypothesis ({best.name}, "
-                         f"{_TARGET[best.stage].upper()}) changes the held-out RMSE by "
+                         f"{best.target.upper()}) changes the held-out RMSE by "
                          f"{-100 * best.reduction:+.0f} % against the refit plain model"
                          + (f"; refused: {best.refused}." if best.refused else "."))
         else:

@@ -3,33 +3,164 @@ operating point, at which frequency, and whether it drifts.
 
 `locate` works on the baseline's residual (target minus whole-record simulation) and the baseline's
 own simulated stem position, from which it takes the slip times, reversals and direction of motion.
-It returns a JSON-ready dict (`Mismatch.summary`) and the arrays the report draws.
+It returns a `Mismatch` (typed parts; `Mismatch.to_dict` is its JSON form) with the arrays the
+report draws.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 
+@dataclass(frozen=True)
+class Window:
+    """A stretch of the record where the residual is high (more than 1.5 times the median
+    window's RMS), in seconds from the first sample."""
+
+    start_s: float
+    end_s: float
+    rms: float
+    ratio_to_median: float
+    heldout: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class Events:
+    """The residual just after the simulated valve's slips and reversals (``window_s`` after each),
+    relative to its mean energy (None: no such event)."""
+
+    n_slips: int
+    n_reversals: int
+    window_s: float
+    after_slip_energy_ratio: float | None
+    after_reversal_energy_ratio: float | None
+    share_of_time_after_slips: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class ResidualStats:
+    """Count, mean and RMS of the residual over some samples (NaN when there are none)."""
+
+    n: int
+    mean: float
+    rms: float
+
+
+@dataclass(frozen=True)
+class Direction:
+    """The residual while the simulated valve last moved opening and closing (with its response
+    time); the difference and the ratio when both have more than 10 samples, else None."""
+
+    opening: ResidualStats
+    closing: ResidualStats
+    mean_difference: float | None = None
+    rms_ratio_open_close: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class OperatingBin:
+    """The residual over one OP quintile."""
+
+    n: int
+    mean: float
+    rms: float
+    op_lo_pct: float
+    op_hi_pct: float
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """The residual by operating point: per OP quintile, and its correlation with OP."""
+
+    bins: tuple[OperatingBin, ...]
+    corr_residual_op: float
+    op_range_pct: tuple[float, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"bins": [dataclasses.asdict(b) for b in self.bins], "corr_residual_op": self.corr_residual_op,
+                "op_range_pct": list(self.op_range_pct)}
+
+
+@dataclass(frozen=True)
+class Frequency:
+    """The loop's own oscillation period and the residual's spectral peak (None: not found)."""
+
+    limit_cycle_period_s: float | None
+    residual_peak_period_s: float | None = None
+    peak_at_limit_cycle_harmonic: bool | None = None
+    peak_to_median_power: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class Drift:
+    """The residual's RMS by thirds of the record, its trend (per hour) and last over first third."""
+
+    rms_by_third: tuple[float, float, float]
+    rms_trend_per_h: float
+    last_over_first: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rms_by_third": list(self.rms_by_third), "rms_trend_per_h": self.rms_trend_per_h,
+                "last_over_first": self.last_over_first}
+
+
+@dataclass(frozen=True, eq=False)
+class MismatchArrays:
+    """Arrays for the figures: window centres (s) and RMS, the residual's RMS profile after slips
+    (lag in s), RMS per OP bin (centres in %), the residual's spectrum (Hz), the simulated valve's
+    direction per sample and its slip and reversal sample indices."""
+
+    window_t_s: np.ndarray
+    window_rms: np.ndarray
+    profile_lag_s: np.ndarray
+    after_slip_profile: np.ndarray
+    op_bin_centres_pct: np.ndarray
+    op_bin_rms: np.ndarray
+    freq_hz: np.ndarray
+    residual_psd: np.ndarray
+    direction: np.ndarray
+    slips: np.ndarray
+    reversals: np.ndarray
+
+
 @dataclass(frozen=True, eq=False)
 class Mismatch:
-    """Where the baseline misses.
+    """Where a model misses: over time, after events, by direction, by operating point, in
+    frequency and over the record, with hints in words. `to_dict` is its JSON form."""
 
-    Attributes
-    ----------
-    summary : dict
-        JSON-ready: windows, events, direction, operating_point, frequency, drift, hints.
-    arrays : dict of ndarray
-        For figures: ``window_rms``, ``window_t_s``, ``after_slip_profile``, ``profile_lag_s``,
-        ``op_bin_centres_pct``, ``op_bin_rms``, ``freq_hz``, ``residual_psd``.
-    """
+    windows: tuple[Window, ...]
+    events: Events
+    direction: Direction
+    operating_point: OperatingPoint
+    frequency: Frequency
+    drift: Drift
+    hints: tuple[str, ...]
+    arrays: MismatchArrays = field(repr=False)
 
-    summary: dict[str, Any]
-    arrays: dict[str, np.ndarray] = field(default_factory=dict)
-    limit_cycle_period_s: float | None = None
+    @property
+    def limit_cycle_period_s(self) -> float | None:
+        return self.frequency.limit_cycle_period_s
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"windows": [w.to_dict() for w in self.windows], "events": self.events.to_dict(),
+                "direction": self.direction.to_dict(), "operating_point": self.operating_point.to_dict(),
+                "frequency": self.frequency.to_dict(), "drift": self.drift.to_dict(), "hints": list(self.hints)}
 
 
 def _directions(stem: np.ndarray) -> np.ndarray:
@@ -78,10 +209,10 @@ def limit_cycle_period(stem: np.ndarray, op: np.ndarray, ts_s: float) -> float |
     return float(1.0 / f[i])
 
 
-def _stats(r: np.ndarray) -> dict[str, float]:
+def _stats(r: np.ndarray) -> ResidualStats:
     if r.size == 0:
-        return {"n": 0, "mean": float("nan"), "rms": float("nan")}
-    return {"n": int(r.size), "mean": float(np.mean(r)), "rms": float(np.sqrt(np.mean(r * r)))}
+        return ResidualStats(0, float("nan"), float("nan"))
+    return ResidualStats(int(r.size), float(np.mean(r)), float(np.sqrt(np.mean(r * r))))
 
 
 def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: float = 0.0,
@@ -128,14 +259,12 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
             while j + 1 < nw and hot[j + 1]:
                 j += 1
             a, b = edges[k], edges[j + 1]
-            windows.append({"start_s": float(a * ts_s), "end_s": float(b * ts_s),
-                            "rms": float(np.sqrt(np.mean(r[a:b] ** 2))),
-                            "ratio_to_median": float(np.sqrt(np.mean(r[a:b] ** 2)) / med),
-                            "heldout": bool(not train[a:b].any())})
+            rms_ab = float(np.sqrt(np.mean(r[a:b] ** 2)))
+            windows.append(Window(float(a * ts_s), float(b * ts_s), rms_ab, rms_ab / med, bool(not train[a:b].any())))
             k = j + 1
         else:
             k += 1
-    windows.sort(key=lambda w: -w["rms"])
+    windows.sort(key=lambda w: -w.rms)
     windows = windows[:6]
 
     # --- events: after slips and reversals ------------------------------------------------------
@@ -149,11 +278,11 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
         return m
 
     m_slip, m_rev = after(slips), after(revs)
-    ev = {"n_slips": int(slips.size), "n_reversals": int(revs.size), "window_s": float(W * ts_s),
-          "after_slip_energy_ratio": float(np.mean(r[m_slip] ** 2) / ms) if m_slip.any() else None,
-          "after_reversal_energy_ratio": float(np.mean(r[m_rev] ** 2) / ms) if m_rev.any() else None,
-          "share_of_time_after_slips": float(m_slip.mean())}
-    if ev["after_slip_energy_ratio"] and ev["after_slip_energy_ratio"] > 2.0:
+    ev = Events(int(slips.size), int(revs.size), float(W * ts_s),
+                float(np.mean(r[m_slip] ** 2) / ms) if m_slip.any() else None,
+                float(np.mean(r[m_rev] ** 2) / ms) if m_rev.any() else None,
+                float(m_slip.mean()))
+    if ev.after_slip_energy_ratio and ev.after_slip_energy_ratio > 2.0:
         hints.append("residual energy piles up just after slips (actuator lag?)")
     lags = np.arange(0, 3 * W)
     prof = np.full(lags.shape, np.nan)
@@ -170,11 +299,10 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
     if shift:
         dirs = np.concatenate([np.zeros(shift), dirs[:-shift]]) if shift < n else np.zeros(n)
     up, dn = _stats(r[dirs > 0]), _stats(r[dirs < 0])
-    direction = {"opening": up, "closing": dn}
-    if up["n"] > 10 and dn["n"] > 10:
-        direction["mean_difference"] = up["mean"] - dn["mean"]
-        direction["rms_ratio_open_close"] = up["rms"] / dn["rms"] if dn["rms"] > 0 else None
-        if abs(direction["mean_difference"]) > 0.5 * np.sqrt(ms):
+    direction = Direction(up, dn)
+    if up.n > 10 and dn.n > 10:
+        direction = Direction(up, dn, up.mean - dn.mean, up.rms / dn.rms if dn.rms > 0 else None)
+        if abs(direction.mean_difference) > 0.5 * np.sqrt(ms):
             hints.append("residual mean differs between opening and closing (asymmetric friction?)")
 
     # --- by operating point ----------------------------------------------------------------------
@@ -183,13 +311,12 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
     centres, brms = [], []
     for a, b in zip(q[:-1], q[1:]):
         m = (op >= a) & (op <= b)
-        s = _stats(r[m])
-        s.update({"op_lo_pct": float(a), "op_hi_pct": float(b)})
-        bins.append(s)
+        st = _stats(r[m])
+        bins.append(OperatingBin(st.n, st.mean, st.rms, float(a), float(b)))
         centres.append((a + b) / 2)
-        brms.append(s["rms"])
+        brms.append(st.rms)
     corr = float(np.corrcoef(op, r)[0, 1]) if np.std(op) > 0 and np.std(r) > 0 else 0.0
-    opp = {"bins": bins, "corr_residual_op": corr, "op_range_pct": [float(op.min()), float(op.max())]}
+    opp = OperatingPoint(tuple(bins), corr, (float(op.min()), float(op.max())))
     if abs(corr) > 0.3:
         hints.append("residual correlates with the operating point (valve characteristic?)")
 
@@ -199,7 +326,7 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
     P = np.abs(np.fft.rfft(rr * np.hanning(n))) ** 2
     f = np.fft.rfftfreq(n, ts_s)
     ok = (f > 3.0 / (n * ts_s)) & (f < 0.4 / ts_s)
-    freq: dict[str, Any] = {"limit_cycle_period_s": plc}
+    freq = Frequency(plc)
     if ok.any():
         i = np.flatnonzero(ok)[np.argmax(P[ok])]
         peak_p = float(1.0 / f[i])
@@ -207,9 +334,8 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
         if plc:
             h = f[i] * plc
             at_h = bool(round(h) >= 1 and abs(h - round(h)) < 0.1)
-        freq.update({"residual_peak_period_s": peak_p, "peak_at_limit_cycle_harmonic": at_h,
-                     "peak_to_median_power": float(P[i] / (np.median(P[ok]) or 1e-300))})
-        if not at_h and freq["peak_to_median_power"] > 50:
+        freq = Frequency(plc, peak_p, at_h, float(P[i] / (np.median(P[ok]) or 1e-300)))
+        if not at_h and freq.peak_to_median_power > 50:
             from ..plain import duration
 
             hints.append(f"residual has a spectral peak at a period of {duration(peak_p)}, not a limit-cycle harmonic "
@@ -220,15 +346,12 @@ def locate(residual, stem_hat, op_pct, ts_s: float, *, train=None, response_s: f
     rms3 = [float(np.sqrt(np.mean(t ** 2))) for t in thirds]
     tw = (edges[:-1] + edges[1:]) / 2 * ts_s
     slope = float(np.polyfit(tw / 3600.0, wrms, 1)[0]) if nw >= 3 else 0.0
-    drift = {"rms_by_third": rms3, "rms_trend_per_h": slope,
-             "last_over_first": rms3[2] / rms3[0] if rms3[0] > 0 else None}
+    drift = Drift((rms3[0], rms3[1], rms3[2]), slope, rms3[2] / rms3[0] if rms3[0] > 0 else None)
     if rms3[0] > 0 and rms3[2] / rms3[0] > 2.0:
         hints.append("residual grows over the record (drifting friction or plant change?)")
 
-    summary = {"windows": windows, "events": ev, "direction": direction, "operating_point": opp,
-               "frequency": freq, "drift": drift, "hints": hints}
-    arrays = {"window_t_s": tw, "window_rms": wrms, "profile_lag_s": lags * ts_s,
-              "after_slip_profile": prof, "op_bin_centres_pct": np.array(centres),
-              "op_bin_rms": np.array(brms), "freq_hz": f[ok], "residual_psd": P[ok],
-              "direction": dirs, "slips": slips, "reversals": revs}
-    return Mismatch(summary=summary, arrays=arrays, limit_cycle_period_s=plc)
+    arrays = MismatchArrays(window_t_s=tw, window_rms=wrms, profile_lag_s=lags * ts_s, after_slip_profile=prof,
+                            op_bin_centres_pct=np.array(centres), op_bin_rms=np.array(brms), freq_hz=f[ok],
+                            residual_psd=P[ok], direction=dirs, slips=slips, reversals=revs)
+    return Mismatch(windows=tuple(windows), events=ev, direction=direction, operating_point=opp, frequency=freq,
+                    drift=drift, hints=tuple(hints), arrays=arrays)

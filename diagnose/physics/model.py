@@ -1,4 +1,4 @@
-"""The augmented Hammerstein model every hypothesis fits, and the small searches that fit it.
+"""The augmented Hammerstein model every hypothesis fits, and what is scored.
 
 Model (one *stage* of the loop, input ``x`` and target ``y``)::
 
@@ -8,9 +8,11 @@ Model (one *stage* of the loop, input ``x`` and target ``y``)::
     z     = ProcessModel(kind, tau, tau2, delay).regressor(u)                 (identity on the valve stage)
     y_hat = gain * z + bias [+ slope * t (integrating)] [+ a sin(w t) + b cos(w t)]
 
-The linear coefficients (gain, bias, slope, a, b) are solved by least squares on the *training*
-samples for every candidate (separable least squares), the physical parameters are searched on
-small grids around the baseline. Stages:
+A `Structure` holds the physical parameters of one such model; the linear coefficients (gain,
+bias, slope, a, b) are solved by least squares on the *training* samples for every candidate
+(separable least squares). A `Stage` holds the data and its training mask and is the objective:
+`train_sse` scores any number of structures on it in one compiled pass, `predict` simulates one
+over the whole record. The searches that fit structures are in `diagnose.physics.search`. Stages:
 
 * ``loop``: OP -> PV, the fitting stage's Hammerstein model (OP/PV records);
 * ``valve``: OP -> MV, the valve alone (records with the stem position).
@@ -19,7 +21,8 @@ small grids around the baseline. Stages:
 from __future__ import annotations
 
 import dataclasses
-import math
+import functools
+import operator
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -94,6 +97,22 @@ class Structure:
 
 
 _STRUCT_FIELDS = frozenset(f.name for f in dataclasses.fields(Structure))
+_PROCESS_TIMES = frozenset(("tau_s", "tau2_s", "delay_s"))
+
+
+def with_times(p: ProcessModel, **times: float) -> ProcessModel:
+    """``p`` with other time constants or dead time (``tau_s``, ``tau2_s``, ``delay_s``, seconds, >= 0):
+    `dataclasses.replace` without re-running the validation of every other field, for the
+    searches' grids of dynamics."""
+    if not _PROCESS_TIMES.issuperset(times):
+        raise TypeError(f"with_times sets {sorted(_PROCESS_TIMES)}, not {sorted(set(times) - _PROCESS_TIMES)}")
+    if any(not v >= 0 for v in times.values()):
+        raise DataError("process time constants and dead time must be >= 0 seconds")
+    new = object.__new__(ProcessModel)
+    d = new.__dict__
+    d.update(p.__dict__)
+    d.update({k: float(v) for k, v in times.items()})
+    return new
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,23 +223,31 @@ def predict(stage: Stage, struct: Structure, stem: np.ndarray | None = None):
     return y_hat, stem, coef
 
 
-def _extra_columns(struct: Structure, ts_s: float, n: int, integ: bool) -> np.ndarray:
-    t = np.arange(n) * ts_s
-    cols = []
-    if integ:
-        cols.append(t)
-    if struct.period_s is not None:
-        w = 2.0 * np.pi / struct.period_s
-        cols += [np.sin(w * t), np.cos(w * t)]
-    return np.column_stack(cols) if cols else np.zeros((n, 0))
+@functools.lru_cache(maxsize=16)
+def _time_column(ts_s: float, n: int, integ: bool) -> np.ndarray:
+    """The design's time column of an integrating process (none otherwise), read-only."""
+    out = np.ascontiguousarray((np.arange(n) * ts_s)[:, None] if integ else np.zeros((n, 0)))
+    out.flags.writeable = False
+    return out
+
+
+_VALVE_FIELDS = operator.attrgetter("S_up_pct", "J_up_pct", "S_dn_pct", "J_dn_pct", "dS_pct_per_s", "dJ_pct_per_s",
+                                    "f0", "tau_lag_s", "char_c")
+
+
+def _row(s: Structure) -> tuple:
+    p = s.process
+    return _VALVE_FIELDS(s) + (p.tau_s, p.tau2_s if p.kind == "soptd" else -1.0, p.delay_s,
+                               np.nan if s.y0_pct is None else s.y0_pct,
+                               np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
 
 
 def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     """Training sum of squared errors of each structure (simulated through the training part).
 
-    One fused compiled pass per candidate (`diagnose.kernels.fused_sse`: the valve step,
-    characteristic, lags, least squares): memory does not grow with the number of candidates times
-    the record length.
+    One fused compiled pass per candidate (`diagnose.kernels.fused_sse`, `fused_sse_load` for
+    candidates with a load: the valve step, characteristic, lags, least squares): memory does not
+    grow with the number of candidates times the record length.
     """
     n = stage.n_fit
     structs = list(structs)
@@ -231,16 +258,13 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
     out = np.empty(len(structs))
     groups: dict = {}
     for i, s in enumerate(structs):
-        groups.setdefault((s.period_s, s.process.kind == "integrating"), []).append(i)
-    for (period, integ), idx in groups.items():
+        # candidates with a load take its sine and cosine per candidate (a search over periods, or
+        # the posterior's draws, would otherwise be one call per period)
+        groups.setdefault((s.period_s is not None, s.process.kind == "integrating"), []).append(i)
+    for (load, integ), idx in groups.items():
         sub = [structs[i] for i in idx]
         m = len(sub)
-        P = np.array([(s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, s.dS_pct_per_s, s.dJ_pct_per_s,
-                       s.f0, s.tau_lag_s, s.char_c, s.process.tau_s,
-                       s.process.tau2_s if s.process.kind == "soptd" else -1.0, s.process.delay_s,
-                       np.nan if s.y0_pct is None else s.y0_pct,
-                       np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
-                      for s in sub], dtype=np.float64).reshape(m, 14)
+        P = np.array([_row(s) for s in sub], dtype=np.float64).reshape(m, 14)
         if np.any(P[:, :4] < 0) or not np.all(np.isfinite(P[:, :4])):
             raise DataError("S and J must be finite and >= 0 % of span")
         tl = P[:, 7]
@@ -250,159 +274,17 @@ def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
         t2 = P[:, 10]
         a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
         d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
-        E = np.ascontiguousarray(_extra_columns(sub[0], ts, n, integ))
         params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
                                   P[:, 12], P[:, 13]])
-        out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, np.full(m, integ, np.bool_), ts, E, yv, tr,
-                                     float(stage.gain_sign))
+        ig = np.full(m, integ, np.bool_)
+        if load:
+            wl = np.array([2.0 * np.pi / s.period_s for s in sub])
+            out[idx] = kernels.fused_sse_load(x, params, P[:, 8], a1, a2, d, ig, ts, wl, integ, yv, tr,
+                                              float(stage.gain_sign))
+        else:
+            E = _time_column(ts, n, integ)
+            out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, ig, ts, E, yv, tr, float(stage.gain_sign))
     return out
-
-
-def best_of(stage: Stage, structs: Sequence[Structure]) -> tuple[Structure, float]:
-    structs = list(structs)
-    sse = train_sse(stage, structs)
-    sse = np.where(np.isfinite(sse), sse, np.inf)
-    i = int(np.argmin(sse))
-    return structs[i], float(sse[i])
-
-
-def refit_dynamics(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Structure, float]:
-    """Refit the process time constants and dead time by a local grid (coordinate rounds)."""
-    if stage.fixed_dynamics:
-        return best_of(stage, [struct])
-    n = stage.n_fit
-    stem = stems(stage, [struct], n)[0]
-    tr = stage.train[:n]
-    ts = stage.ts_s
-
-    def cost(p: ProcessModel) -> float:
-        y_hat, _ = _linear_fit(stage, struct.replace(process=p), stem, n)
-        e = (stage.y[:n] - y_hat)[tr]
-        return float(e @ e)
-
-    best = struct.process
-    best_c = cost(best)
-    for r in range(rounds):
-        span = (0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 2.0) if r == 0 else (0.8, 0.9, 1.0, 1.1, 1.25)
-        d0 = int(round(best.delay_s / ts))
-        cands = []
-        tau0 = max(best.tau_s, ts)
-        for m in span:
-            for dd in (-2, -1, 0, 1, 2):
-                d = d0 + dd
-                if d < 0:
-                    continue
-                cands.append(dataclasses.replace(best, tau_s=tau0 * m, delay_s=d * ts))
-        if best.kind == "soptd":
-            tau20 = max(best.tau2_s, ts)
-            cands += [dataclasses.replace(best, tau2_s=tau20 * m) for m in span]
-        for p in cands:
-            c = cost(p)
-            if c < best_c:
-                best, best_c = p, c
-    return struct.replace(process=best), best_c
-
-
-def sj_local(S_pct: float, J_pct: float, *, s_span: float, n_s: int, j_span: float, n_j: int,
-             floor_pct: float = 0.2, j_zero: bool = True) -> list[tuple[float, float]]:
-    """Candidate (S, J) pairs around a centre: S (1 + linspace(-s_span, s_span, n_s)), J likewise.
-
-    The output-error cost of a stiction model is sharp in S (a few per cent of S move every slip
-    by samples), so searches step S by 1-3 %.
-    """
-    S0 = max(S_pct, floor_pct)
-    J0 = max(J_pct, 0.25 * floor_pct)
-    out = []
-    for ms in 1.0 + np.linspace(-s_span, s_span, n_s):
-        for mj in 1.0 + np.linspace(-j_span, j_span, n_j):
-            out.append((float(S0 * ms), float(max(J0 * mj, 0.0))))
-        if j_zero:
-            out.append((float(S0 * ms), 0.0))
-    return out
-
-
-def refine_sj(stage: Stage, struct: Structure, *, s_span: float = 0.12, n_s: int = 13,
-              j_span: float = 0.4, n_j: int = 9, both_f0: bool = True) -> tuple[Structure, float]:
-    """Local symmetric (S, J) grid (and f0) around ``struct``, other parameters fixed."""
-    S, J = struct.S_up_pct, struct.J_up_pct
-    fs = (1, -1) if both_f0 else (struct.f0,)
-    cands = [struct.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=j, J_dn_pct=j, f0=f)
-             for s, j in sj_local(S, J, s_span=s_span, n_s=n_s, j_span=j_span, n_j=n_j) for f in fs]
-    cands.append(struct)
-    return best_of(stage, cands)
-
-
-def refine_plain(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Structure, float]:
-    """Local refit of the plain model (S, J, f0 and the dynamics): the null model's refit.
-
-    Every hypothesis is compared with this refit, so an improvement is due to the added physics
-    and not to a different search.
-    """
-    sse = math.inf
-    for r in range(rounds):
-        struct, sse = refine_sj(stage, struct, s_span=0.15 if r == 0 else 0.04,
-                                n_s=16 if r == 0 else 9, j_span=0.4 if r == 0 else 0.12,
-                                n_j=9 if r == 0 else 5)
-        struct, sse = refit_dynamics(stage, struct, rounds=1)
-    struct, sse = refine_sj(stage, struct, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
-    if struct.y0_pct is not None:
-        struct, sse = fit_initial_state(stage, struct, local=True)
-    return struct, sse
-
-
-def global_sj(stage: Stage, struct: Structure, span: float | None = None, step: float = 0.025) -> Structure:
-    """Fine global symmetric (S, J, f0) grid at fixed other parameters (S in geometric steps of
-    ``step`` from 0.2 % to 80 % of OP's range), then a local polish."""
-    if span is None:
-        span = float(np.ptp(stage.x[: stage.n_fit]))
-    hi = max(0.8 * span, 0.3)
-    S_grid = np.exp(np.arange(math.log(0.2), math.log(hi) + 1e-9, math.log1p(step)))
-    ratios = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.45)
-    cands = [struct.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f)
-             for s in S_grid for r in ratios for f in (1, -1)]
-    cands += [struct.replace(S_up_pct=0.0, S_dn_pct=0.0, J_up_pct=0.0, J_dn_pct=0.0), struct]
-    best = best_of(stage, cands)[0]
-    return refine_sj(stage, best, s_span=0.03, n_s=7, j_span=0.15, n_j=7)[0]
-
-
-def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -> tuple[Structure, float]:
-    """Fit the valve's unknown state at the first sample, other parameters fixed: where the stem is
-    stuck (``y0_pct``), the OP at which it stuck (``xs0_pct``) and the direction of its last motion
-    (``f0``).
-
-    A sticky valve remembers where it stuck until it slips again in step with the model; in a slow
-    limit cycle that can take hundreds of samples, which the plain start (stuck at the first OP
-    sample) gets wrong. ``local``: a small grid around the current state only.
-    """
-    x0 = float(np.clip(stage.x[0], 0.0, 100.0))
-    s_max = max(struct.S_up_pct, struct.S_dn_pct, struct.J_up_pct, struct.J_dn_pct, 0.5)
-    valve = stage.name == "valve"
-    if local and struct.y0_pct is not None:
-        c = struct.y0_pct
-        ys = c + (np.arange(-0.1, 0.101, 0.02) if valve else np.linspace(-0.1, 0.1, 9) * s_max)
-        cands = [struct.replace(y0_pct=float(y)) for y in ys]
-        if struct.xs0_pct is not None:
-            b0 = best_of(stage, cands + [struct])[0]
-            cands += [b0.replace(xs0_pct=float(b0.xs0_pct + d)) for d in np.linspace(-0.1, 0.1, 11) * s_max]
-        return best_of(stage, cands + [struct])
-    ys = x0 + np.linspace(-1.2, 1.2, 33) * s_max
-    if valve:
-        # the target is the stem position itself: a fine grid around its first samples (the
-        # first slip's timing is sharp in where the stem stuck)
-        ys = np.append(ys, float(np.median(stage.y[:3])) + np.arange(-0.4, 0.401, 0.02))
-    cands = [struct.replace(y0_pct=float(np.clip(y, 0.0, 100.0)), xs0_pct=None, f0=f) for y in ys for f in (1, -1)]
-    cands += [struct.replace(y0_pct=None, xs0_pct=None, f0=f) for f in (1, -1)] + [struct]
-    best, sse = best_of(stage, cands)
-    if best.y0_pct is None:
-        return best, sse
-    # the OP at which it stuck: where a moving valve stops (tied), or anywhere within reach of a
-    # slip (a valve that has not moved since some other disturbance)
-    y0 = best.y0_pct
-    dy = np.arange(-0.2, 0.201, 0.05) if valve else np.linspace(-0.12, 0.12, 7) * s_max
-    cands = [best.replace(y0_pct=float(y0 + e), xs0_pct=float(y0 + e + d * s_max), f0=f)
-             for e in dy for d in np.linspace(-1.3, 1.3, 53) for f in (1, -1)] + [best]
-    best, sse = best_of(stage, cands)
-    return fit_initial_state(stage, best, local=True)
 
 
 def rmse(e: np.ndarray) -> float:
@@ -430,10 +312,3 @@ def effective_n(e: np.ndarray, max_lag: int | None = None) -> float:
             break
         tau += 2.0 * ac[k]
     return float(max(min(n / tau, n), 5.0))
-
-
-def validate_stage_data(x: np.ndarray, y: np.ndarray, what: str) -> None:
-    if np.ptp(x) <= 0:
-        raise DataError(f"OP is constant over the record; {what} needs a moving controller output")
-    if np.ptp(y) <= 0:
-        raise DataError(f"the target series is constant over the record; {what} has nothing to explain")

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import Stage, Structure, predict, stems, train_sse
+from .model import Stage, Structure, predict, stems, train_sse, with_times
 
 #: relative widths of the first (exploring) cloud, in units of each parameter's scale
 EXPLORE_WIDTHS = (0.3, 1.0, 3.0)
@@ -104,7 +104,7 @@ def _build(s: Structure, names: list[str], p: np.ndarray) -> Structure:
     if "period" in d:
         kw["period_s"] = max(d["period"], 0.1 * s.period_s)   # never collapses
     if "tau" in d:
-        kw["process"] = dataclasses.replace(s.process, tau_s=max(d["tau"], 1e-3))
+        kw["process"] = with_times(s.process, tau_s=max(d["tau"], 1e-3))
     return s.replace(**kw)
 
 
@@ -121,6 +121,23 @@ def _weights(log_w: np.ndarray) -> np.ndarray:
     return w / w.sum()
 
 
+def _first_moves(stm: np.ndarray) -> np.ndarray:
+    """Per row, the first sample at which the stem has moved (the row's length if never), looked for
+    in growing blocks (most valves slip early: the whole difference array is rarely needed)."""
+    m, n = stm.shape
+    first = np.full(m, n)
+    todo = np.arange(m)
+    a, step = 0, 256
+    while todo.size and a < n - 1:
+        b = min(n, a + step + 1)
+        moved = np.abs(np.diff(stm[todo, a:b], axis=1)) > 1e-9
+        hit = moved.any(axis=1)
+        first[todo[hit]] = a + np.argmax(moved[hit], axis=1) + 1
+        todo = todo[~hit]
+        a, step = b - 1, 2 * step
+    return first
+
+
 def _memory_burn(stage: Stage, cands: list[Structure], w: np.ndarray) -> Stage:
     """The stage with the training samples before the valve forgets its initial state left out.
 
@@ -130,9 +147,7 @@ def _memory_burn(stage: Stage, cands: list[Structure], w: np.ndarray) -> Stage:
     response time) lets a set far along a ridge of equally good fits be judged without refitting
     its initial state."""
     n = stage.n_fit
-    stm = stems(stage, cands, n)
-    moved = np.abs(np.diff(stm, axis=1)) > 1e-9
-    first = np.where(moved.any(axis=1), np.argmax(moved, axis=1) + 1, n)
+    first = _first_moves(stems(stage, cands, n))
     order = np.argsort(first)
     cw = np.cumsum(w[order])
     b = int(first[order[min(int(np.searchsorted(cw, 0.9)), len(order) - 1)]])
@@ -198,6 +213,7 @@ def predictive_mean(stage: Stage, struct: Structure, n_eff: float, *, seed: int 
     picks = rng.choice(n_draw, size=n_average, p=w)
     idx, counts = np.unique(picks, return_counts=True)
     y = np.zeros(stage.n)
-    for i, c in zip(idx, counts):
-        y += c * predict(stage, cands[i])[0]
+    stm = stems(stage, [cands[i] for i in idx])
+    for i, c, st in zip(idx, counts, stm):
+        y += c * predict(stage, cands[i], st)[0]
     return PredictiveMean(y_hat=y / counts.sum(), n_distinct=int(len(idx)), ess=ess)

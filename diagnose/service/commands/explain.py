@@ -62,7 +62,7 @@ def summary(d: dict[str, Any]) -> str:
 def run(args: argparse.Namespace) -> int:
     import connectors
 
-    from ...physics import explain
+    from ...physics import ExplainWarning, explain
 
     if not 0.3 <= args.train_fraction <= 0.9:
         raise DataError(f"--train-fraction {args.train_fraction}: use a value between 0.3 and 0.9")
@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
     rec, notes = select_record(records, args.loop, str(args.file), "explained")
     result = explain(rec, target=args.target, train_fraction=args.train_fraction, hypotheses=hyps,
                      min_reduction=args.min_reduction)
+    result = result.with_warnings(tuple(ExplainWarning(w["code"], w["message"]) for w in notes))
     d = result.to_dict()
-    d["warnings"] = notes + d["warnings"]
     if args.figure:
         from ...physics.figures import plot_explanation
         plot_explanation(result, rec, args.figure)

@@ -1,0 +1,89 @@
+"""Actuator lag: a first-order lag of the stem after the friction element (a pneumatic actuator,
+a positioner), with a dead time of whole samples on the valve stage."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..model import Structure, train_sse, with_times
+from ..search import best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_options
+from .base import VALVE_SIDE, PhysicsHypothesis
+
+
+class ActuatorLag(PhysicsHypothesis):
+    """First-order lag of the stem after the friction element (pneumatic actuator, positioner).
+
+    On the valve stage (OP -> MV) a dead time of whole samples is searched with it (a positioner's
+    or the logging's delay); on the loop stage a dead time is part of the process already.
+    """
+
+    name = "actuator_lag"
+    param_names = ("tau_s", "dead_time_s", "S_pct", "J_pct")
+    side = VALVE_SIDE
+    n_extra = 2
+    description = "first-order lag of the stem after a slip"
+
+    def _search(self, stage, baseline):
+        reference = baseline.structure
+        ts = stage.ts_s
+        S, J = reference.S_up_pct, reference.J_up_pct
+        taus = ts * np.array([0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0])
+        delays = (0, 1, 2, 3) if stage.name == "valve" else (None,)
+
+        def with_delay(s: Structure, d) -> Structure:
+            if d is None:
+                return s
+            return s.replace(process=with_times(s.process, delay_s=d * ts))
+
+        # J relative to S over its whole range: a lag changes the plain fit's J the most
+        pairs = [(S * m, S * m * r) for m in (0.85, 0.93, 1.0, 1.07, 1.15)
+                 for r in (0.0, 0.25, 0.5, 0.75, 1.0, 1.25)] + [(S, J)]
+        combos = [(float(t), d) for t in taus for d in delays]
+        cands = [with_delay(with_sj(reference, s, j, f), d).replace(tau_lag_s=t)
+                 for t, d in combos for s, j in pairs for f in (1, -1)]
+        sse = train_sse(stage, cands).reshape(len(combos), -1)
+        results = []
+        if stage.name == "valve":
+            # OP -> MV has no process: the lag x valve grid is cheap enough to search globally
+            # (a lag moves the plain fit's S and J far)
+            span = float(np.ptp(stage.x[: stage.n_fit]))
+            S_grid = np.exp(np.arange(math.log(0.2), math.log(max(0.8 * span, 0.3)) + 1e-9, math.log1p(0.03)))
+            y0s = y0_options(stage, reference)
+            g = [reference.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f,
+                                   tau_lag_s=float(t), **y0)
+                 for t in taus for s in S_grid for r in (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.2, 1.45)
+                 for f in (1, -1) for y0 in y0s]
+            gs = train_sse(stage, g)
+            for i in np.argsort(gs)[:2]:
+                st = refine_sj(stage, g[int(i)], s_span=0.04, n_s=9, j_span=0.15, n_j=7)[0]
+                st = best_of(stage, [st.replace(tau_lag_s=st.tau_lag_s * m)
+                                     for m in (0.8, 0.9, 1.0, 1.12, 1.25)])[0]
+                st, c = best_of(stage, [with_delay(st, d) for d in delays])
+                results.append((c, st))
+        # a lag changes which slips a plain fit had to fake: search the valve again for the best few
+        for i in np.argsort(sse.min(axis=1))[:1 if results else 3]:
+            st = cands[int(i) * sse.shape[1] + int(np.argmin(sse[i]))]
+            st = global_sj(stage, st)
+            st, c = refit_dynamics(stage, st, rounds=1)
+            results.append((c, st))
+        return self._polish(stage, min(results, key=lambda t: t[0])[1])
+
+    def _polish(self, stage, best, again=False):
+        t0 = best.tau_lag_s
+        pairs = sj_local(best.S_up_pct, best.J_up_pct, s_span=0.04, n_s=9, j_span=0.15, n_j=5)
+        cands = [with_sj(best, s, j).replace(tau_lag_s=t0 * m)
+                 for m in (0.75, 0.87, 1.0, 1.15, 1.3) for s, j in pairs]
+        cands.append(best)
+        best, _ = best_of(stage, cands)
+        best, _ = refit_dynamics(stage, best, rounds=1)
+        best, _ = refine_sj(stage, best, s_span=0.02, n_s=9, j_span=0.06, n_j=5, both_f0=False)
+        if stage.name == "valve":
+            best = fine_valve(stage, best, "tau_lag_s", profile=not again)
+        return best
+
+    def _params(self, struct, reference, stage, coef):
+        dead = struct.process.delay_s if stage.name == "valve" else 0.0
+        return {"tau_s": struct.tau_lag_s, "dead_time_s": float(dead), "S_pct": struct.S_up_pct,
+                "J_pct": struct.J_up_pct}

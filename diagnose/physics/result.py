@@ -1,0 +1,284 @@
+"""What `explain` returns: typed, frozen results; `Explanation.to_dict` is the JSON object that
+`stiction explain --json` prints."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import numpy as np
+
+from .locate import Direction, Drift, Events, Frequency, Mismatch, OperatingPoint, Window
+from .model import Structure
+
+#: what the RMSEs of each stage measure
+TARGETS = {"loop": "pv", "valve": "mv"}
+
+
+def _num(v: float | None) -> float | None:
+    """A float for JSON: NaN and infinities become None."""
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _clean(obj: Any) -> Any:
+    """Numbers of a nested JSON-ready structure made strict: NaN and infinities -> None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return _num(obj)
+    return obj
+
+
+@dataclass(frozen=True)
+class ExplainWarning:
+    """Something the data cannot tell apart, or a data-quality finding passed through.
+
+    ``code``: ``physics.<what>`` (indistinguishable, ambiguous, entrained, sub_sample, unexplained,
+    valve_idle) or ``data_quality.<finding>``; ``message``: one or two sentences.
+    """
+
+    code: str
+    message: str
+
+    def to_dict(self) -> dict[str, str]:
+        return {"code": self.code, "message": self.message}
+
+
+@dataclass(frozen=True)
+class HypothesisResult:
+    """One tested hypothesis on one stage.
+
+    Attributes
+    ----------
+    name : str
+    params : mapping str -> float
+        The fitted physical parameters, units in the names (read-only).
+    heldout_rmse : float
+        Held-out RMSE of its posterior-predictive mean, target units.
+    accepted : bool
+        Whether it passed every acceptance rule.
+    stage : {"loop", "valve"}
+    train_rmse : float
+        Training RMSE of the fitted parameter set.
+    reduction : float
+        Held-out RMSE reduction against the reference (0.3: 30 % lower).
+    delta_bic, train_delta_bic : float
+        Held-out and training BIC differences against the reference (negative: better).
+    n_extra : int
+        Parameters added to the plain model.
+    refused : str
+        The first acceptance rule it failed, in words; empty when accepted.
+    """
+
+    name: str
+    params: Mapping[str, float]
+    heldout_rmse: float
+    accepted: bool
+    stage: str
+    train_rmse: float
+    reduction: float
+    delta_bic: float
+    n_extra: int
+    train_delta_bic: float = float("nan")
+    refused: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "params", MappingProxyType({str(k): float(v) for k, v in self.params.items()}))
+
+    @property
+    def target(self) -> str:
+        """``pv`` (loop stage) or ``mv`` (valve stage): what the RMSEs measure."""
+        return TARGETS[self.stage]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "params": {k: _num(v) for k, v in self.params.items()},
+                "heldout_rmse": _num(self.heldout_rmse), "accepted": bool(self.accepted),
+                "stage": self.stage, "target": self.target, "train_rmse": _num(self.train_rmse),
+                "heldout_reduction": _num(self.reduction), "delta_bic": _num(self.delta_bic),
+                "train_delta_bic": _num(self.train_delta_bic),
+                "n_extra_params": int(self.n_extra), "refused": self.refused}
+
+
+@dataclass(frozen=True)
+class OtherStage:
+    """A stage that was run but not reported: its baseline's and reference's held-out RMSE (its
+    target's units) and the hints of its localisation."""
+
+    stage: str
+    baseline_rmse: float
+    reference_rmse: float
+    hints: tuple[str, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"baseline_rmse": self.baseline_rmse, "reference_rmse": self.reference_rmse,
+                "hints": list(self.hints)}
+
+
+@dataclass(frozen=True, eq=False)
+class StageMismatch:
+    """Where the plain model misses on the reported stage: the localisation (`locate.Mismatch`) of
+    the better-trained plain model's residual (``located_on``: ``reference`` or ``baseline``), and
+    the stage's split and reference error."""
+
+    windows: tuple[Window, ...]
+    events: Events
+    direction: Direction
+    operating_point: OperatingPoint
+    frequency: Frequency
+    drift: Drift
+    hints: tuple[str, ...]
+    located_on: str
+    stage: str
+    train_fraction: float
+    heldout_start_s: float
+    reference_rmse: float
+    other_stages: tuple[OtherStage, ...] = ()
+
+    @classmethod
+    def of(cls, m: Mismatch, **kw) -> "StageMismatch":
+        return cls(windows=m.windows, events=m.events, direction=m.direction, operating_point=m.operating_point,
+                   frequency=m.frequency, drift=m.drift, hints=m.hints, **kw)
+
+    @property
+    def limit_cycle_period_s(self) -> float | None:
+        return self.frequency.limit_cycle_period_s
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {"windows": [w.to_dict() for w in self.windows], "events": self.events.to_dict(),
+             "direction": self.direction.to_dict(), "operating_point": self.operating_point.to_dict(),
+             "frequency": self.frequency.to_dict(), "drift": self.drift.to_dict(), "hints": list(self.hints),
+             "located_on": self.located_on, "stage": self.stage, "train_fraction": self.train_fraction,
+             "heldout_start_s": self.heldout_start_s, "reference_rmse": self.reference_rmse}
+        if self.other_stages:
+            d["other_stages"] = {o.stage: o.to_dict() for o in self.other_stages}
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class StageModels:
+    """The plain models of one stage: the baseline (``baseline_source`` says where it came from)
+    and the reference (the same structure refit here)."""
+
+    stage: str
+    baseline: Structure
+    reference: Structure
+    baseline_source: str
+
+
+@dataclass(frozen=True, eq=False)
+class FigureData:
+    """Arrays of the reported stage for the figure (`diagnose.physics.figures`): times (s), the
+    recorded target and the baseline's, reference's and improved model's simulations, their
+    residuals (``residual_located``: of the model the localisation ran on), OP and the simulated
+    stem (%), the training part's start and end (s), the located windows, and the localisation's
+    arrays (window RMS, the profile after slips, RMS by OP bin and by direction, the residual's
+    spectrum, slip times)."""
+
+    t_s: np.ndarray
+    observed: np.ndarray
+    baseline: np.ndarray
+    reference: np.ndarray
+    improved: np.ndarray
+    residual_baseline: np.ndarray
+    residual_located: np.ndarray
+    residual_improved: np.ndarray
+    located_on: str
+    op_pct: np.ndarray
+    stem_hat_pct: np.ndarray
+    train_start_s: float
+    train_end_s: float
+    windows: tuple[tuple[float, float], ...]
+    window_t_s: np.ndarray
+    window_rms: np.ndarray
+    profile_lag_s: np.ndarray
+    after_slip_profile: np.ndarray
+    op_bin_centres_pct: np.ndarray
+    op_bin_rms: np.ndarray
+    direction_rms: tuple[float, float]
+    freq_hz: np.ndarray
+    residual_psd: np.ndarray
+    limit_cycle_period_s: float | None
+    slip_t_s: np.ndarray
+    units: str
+
+
+@dataclass(frozen=True, eq=False)
+class Explanation:
+    """Result of `explain`.
+
+    Attributes
+    ----------
+    missing_physics : str or None
+        Name of the accepted hypothesis, None when the baseline is good enough or nothing helps.
+    baseline_rmse, improved_rmse : float
+        Held-out RMSE of the baseline and of the named model (equal when None), in the target's
+        units (PV units on the loop stage, % of span on the valve stage).
+    hypotheses : tuple of HypothesisResult
+        Every tested hypothesis, in registry order.
+    mismatch : StageMismatch
+        Where the plain model misses on the reported stage.
+    explanation : str
+        A few sentences for an engineer.
+    warnings : tuple of ExplainWarning
+    target : {"pv", "mv"}
+        What the reported RMSEs measure.
+    loop : str
+        The record's name.
+    baseline_source : str
+        Where the reported stage's baseline came from (`diagnose.physics.baseline.SOURCES`).
+    arrays : FigureData
+        Figure data (`figure_data` returns it as a dict for the drawing code).
+    stages : tuple of StageModels
+        The plain models of every stage that was run.
+    """
+
+    missing_physics: str | None
+    baseline_rmse: float
+    improved_rmse: float
+    hypotheses: tuple[HypothesisResult, ...]
+    mismatch: StageMismatch
+    explanation: str
+    warnings: tuple[ExplainWarning, ...]
+    target: str
+    loop: str
+    baseline_source: str
+    arrays: FigureData = field(repr=False)
+    stages: tuple[StageModels, ...] = field(default=(), repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object of `stiction explain --json` (strict JSON: no NaN)."""
+        return _clean({
+            "loop": self.loop,
+            "missing_physics": self.missing_physics,
+            "baseline_rmse": self.baseline_rmse,
+            "improved_rmse": self.improved_rmse,
+            "target": self.target,
+            "baseline_source": self.baseline_source,
+            "hypotheses": [h.to_dict() for h in self.hypotheses],
+            "mismatch": self.mismatch.to_dict(),
+            "explanation": self.explanation,
+            "warnings": [w.to_dict() for w in self.warnings],
+        })
+
+    def with_warnings(self, first: tuple[ExplainWarning, ...]) -> "Explanation":
+        """The same explanation with ``first`` before its own warnings (e.g. how the file was read)."""
+        return replace(self, warnings=tuple(first) + self.warnings)
+
+    def figure_data(self) -> dict[str, Any]:
+        """The figure's arrays as a dict (the fields of `FigureData`, plus ``target`` and
+        ``missing_physics``)."""
+        a = {f: getattr(self.arrays, f) for f in self.arrays.__dataclass_fields__}
+        a["target"] = self.target
+        a["missing_physics"] = self.missing_physics
+        return a
