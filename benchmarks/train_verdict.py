@@ -4,7 +4,7 @@ Three steps, each cached so the expensive one runs once:
 
 1. ``features``: simulate a labelled corpus with the independent plant simulator
    (`benchmarks.plantsim`: three friction laws, healthy loops and the classic false alarms) and the
-   project's own benchmark loops (`benchmarks.validate_simulated`), run `diagnose.identify.identify`
+   project's own benchmark loops (`benchmarks.validate_simulated`), run `diagnose.identification.identify`
    on each record as the command does (OP/PV; OP/PV/MV; OP alone) and store every evidence row's
    numbers in a JSON-lines file; the real recordings of ../shared/data the same way.
 2. ``fit``: a logistic regression per model kind (``full``, ``op_mv``, ``op_only``) on the corpus
@@ -79,7 +79,7 @@ TARGET_SPECIFICITY = 0.90
 
 def _row_features(rec: LoopRecord, *, integrating: bool | None = None) -> dict[str, Any]:
     """The three kinds' feature dicts for one record (identify as the command runs it)."""
-    from diagnose.identify import identify
+    from diagnose.identification import identify
 
     out: dict[str, Any] = {}
     t0 = time.perf_counter()

@@ -499,7 +499,7 @@ def test_explain_rejects_what_it_cannot_use():
 def test_explain_reuses_an_identification():
     # the identification a caller already has is the baseline: its valve, process and start state,
     # not a second fit on the training part
-    from diagnose.identify import identify
+    from diagnose.identification import identify
     from diagnose.physics.baseline import from_hammerstein
 
     rec, _ = concealed_loop("time_varying_friction", 101, n=3000)
