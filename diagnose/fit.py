@@ -371,8 +371,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     spans: list[tuple[int, int]] = []
     if long_record:
         # search a full-rate window, refine on the whole record: slips happen at the sample level,
-        # and block means smear them (searching block means of 10 000-sample loops got J wrong by
-        # half and the class wrong in a third of the simulated loops, see docs/validation.md)
+        # and block means would smear them (J and the class are read off the slips)
         spans.append((widest_window(x, search.max_samples, None if train is None else w > 0), search.max_samples))
     if stiction and not lim.fixed:
         spans += search_windows(n, windows, w)

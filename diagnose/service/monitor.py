@@ -32,8 +32,8 @@ if TYPE_CHECKING:
     from .pipeline import Diagnosis
 
 #: Shortest window (samples) the monitor accepts. The fit is scored on what is left after the
-#: model's start-up samples: the simulator's 60-sample windows left too few and failed one by one,
-#: 100-sample windows identify (with a short-record warning below 250).
+#: model's start-up samples, and shorter windows leave too few to identify; windows under 250
+#: samples identify with a short-record warning.
 MIN_WINDOW_SAMPLES = 100
 
 
