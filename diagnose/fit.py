@@ -334,7 +334,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
         window's result on the whole record, and keep the cheapest whole-record fit. With J > 0 the
         cost is a needle in S and which valley the search ends in hangs on the noise of the samples
         it sees: a few independent looks, judged on all the data, find the truth's valley far more
-        often (docs/fitting.md, "Search windows"). 0: no extra windows.
+        often (docs/fitting.md, "Search"). 0: no extra windows.
     surface : bool
         Compute the error surface and the intervals (False: a faster fit with point estimates;
         the surface is then a single cell and the intervals collapse to the estimate).

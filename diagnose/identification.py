@@ -66,7 +66,7 @@ INSAMPLE_THRESHOLD = 0.05
 BAND_NOISE_RATIO = 3.0
 #: Extra search windows of the Hammerstein fit (`diagnose.fit.fit_hammerstein`, ``windows``): the
 #: record's first, middle and last third (at most 2000 samples each) are searched too, and the
-#: cheapest whole-record refinement wins (docs/fitting.md, "Search windows").
+#: cheapest whole-record refinement wins (docs/fitting.md, "Search").
 FIT_WINDOWS = 3
 #: A sharply determined S: the 95 % interval of S no wider than this fraction of S (a spurious S
 #: fitted to a healthy valve sits on a flat error surface; a real one in a narrow valley).
@@ -481,7 +481,7 @@ def _backlash_lr(fit: HammersteinFit, linear: HammersteinFit, ctest: dict[str, A
     ``n_eff ln(c_linear / c_deadband)``, on the fit's cost scale (None when a cost is not positive).
 
     One extra parameter (S): a deadband cannot mimic a load step the way a slip jump can, so this
-    shape's in-sample gain is not inflated like the free fit's (docs/fitting.md, "Detection")."""
+    shape's in-sample gain is not inflated like the free fit's (docs/fitting.md, "The fit's evidence")."""
     if not (linear.cost > 0 and ctest["cost_fit"] > 0):
         return None
     ratio = (fit.cost / linear.cost) * ctest["cost_deadband"] / ctest["cost_fit"]
