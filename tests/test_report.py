@@ -3,6 +3,7 @@ pure content from the typed diagnosis."""
 
 from __future__ import annotations
 
+import functools
 import shutil
 import subprocess
 from dataclasses import replace
@@ -269,15 +270,24 @@ def test_plain_words_follow_the_evidence():
     assert "tuning" in tune.action and tune.verdict_text.startswith("No stiction")
 
 
+@functools.lru_cache(maxsize=1)
+def _real_explanation():
+    """One real `explain` result on a short sticky loop: the report tests vary its named physics."""
+    from diagnose.physics import explain
+
+    rec = sticky_loop(3.0, 1.0, n=1200, noise_std=0.1, seed=1)
+    return explain(rec.replace(mv=None, name="X1"))
+
+
 def _explanation(name, accepted, **params):
-    from diagnose.physics import Explanation, HypothesisResult
+    from diagnose.physics import HypothesisResult
 
     hyp = HypothesisResult(name=name, params=params, heldout_rmse=4.33, accepted=accepted, stage="loop",
                            train_rmse=0.63, reduction=0.05, delta_bic=-3.0, n_extra=2)
-    return Explanation(missing_physics=name if accepted else None, baseline_rmse=4.66,
-                       improved_rmse=4.33 if accepted else 4.66, hypotheses=(hyp,), mismatch={},
-                       explanation="No missing physics named." if not accepted else f"{name} explains it.",
-                       warnings=(), target="pv", loop="X1", baseline_source="fit_hammerstein")
+    return replace(
+        _real_explanation(), missing_physics=name if accepted else None, baseline_rmse=4.66,
+        improved_rmse=4.33 if accepted else 4.66, hypotheses=(hyp,),
+        explanation="No missing physics named." if not accepted else f"{name} explains it.")
 
 
 def test_explanation_section_slots_in_when_present():
