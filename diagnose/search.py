@@ -664,6 +664,10 @@ def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: floa
     best = {"free": (c_fit, S0, fit.J_pct, fit.f0, 0.0), "deadband": (np.inf,), "no_offset": (np.inf,)}
     per_ratio = [(np.inf, 1.0, x0)] * ratios.shape[0]      # best (cost, f0, first OP) per J/S
     by_class: dict[str, float] = {}      # best cost per class shape (for the plausible set)
+    # the fit's own shape is plausible by construction, even where no grid point of it is as good
+    fit_cls = str(stiction_classes(np.array([S0]), np.array([fit.J_pct]))[0])
+    if fit_cls != "none":
+        by_class[fit_cls] = c_fit
 
     def keep(c, Sv, Jv, Rv, F, xs0):
         names = stiction_classes(Sv, Jv)
