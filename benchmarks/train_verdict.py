@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 
 from diagnose.evidence import run_all  # noqa: E402
 from diagnose.record import LoopRecord  # noqa: E402
-from diagnose.verdict import MODEL_FILE, CombinerModel, Feature, feature_values  # noqa: E402
+from diagnose.verdict import MODEL_FILE, CombinerModel, Feature, feature_values, fit_rule  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 KINDS = ("full", "op_mv", "op_only")
@@ -73,6 +73,10 @@ C_REG = 1.0
 #: false-alarm records are left alone at least this often: a false stiction call sends a crew to a
 #: good valve, so specificity is fixed first and sensitivity is what the evidence then gives.
 TARGET_SPECIFICITY = 0.90
+#: Between this probability and the threshold the fit's own decisive evidence (`verdict.fit_rule`)
+#: settles the verdict. On the training seeds it recovers sticky records whose tests are
+#: ambiguous at little cost in specificity; alone, the rule calls too many hard negatives sticky.
+FIT_RULE_FLOOR = 0.5
 
 
 # ------------------------------------------------------------------------------------------ features
@@ -291,8 +295,29 @@ def fit_model(rows: list[dict[str, Any]], kind: str, *, names: list[str] | None 
         # the smallest threshold above the TARGET_SPECIFICITY quantile of the negatives' probabilities
         q = float(np.quantile(p_neg, TARGET_SPECIFICITY, method="higher"))
         threshold = float(np.nextafter(q, 1.0))
-        model = CombinerModel(kind, tuple(feats), b, round(max(threshold, 0.5), 4), trained_on)
+        threshold = round(max(threshold, 0.5), 4)
+        floor = FIT_RULE_FLOOR if kind != "op_only" and threshold > FIT_RULE_FLOOR else None
+        model = CombinerModel(kind, tuple(feats), b, threshold, trained_on, floor)
     return model
+
+
+def decide(model: CombinerModel, rows: list[dict[str, Any]], kind: str,
+           p: np.ndarray | None = None) -> np.ndarray:
+    """The verdicts the command would give: the threshold, and the fit rule above its floor."""
+    p = predict(model, rows, kind) if p is None else p
+    out = p >= model.threshold
+    if model.fit_rule_floor is not None:
+        dec_key = f"{kind}_decisions"
+        rule = np.array([fit_rule([_Row(t, d) for t, d in (r.get(dec_key) or {}).items()]) for r in rows])
+        out |= (p >= model.fit_rule_floor) & rule
+    return out
+
+
+class _Row:
+    """A stored row's test and decision, as `fit_rule` reads evidence."""
+
+    def __init__(self, test: str, decision: str) -> None:
+        self.test, self.decision = test, decision
 
 
 def predict(model: CombinerModel, rows: list[dict[str, Any]], kind: str) -> np.ndarray:
@@ -359,7 +384,7 @@ def loto(rows_real: list[dict[str, Any]], sim_train: list[dict[str, Any]], *, re
         m = fit_model(train, "full", C=C, weights=np.asarray(weights))
         idx = [i for i, r in enumerate(rows_real) if r["tag"] == tag]
         p[idx] = predict(m, [rows_real[i] for i in idx], "full")
-        verdict[idx] = p[idx] >= m.threshold
+        verdict[idx] = decide(m, [rows_real[i] for i in idx], "full", p[idx])
     return p, verdict
 
 
@@ -374,7 +399,7 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
         if not sub:
             continue
         p = predict(models[kind], sub, kind)
-        pred = p >= models[kind].threshold
+        pred = decide(models[kind], sub, kind, p)
         truth = np.array([r["sticky"] for r in sub])
         per = {"all": scores(truth, pred)}
         # each friction law against all negatives, each false alarm against all positives
@@ -414,7 +439,8 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
         w = np.array([1.0 / per_tag[r["tag"]] for r in real])
         report["plant_loto"] = {"windows": scores(truth, pred), "tag_weighted": scores(truth, pred, w),
                                 "rows": [{"file": r["file"], "tag": r["tag"], "sticky": r["sticky"],
-                                          "p": float(pi)} for r, pi in zip(real, p)]}
+                                          "p": float(pi), "stiction": bool(v)}
+                                         for r, pi, v in zip(real, p, pred)]}
         print(f"\nplant windows, leave-one-tag-out (real weight {a.real_weight}):")
         for k in ("windows", "tag_weighted"):
             s = report["plant_loto"][k]
@@ -425,11 +451,12 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     isdb = [r for r in rows if r.get("source") == "isdb" and r.get("full") is not None]
     if isdb:
         p = predict(models["full"], isdb, "full")
-        report["isdb"] = [{"loop": r["tag"], "label": r.get("label"), "p": float(pi),
-                           "stiction": bool(pi >= models["full"].threshold)} for r, pi in zip(isdb, p)]
+        pred = decide(models["full"], isdb, "full", p)
+        report["isdb"] = [{"loop": r["tag"], "label": r.get("label"), "p": float(pi), "stiction": bool(v)}
+                          for r, pi, v in zip(isdb, p, pred)]
         print(f"\nISDB (packaged model, threshold {models['full'].threshold}):")
-        for r, pi in zip(isdb, p):
-            print(f"  {r['tag']:8s} {str(r.get('label')):24s} p={pi:.2f}")
+        for r, pi, v in zip(isdb, p, pred):
+            print(f"  {r['tag']:8s} {str(r.get('label')):24s} p={pi:.2f} -> {'stiction' if v else 'none'}")
     if a.json:
         Path(a.json).write_text(json.dumps(report, indent=1), encoding="utf-8")
     return 0

@@ -367,6 +367,7 @@ class Identification:
             "evidence": [ev.to_dict() for ev in self.evidence],
             "combination": None if self.verdict is None else {
                 "threshold": self.verdict.threshold, "op_only": self.verdict.op_only,
+                "by_fit_rule": self.verdict.by_fit_rule,
                 "contributions": {k: _finite(v) for k, v in self.verdict.contributions.items()}},
             "warnings": [w.to_dict() for w in self.warnings],
             "confidence": float(self.confidence),

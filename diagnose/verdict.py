@@ -85,6 +85,9 @@ class CombinerModel:
         Probability at and above which the verdict is stiction.
     trained_on : str
         One line: the corpus the model was fitted on.
+    fit_rule_floor : float or None
+        Between this probability and ``threshold`` the fit's own decisive evidence breaks the tie
+        (`fit_rule`): stiction when it holds. None: the threshold alone decides.
     """
 
     kind: str
@@ -92,6 +95,7 @@ class CombinerModel:
     intercept: float
     threshold: float
     trained_on: str = ""
+    fit_rule_floor: float | None = None
 
     def contributions(self, values: Mapping[str, float | None]) -> dict[str, float]:
         """Each feature's term in the log-odds, ``coef * z``."""
@@ -104,7 +108,7 @@ class CombinerModel:
 
     def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, "intercept": self.intercept, "threshold": self.threshold,
-                "trained_on": self.trained_on,
+                "trained_on": self.trained_on, "fit_rule_floor": self.fit_rule_floor,
                 "features": [{"name": f.name, "lo": f.lo, "hi": f.hi, "center": f.center,
                               "scale": f.scale, "coef": f.coef, "log": f.log} for f in self.features]}
 
@@ -113,8 +117,20 @@ class CombinerModel:
         feats = tuple(Feature(str(f["name"]), float(f["lo"]), float(f["hi"]), float(f["center"]),
                               float(f["scale"]), float(f["coef"]), bool(f.get("log", False)))
                       for f in d["features"])
+        floor = d.get("fit_rule_floor")
         return cls(str(d["kind"]), feats, float(d["intercept"]), float(d["threshold"]),
-                   str(d.get("trained_on", "")))
+                   str(d.get("trained_on", "")), None if floor is None else float(floor))
+
+
+def fit_rule(evidence: Iterable[Any]) -> bool:
+    """The Hammerstein fit's own decisive evidence: a valve band clear of OP's noise, backed by a
+    clear improvement over a linear loop, a sharply determined S or a deadband-shaped fit.
+
+    On its own this rule calls a hard negative (compression, an external load) sticky too often;
+    the combiner uses it only to settle records whose probability is near the threshold."""
+    d = {ev.test: ev.decision for ev in evidence}
+    return d.get("valve_band") == "stiction" and any(
+        d.get(k) == "stiction" for k in ("model_fit", "band_sharpness", "deadband_fit"))
 
 
 def feature_values(evidence: Iterable[Any]) -> dict[str, float | None]:
@@ -152,7 +168,8 @@ class Verdict:
     stiction_probability : float
         Calibrated probability that the valve sticks, 0..1.
     stiction : bool
-        ``stiction_probability >= threshold``.
+        ``stiction_probability >= threshold``, or the fit's decisive evidence (`fit_rule`) with a
+        probability of at least the model's ``fit_rule_floor``.
     threshold : float
     confidence : float
         Probability of the reported verdict (``p`` or ``1 - p``), lowered for weak data
@@ -174,6 +191,7 @@ class Verdict:
     contributions: Mapping[str, float] = field(default_factory=dict)
     judged: tuple[str, ...] = ()
     cannot_judge: tuple[str, ...] = ()
+    by_fit_rule: bool = False
 
 
 def combine(evidence: Sequence[Any], *, kind: str = "full", model: CombinerModel | None = None,
@@ -196,9 +214,13 @@ def combine(evidence: Sequence[Any], *, kind: str = "full", model: CombinerModel
     values = feature_values(evidence)
     p = m.probability(values)
     stiction = p >= m.threshold
+    by_rule = bool(not stiction and m.fit_rule_floor is not None and p >= m.fit_rule_floor
+                   and fit_rule(evidence))
+    stiction = stiction or by_rule
     judged = tuple(ev.test for ev in evidence if ev.decision != "cannot_judge")
     missing = tuple(ev.test for ev in evidence if ev.decision == "cannot_judge")
     conf = p if stiction else 1.0 - p
     return Verdict(stiction_probability=p, stiction=bool(stiction), threshold=m.threshold,
                    confidence=float(min(conf, confidence_cap)), op_only=op_only,
-                   contributions=m.contributions(values), judged=judged, cannot_judge=missing)
+                   contributions=m.contributions(values), judged=judged, cannot_judge=missing,
+                   by_fit_rule=by_rule)

@@ -47,6 +47,23 @@ def test_combine_ignores_tests_that_cannot_judge_and_caps_confidence():
     assert v.judged == ("a",) and v.cannot_judge == ("b",)
 
 
+def test_the_fit_rule_settles_only_records_between_its_floor_and_the_threshold():
+    base = CombinerModel("full", (Feature("a", -1.0, 1.0, 0.0, 1.0, 1.0),), 0.0, 0.7, "", 0.5)
+    fit_says = [Evidence("valve_band", 12.0, 4.0, "stiction", "band"),
+                Evidence("deadband_fit", 30.0, 10.83, "stiction", "lr")]
+    fit_silent = [Evidence("valve_band", 12.0, 4.0, "stiction", "band"),
+                  Evidence("deadband_fit", 3.0, 10.83, "no_stiction", "lr")]
+    p_mid = [Evidence("a", 0.4, 0.0, "stiction", "x")]           # p = 0.599: between 0.5 and 0.7
+    p_low = [Evidence("a", -0.4, 0.0, "no_stiction", "x")]       # p = 0.401: under the floor
+    v = combine(p_mid + fit_says, model=base)
+    assert v.stiction and v.by_fit_rule and v.stiction_probability < v.threshold
+    assert not combine(p_mid + fit_silent, model=base).stiction
+    assert not combine(p_low + fit_says, model=base).stiction
+    no_floor = CombinerModel("full", base.features, 0.0, 0.7, "", None)
+    assert not combine(p_mid + fit_says, model=no_floor).stiction
+    assert CombinerModel.from_dict(base.to_dict()) == base
+
+
 def test_the_packaged_models_read_known_evidence_in_its_own_direction():
     for kind in ("full", "op_mv", "op_only"):
         m = load_model(kind)
