@@ -28,27 +28,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.validate_real import read_columns  # noqa: E402
 from diagnose.evidence import TESTS, run_all  # noqa: E402
 
 # the shared data sit beside the checkout (../shared/data), or one level up from a worktree
 DEFAULT_DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[2:4]
                      if (p / "shared" / "data").is_dir()), Path(__file__).resolve().parents[2] / "shared" / "data")
 SHORT = {"stiction": "STIC", "no_stiction": "no", "undetermined": "?", "cannot_judge": "-"}
-
-
-def _columns(path: Path) -> dict[str, np.ndarray]:
-    with open(path, newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh))
-    out = {}
-    for j, name in enumerate(rows[0]):
-        vals = []
-        for r in rows[1:]:
-            try:
-                vals.append(float(r[j]))
-            except (ValueError, IndexError):
-                vals.append(np.nan)
-        out[name] = np.asarray(vals)
-    return out
 
 
 def _rates(truth: np.ndarray, flag: np.ndarray, w: np.ndarray) -> dict[str, float | None]:
@@ -88,7 +74,7 @@ def plant(data: Path) -> dict:
     rows, times = [], []
     for lab in labels:
         path = base / "loops" / lab["file"].replace(".txt", ".csv")
-        c = _columns(path)
+        c = read_columns(path)
         m = np.isfinite(c["OP"]) & np.isfinite(c["PV"])
         sp = c.get("SP")
         sp = sp[m] if sp is not None and np.all(np.isfinite(sp[m])) else None
@@ -109,7 +95,7 @@ def isdb(data: Path) -> dict:
     base = data / "isdb-subset"
     rows = []
     for lab in csv.DictReader(open(base / "labels.csv", encoding="utf-8")):
-        c = _columns(base / f"{lab['loop']}.csv")
+        c = read_columns(base / f"{lab['loop']}.csv")
         integrating = lab["integrating"].strip().lower() == "true"
         ev = run_all(c["OP"], c["PV"], float(lab["sampling_time_s"]), integrating=integrating)
         rows.append({"loop": lab["loop"], "label": lab["label"] or "(none)", "integrating": integrating,

@@ -44,6 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.validate_real import read_columns  # noqa: E402
 from diagnose.evidence import run_all  # noqa: E402
 from diagnose.record import LoopRecord  # noqa: E402
 from diagnose.verdict import MODEL_FILE, CombinerModel, Feature, feature_values, fit_rule  # noqa: E402
@@ -138,27 +139,12 @@ def _sim_job(args: tuple[str, int, int, dict]) -> dict[str, Any]:
     return row
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    with open(path, newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh))
-    cols: dict[str, np.ndarray] = {}
-    for j, name in enumerate(rows[0]):
-        vals = []
-        for r in rows[1:]:
-            try:
-                vals.append(float(r[j]))
-            except (ValueError, IndexError):
-                vals.append(np.nan)
-        cols[name] = np.asarray(vals)
-    return cols
-
-
 def real_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
     """The labelled real recordings: the plant windows and the ISDB loops."""
     base = data / "plant-dcs-stictiongpt"
     with open(base / "labels.csv", encoding="utf-8") as fh:
         for lab in csv.DictReader(fh):
-            c = _read_csv(base / "loops" / lab["file"].replace(".txt", ".csv"))
+            c = read_columns(base / "loops" / lab["file"].replace(".txt", ".csv"))
             ok = np.isfinite(c["OP"]) & np.isfinite(c["PV"]) & np.isfinite(c["SP"])
             rec = LoopRecord(name=lab["tag"], ts_s=float(lab["sampling_time_s"]), op=c["OP"][ok],
                              pv=c["PV"][ok], sp=c["SP"][ok])
@@ -167,7 +153,7 @@ def real_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
     base = data / "isdb-subset"
     with open(base / "labels.csv", encoding="utf-8") as fh:
         for lab in csv.DictReader(fh):
-            c = _read_csv(base / f"{lab['loop']}.csv")
+            c = read_columns(base / f"{lab['loop']}.csv")
             ok = np.isfinite(c["OP"]) & np.isfinite(c["PV"])
             rec = LoopRecord(name=lab["loop"], ts_s=float(lab["sampling_time_s"]), op=c["OP"][ok], pv=c["PV"][ok])
             label = lab["label"] or None

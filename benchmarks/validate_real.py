@@ -32,7 +32,8 @@ from diagnose.record import LoopRecord  # noqa: E402
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def _columns(path: Path) -> dict[str, np.ndarray]:
+def read_columns(path: Path) -> dict[str, np.ndarray]:
+    """The numeric columns of a CSV file by header name (a cell that is not a number is NaN)."""
     with open(path, newline="", encoding="utf-8-sig") as fh:
         rows = list(csv.reader(fh))
     header = rows[0]
@@ -79,7 +80,7 @@ def plant_windows(data: Path, verbose: bool) -> dict:
     rows = []
     for lab in labels:
         path = base / "loops" / lab["file"].replace(".txt", ".csv")
-        c = _columns(path)
+        c = read_columns(path)
         m = _finite_rows(c["OP"], c["PV"])
         sp = c.get("SP")
         rec = LoopRecord(name=lab["tag"], ts_s=float(lab["sampling_time_s"]), op=c["OP"][m], pv=c["PV"][m],
@@ -128,7 +129,7 @@ def isdb(data: Path, verbose: bool) -> dict:
     labels = list(csv.DictReader(open(base / "labels.csv", encoding="utf-8")))
     rows = []
     for lab in labels:
-        c = _columns(base / f"{lab['loop']}.csv")
+        c = read_columns(base / f"{lab['loop']}.csv")
         rec = LoopRecord(name=lab["loop"], ts_s=float(lab["sampling_time_s"]), op=c["OP"], pv=c["PV"])
         d, dt = _run(rec)
         row = {"loop": lab["loop"], "label": lab["label"] or "(none)", "stiction": d.get("stiction"),
@@ -148,7 +149,7 @@ def tennessee(data: Path, verbose: bool) -> dict:
     for name, onset in [("d14_te_loop_reactorCW_XMV10_XMEAS21", 160), ("d14_loop_reactorCW_XMV10_XMEAS21", 0),
                         ("d00_te_loop_reactorCW_XMV10_XMEAS21", 0), ("d00_loop_reactorCW_XMV10_XMEAS21", 0),
                         ("d15_te_loop_condenserCW_XMV11_XMEAS17", 160), ("d00_te_loop_condenserCW_XMV11_XMEAS17", 0)]:
-        c = _columns(base / f"{name}.csv")
+        c = read_columns(base / f"{name}.csv")
         op, pv = c["OP"][onset:], c["PV"][onset:]
         rec = LoopRecord(name=name, ts_s=180.0, op=op, pv=pv)
         d, dt = _run(rec)
@@ -169,7 +170,7 @@ def damadics(data: Path, verbose: bool) -> dict:
     from diagnose.valve_fit import fit_valve
 
     path = data / "damadics-lublin" / "lublin_actuator3_2001-10-11_1h.csv"
-    c = _columns(path)
+    c = read_columns(path)
     m = _finite_rows(c["OP"], c["MV"])
     op, mv = c["OP"][m], c["MV"][m]
     t0 = time.perf_counter()

@@ -38,6 +38,7 @@ from .fit import HammersteinFit, fit_hammerstein
 from .notes import Note
 from .objective import MIN_SAMPLES
 from .oscillation import Oscillation, oscillation_context
+from .plain import finite_or_none
 from .process_model import ProcessModel
 from .record import Finding, LoopRecord
 from .stiction_model import stiction_class
@@ -88,15 +89,8 @@ _LEVEL_TAG = re.compile(r"(?<![A-Z])L[IR]?C(?=[0-9_.\-]|$)")
 SLOW_CYCLE_S = 4 * 3600.0
 
 
-def _finite(v: float | None) -> float | None:
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
 def _pair(v: tuple[float, float] | None) -> list[float | None] | None:
-    return None if v is None else [_finite(v[0]), _finite(v[1])]
+    return None if v is None else [finite_or_none(v[0]), finite_or_none(v[1])]
 
 
 @dataclass(frozen=True)
@@ -152,12 +146,12 @@ class ClassTest:
                    plausible=tuple(str(k) for k in d["plausible"]))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"cost_fit": _finite(self.cost_fit), "cost_free": _finite(self.cost_free),
-                "bound": _finite(self.bound), "cost_deadband": _finite(self.cost_deadband),
-                "cost_no_offset": _finite(self.cost_no_offset), "free_S_pct": _finite(self.free_S_pct),
-                "free_J_pct": _finite(self.free_J_pct), "plausible": list(self.plausible), "cls": self.cls,
-                "S_pct": _finite(self.S_pct), "J_pct": _finite(self.J_pct), "f0": _finite(self.f0),
-                "delta_pct": _finite(self.delta_pct), "cost": _finite(self.cost)}
+        return {"cost_fit": finite_or_none(self.cost_fit), "cost_free": finite_or_none(self.cost_free),
+                "bound": finite_or_none(self.bound), "cost_deadband": finite_or_none(self.cost_deadband),
+                "cost_no_offset": finite_or_none(self.cost_no_offset), "free_S_pct": finite_or_none(self.free_S_pct),
+                "free_J_pct": finite_or_none(self.free_J_pct), "plausible": list(self.plausible), "cls": self.cls,
+                "S_pct": finite_or_none(self.S_pct), "J_pct": finite_or_none(self.J_pct), "f0": finite_or_none(self.f0),
+                "delta_pct": finite_or_none(self.delta_pct), "cost": finite_or_none(self.cost)}
 
 
 @dataclass(frozen=True)
@@ -200,12 +194,12 @@ class Detection:
     def to_dict(self) -> dict[str, Any]:
         if self.op_only:
             return {"op_only": True, "pv_unusable": self.pv_unusable}
-        d: dict[str, Any] = {"insample_improvement": _finite(self.insample_improvement),
-                             "op_noise_pct": _finite(self.op_noise_pct), "S_min_pct": _finite(self.S_min_pct),
-                             "fitted_S_pct": _finite(self.fitted_S_pct),
-                             "fitted_J_pct": _finite(self.fitted_J_pct), "integrating": self.integrating}
+        d: dict[str, Any] = {"insample_improvement": finite_or_none(self.insample_improvement),
+                             "op_noise_pct": finite_or_none(self.op_noise_pct), "S_min_pct": finite_or_none(self.S_min_pct),
+                             "fitted_S_pct": finite_or_none(self.fitted_S_pct),
+                             "fitted_J_pct": finite_or_none(self.fitted_J_pct), "integrating": self.integrating}
         if self.backlash_lr is not None:
-            d["backlash_lr"] = _finite(self.backlash_lr)
+            d["backlash_lr"] = finite_or_none(self.backlash_lr)
         if self.class_test is not None:
             d["class_test"] = self.class_test.to_dict()
         return d
@@ -354,21 +348,21 @@ class Identification:
         return {
             "loop": self.loop,
             "stiction": bool(self.stiction),
-            "stiction_probability": _finite(self.stiction_probability),
+            "stiction_probability": finite_or_none(self.stiction_probability),
             "class": self.cls,
             "class_alternatives": list(self.class_alternatives),
-            "S": _finite(self.S_pct),
-            "J": _finite(self.J_pct),
+            "S": finite_or_none(self.S_pct),
+            "J": finite_or_none(self.J_pct),
             "S_interval": _pair(self.S_interval_pct),
             "J_interval": _pair(self.J_interval_pct),
             "process": self.process.to_dict() if self.process is not None else {},
-            "fit": {"rmse": _finite(self.rmse), "r2": _finite(self.r2)},
+            "fit": {"rmse": finite_or_none(self.rmse), "r2": finite_or_none(self.r2)},
             "oscillation": self.oscillation.to_dict(),
             "evidence": [ev.to_dict() for ev in self.evidence],
             "combination": None if self.verdict is None else {
                 "threshold": self.verdict.threshold, "op_only": self.verdict.op_only,
                 "by_fit_rule": self.verdict.by_fit_rule,
-                "contributions": {k: _finite(v) for k, v in self.verdict.contributions.items()}},
+                "contributions": {k: finite_or_none(v) for k, v in self.verdict.contributions.items()}},
             "warnings": [w.to_dict() for w in self.warnings],
             "confidence": float(self.confidence),
             "method": self.method,

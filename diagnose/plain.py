@@ -8,7 +8,8 @@ import math
 from typing import Any
 
 
-def _finite(value: Any) -> float | None:
+def finite_or_none(value: Any) -> float | None:
+    """``value`` as a float, or None where it is missing, not a number, a bool or not finite."""
     if value is None or isinstance(value, bool):
         return None
     try:
@@ -25,7 +26,7 @@ def duration(seconds: Any, none: str = "-") -> str:
     2 days in hours (``"23.9 h"``), beyond that in days (``"22.9 days"``). Three significant
     figures at most; never an exponent.
     """
-    s = _finite(seconds)
+    s = finite_or_none(seconds)
     if s is None:
         return none
     sign = "-" if s < 0 else ""
@@ -57,7 +58,7 @@ def _sig(x: float, digits: int) -> str:
 def number(value: Any, digits: int = 3, none: str = "-") -> str:
     """A value to ``digits`` significant figures in fixed notation (``0.0123``, ``0.0000312``,
     ``3480``, ``1979700``): never an exponent. Values under 1e-9 in size print as ``0``."""
-    v = _finite(value)
+    v = finite_or_none(value)
     if v is None:
         return none
     if abs(v) < 1e-9:
@@ -68,7 +69,7 @@ def number(value: Any, digits: int = 3, none: str = "-") -> str:
 def percent_change(fraction: Any, none: str = "-") -> str:
     """A relative change as a signed percentage: ``-0.05`` -> ``"-5 %"`` (a fall), ``0.05`` ->
     ``"+5 %"`` (a rise). The sign is the direction of the change, everywhere it is printed."""
-    v = _finite(fraction)
+    v = finite_or_none(fraction)
     if v is None:
         return none
     return f"{100.0 * v:+.0f} %"
@@ -77,7 +78,7 @@ def percent_change(fraction: Any, none: str = "-") -> str:
 def percent(fraction: Any, none: str = "-") -> str:
     """A probability or share as a whole percentage (``0.97`` -> ``"97 %"``); above 99.5 % it reads
     ``"> 99 %"`` and below 0.5 % ``"< 1 %"``: a rounded 100 % would read as a certainty."""
-    v = _finite(fraction)
+    v = finite_or_none(fraction)
     if v is None:
         return none
     if v >= 0.995:

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 from ..errors import StictionError
+from ..plain import finite_or_none
 
 if TYPE_CHECKING:
     from .pipeline import Diagnosis
@@ -140,29 +141,19 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "tool_version": diag.tool_version,
         "status": "ok",
         "class": ident.cls,
-        "S_pct": _num(ident.S_pct), "S_lo": _num(si[0]), "S_hi": _num(si[1]),
-        "J_pct": _num(ident.J_pct), "J_lo": _num(ji[0]), "J_hi": _num(ji[1]),
-        "confidence": _num(ident.confidence),
-        "severity": _num(diag.severity.score),
-        "oscillation_period_s": _num(ident.oscillation.period_s),
+        "S_pct": finite_or_none(ident.S_pct), "S_lo": finite_or_none(si[0]), "S_hi": finite_or_none(si[1]),
+        "J_pct": finite_or_none(ident.J_pct), "J_lo": finite_or_none(ji[0]), "J_hi": finite_or_none(ji[1]),
+        "confidence": finite_or_none(ident.confidence),
+        "severity": finite_or_none(diag.severity.score),
+        "oscillation_period_s": finite_or_none(ident.oscillation.period_s),
         "verdict": diag.verdict_text,
         "result_json": json.dumps(diag.to_dict(), separators=(",", ":"), allow_nan=False),
     }
 
 
-def _num(value: Any) -> float | None:
-    if value is None or isinstance(value, bool):
-        return None
-    try:
-        f = float(value)
-    except (TypeError, ValueError):
-        return None
-    return f if math.isfinite(f) else None
-
-
 def _pair(value: Any) -> tuple[float | None, float | None]:
     if isinstance(value, (list, tuple)) and len(value) == 2:
-        return _num(value[0]), _num(value[1])
+        return finite_or_none(value[0]), finite_or_none(value[1])
     return None, None
 
 
@@ -186,11 +177,11 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
         "tool_version": result.get("tool_version") or "",
         "status": status,
         "class": result.get("class"),
-        "S_pct": _num(result.get("S")), "S_lo": slo, "S_hi": shi,
-        "J_pct": _num(result.get("J")), "J_lo": jlo, "J_hi": jhi,
-        "confidence": _num(result.get("confidence")),
-        "severity": _num(sev.get("score")) if isinstance(sev, Mapping) else None,
-        "oscillation_period_s": _num(osc.get("period_s")) if isinstance(osc, Mapping) else None,
+        "S_pct": finite_or_none(result.get("S")), "S_lo": slo, "S_hi": shi,
+        "J_pct": finite_or_none(result.get("J")), "J_lo": jlo, "J_hi": jhi,
+        "confidence": finite_or_none(result.get("confidence")),
+        "severity": finite_or_none(sev.get("score")) if isinstance(sev, Mapping) else None,
+        "oscillation_period_s": finite_or_none(osc.get("period_s")) if isinstance(osc, Mapping) else None,
         "verdict": error if status != "ok" else result.get("verdict"),
         "result_json": json.dumps(result, separators=(",", ":"), allow_nan=False) if status == "ok" else None,
     }
