@@ -213,7 +213,8 @@ class Identification:
     ----------
     loop : str
     stiction : bool
-        The combined verdict (``verdict.stiction_probability >= verdict.threshold``).
+        The combined verdict (`diagnose.verdict.combine`: the probability against its threshold,
+        and the fit rule between 0.5 and the threshold).
     cls : str
         One of `diagnose.stiction_model.CLASSES` (``"none"`` when ``stiction`` is False), or
         ``"unknown"`` when the verdict is stiction but its size cannot be given (OP-only judgement,

@@ -75,10 +75,12 @@ def test_reports_summary_and_ranking(first_run):
     with open(out / "summary.csv", newline="") as fh:
         table = list(csv.DictReader(fh))
     assert [t["loop"] for t in table] == [r["loop"] for r in res.rows]
+    # the probability of stiction behind the ranking, in the table and the CSV
+    assert float(table[0]["stiction_probability"]) > float(table[2]["stiction_probability"])
     doc = json.loads((out / "summary.json").read_text())
     assert doc["n_loops"] == 4 and doc["n_failed"] == 1
     md = (out / "summary.md").read_text()
-    assert "[FIC1](loops/FIC1/FIC1.md)" in md and "## Failed loops and files" in md
+    assert "[FIC1](loops/FIC1/FIC1.md)" in md and "## Failed loops and files" in md and "P(stiction)" in md
     assert (out / "summary.pdf").read_bytes()[:5] == b"%PDF-"
     assert not [p for p in out.rglob("*.tmp")], "temporary files left behind"
 

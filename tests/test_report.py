@@ -248,6 +248,16 @@ def _diag(*, warnings=(), notes=(), p=None, record=None, explanation=None, oscil
     return pipeline.assemble(rec, ident, notes=notes, explanation=explanation)
 
 
+def test_the_report_says_when_the_fit_rule_settled_the_verdict():
+    by_rule = Verdict(stiction_probability=0.58, stiction=True, threshold=0.635, confidence=0.58,
+                      by_fit_rule=True)
+    plain = replace(by_rule, stiction_probability=0.8, by_fit_rule=False)
+    for v, said in ((by_rule, True), (plain, False)):
+        md = report.to_markdown(report.loop_blocks(_diag(verdict=v)))
+        assert "stiction at 64 % and above" in md
+        assert ("the model fit's own evidence decides, and here it does" in md) is said
+
+
 def test_severity_ranks_by_the_probability_of_stiction_then_its_size():
     big = _diag(S_pct=5.0, p=0.9).severity.score
     small = _diag(S_pct=0.5, p=0.9).severity.score

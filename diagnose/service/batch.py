@@ -204,6 +204,7 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "sticky": bool(ident.stiction),
         "S_pct": r4(ident.S_pct), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
         "J_pct": r4(ident.J_pct), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
+        "stiction_probability": r4(ident.stiction_probability),
         "confidence": r4(ident.confidence),
         "oscillation_period_s": r4(period) if ident.loop_oscillates else None,
         "slow_cycle_period_s": r4(period) if ident.slow_cycle else None,

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from ..controller import ControllerAction
     from ..identification import Identification
     from ..process_model import ProcessModel
+    from ..verdict import Verdict
     from .pipeline import Diagnosis
 
 
@@ -216,8 +217,17 @@ def evidence_summary(ident: Identification) -> str:
         text += f" {n} cannot judge it: " + "; ".join(f"{k} ({v})" for k, v in reasons.items()) + "."
     v = ident.verdict
     if v is not None:
-        text += (f" Together they give a probability of stiction of {percent(v.stiction_probability)} (stiction "
-                 f"at {percent(v.threshold)} and above); each test's weight says how far it moved it.")
+        text += (f" Together they give a probability of stiction of {percent(v.stiction_probability)} "
+                 f"({_threshold_text(v)}); each test's weight says how far it moved it.")
+    return text
+
+
+def _threshold_text(v: Verdict) -> str:
+    """Where the verdict turns to stiction, and whether the fit's own evidence settled it."""
+    text = f"stiction at {percent(v.threshold)} and above"
+    if v.by_fit_rule:
+        text += ("; between 50 % and that, the model fit's own evidence decides, and here it "
+                 "does: a valve band clear of OP's noise with a clearly better fit than a linear loop")
     return text
 
 
@@ -252,7 +262,7 @@ def _found_rows(diag: Diagnosis) -> list[list[str]]:
     else:
         rows += [[S_MEANING, "not measurable from these data"], [J_MEANING, "not measurable from these data"]]
     v = ident.verdict
-    prob = "-" if v is None else f"{percent(v.stiction_probability)} (stiction at {percent(v.threshold)} and above)"
+    prob = "-" if v is None else f"{percent(v.stiction_probability)} ({_threshold_text(v)})"
     rows.append(["Probability of stiction", prob])
     return rows
 
@@ -408,7 +418,8 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
 
 
 SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_pct", "S_lo", "S_hi",
-                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "confidence", "oscillation_period_s",
+                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "stiction_probability", "confidence",
+                   "oscillation_period_s",
                    "slow_cycle_period_s", "warnings",
                    "data_quality_warnings", "degradation", "action", "report", "source", "error"]
 
@@ -445,10 +456,11 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         if r.get("slow_cycle_period_s"):
             osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".0f"), fmt(r.get("class")),
-                      fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units, fmt(r.get("confidence"), ".0%"),
+                      fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units,
+                      fmt(r.get("stiction_probability"), ".0%"), fmt(r.get("confidence"), ".0%"),
                       osc,
                       fmt(r.get("data_quality_warnings"), "d") + (" (degrading)" if r.get("degradation") else "")])
-    blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "Conf.", "Oscillation",
+    blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "P(stiction)", "Conf.", "Oscillation",
                              "DQ warn."], table))
     if any(r.get("degradation") for r in ok):
         blocks.append(("h2", "Degrading valves"))
