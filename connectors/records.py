@@ -176,6 +176,19 @@ def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
     return out
 
 
+def _no_values(s: Series) -> str | None:
+    """What a signal without a single usable value holds instead (None when it has one)."""
+    if np.isfinite(s.x).any():
+        return None
+    if s.n_text and s.n_text + s.n_blank >= s.x.size:
+        return f"only text values (e.g. {s.examples[0]!r})" if s.examples else "only text values"
+    if s.n_bad_quality:
+        return "no value with good quality"
+    if s.n_nonfinite:
+        return "only NaN/inf values"
+    return "no numeric values"
+
+
 def _bad_finding(role: str, s: Series, n_rows: int) -> Finding | None:
     n_bad = s.n_text + s.n_nonfinite + s.n_bad_quality
     if n_bad == 0:
@@ -205,17 +218,18 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     ts_opt = options.get("ts_s")
     n_dups = 0
     reversed_any = False
+    # A PV with no usable value at all (a dead transmitter, a tag exported as bad) does not stop
+    # the loop: OP's own shape can still be judged (diagnose.evidence.op_shape). A flat stand-in
+    # PV on OP's samples marks it unusable for the diagnosis, and a finding says why.
+    pv_s, op_s = spec.roles["pv"], spec.roles["op"]
+    pv_dead = _no_values(pv_s) if _no_values(op_s) is None else None
+    if pv_dead is not None:
+        findings.append(Finding("pv_missing", f"PV column {pv_s.name!r} has {pv_dead}: the loop is judged "
+                                "from OP alone", "warning", {"column": pv_s.name}))
     for role, s in spec.roles.items():
-        n_valid = int(np.count_nonzero(np.isfinite(s.x))) if role != "mode" else 1
-        if role in ("op", "pv") and n_valid == 0:
-            if s.n_text and s.n_text + s.n_blank >= s.x.size:
-                what = f"only text values (e.g. {s.examples[0]!r})" if s.examples else "only text values"
-            elif s.n_bad_quality:
-                what = "no value with good quality"
-            elif s.n_nonfinite:
-                what = "only NaN/inf values"
-            else:
-                what = "no numeric values"
+        if role == "pv" and pv_dead is not None:
+            s = Series(s.name, op_s.t, np.where(np.isfinite(op_s.x), 0.0, np.nan), first_line=s.first_line)
+        elif role in ("op", "pv") and (what := _no_values(s)) is not None:
             raise ConnectorError(f"{role.upper()} column has {what}; nothing to diagnose",
                                  path=label, line=s.first_line, column=s.name)
         t = s.t
@@ -269,7 +283,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         if role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
             filled_total = max(filled_total, filled)
         s = spec.roles[role]
-        if role != "mode":
+        if role != "mode" and not (role == "pv" and pv_dead is not None):
             f = _bad_finding(role, s, s.x.size)
             if f:
                 findings.append(f)

@@ -646,8 +646,16 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
                               f"OP spans {float(np.min(op)):g}..{float(np.max(op)):g}, outside 0..100 % of "
                               "span (mean-centred or in engineering units?); it was shifted into the span, "
                               "so S and J are in OP's own units"))
-    pv_ok, pv_reason = pv_usable(pv)
-    if not pv_ok and not (use_mv and record.mv is not None):
+    if any(f.code == "pv_missing" for f in findings):
+        pv_ok, pv_reason = False, "the file holds no usable PV value"
+    else:
+        pv_ok, pv_reason = pv_usable(pv)
+    if not pv_ok:
+        # the loop fit needs PV even where the stem position is recorded (process model, controller
+        # action, the PV-based tests), so the verdict falls back to OP's shape
+        if use_mv and record.mv is not None:
+            warnings.append(_warn("mv_unused", "the stem position (MV) is recorded but was not used: "
+                                  "sizing the valve from OP -> MV without a usable PV is not supported yet"))
         return _identify_op_only(record, findings, warnings, pv_reason, integrating)
     osc = oscillation_context(pv, ts, sp=record.sp, op=op)
 

@@ -238,7 +238,9 @@ def _manual(record: LoopRecord) -> Finding | None:
 def assess(record: LoopRecord) -> tuple[Finding, ...]:
     """Data-quality findings of a record from its signals (and ``meta["manual_intervals"]``)."""
     out: list[Finding] = []
-    for role in ("op", "pv"):
+    # a PV the reader found without a single usable value is a flat stand-in: nothing to assess
+    pv_missing = any(f.code == "pv_missing" for f in record.findings)
+    for role in ("op",) if pv_missing else ("op", "pv"):
         x = getattr(record, role)
         f = _frozen(role, x, record.ts_s)
         if f is not None:

@@ -1,5 +1,6 @@
 """The `stiction` shell: help, simulate, error handling, and every command documented."""
 
+import json
 import re
 from pathlib import Path
 
@@ -54,3 +55,24 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     assert "error: --S and --J must be >= 0" in err
     assert "Traceback" not in err
     assert main(["no-such-command"]) == 2
+
+
+def test_an_export_whose_pv_is_all_bad_is_judged_from_op_alone(tmp_path, capsys):
+    # a dead transmitter exported as "Bad": the loop is not refused; OP's shape is judged
+    good = tmp_path / "loop.csv"
+    assert main(["simulate", "--S", "4", "--J", "1", "--n", "3000", "--seed", "1", "--name", "FIC7",
+                 "--out", str(good)]) == 0
+    lines = good.read_text().splitlines()
+    pv_col = lines[0].split(",").index("FIC7.PV")
+    bad = tmp_path / "bad_pv.csv"
+    rows = [lines[0]] + [",".join("Bad" if j == pv_col else c for j, c in enumerate(line.split(",")))
+                         for line in lines[1:]]
+    bad.write_text("\n".join(rows) + "\n")
+    capsys.readouterr()
+    assert main(["identify", str(bad), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    codes = [w["code"] for w in d["warnings"]]
+    assert d["method"] == "op_only" and d["S"] is None
+    assert "data_quality.pv_missing" in codes and "pv_unusable" in codes and "mv_unused" in codes
+    assert not any(c == "data_quality.frozen" for c in codes)      # the stand-in PV is not assessed
+    assert d["confidence"] <= 0.75
