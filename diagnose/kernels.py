@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import StictionError
 
-ABI = 4
+ABI = 5
 
 
 class KernelsMissingError(StictionError, ImportError):
@@ -57,6 +57,8 @@ for _name, _args, _res in (
     ("valve_start1", [_P, _P, _D, _D, _D, _D], _D),
     ("lag_filter", [_P, _I, _D, _D, _I, _C, _D, _P], None),
     ("hp_filter_2d", [_P, _I, _I, _I, _D, _P], None),
+    ("sosfilt", [_P, _I, _P, _I, _P], None),
+    ("peak_prominences", [_P, _I, _P, _P], _I),
     ("kernels_isa", [], _C),
     ("kernels_max_isa", [], _C),
     ("kernels_set_isa", [_C], _C),
@@ -249,3 +251,25 @@ class ValveState:
     @property
     def direction(self) -> float:
         return float(self.state[4])
+
+
+def sosfilt(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Second-order sections ``sos`` (k, 6) over ``x`` from section states ``zi`` (k, 2): the
+    filtered signal and the final states (as `scipy.signal.sosfilt` with ``zi``)."""
+    sos, y, z = _f64(sos), np.array(x, dtype=np.float64), np.array(zi, dtype=np.float64)
+    if sos.ndim != 2 or sos.shape[1] != 6 or z.shape != (sos.shape[0], 2) or y.ndim != 1:
+        raise ValueError("sosfilt: sos must be (k, 6), zi (k, 2) and x 1-D")
+    _lib.sosfilt(_ptr(sos), sos.shape[0], _ptr(y), y.shape[0], _ptr(z))
+    return y, z
+
+
+def peak_prominences(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every local maximum of ``x`` (a flat top at its middle) and its prominence over the whole
+    record, as `scipy.signal.find_peaks` and `scipy.signal.peak_prominences` define them."""
+    x = _f64(x)
+    if x.ndim != 1:
+        raise ValueError("peak_prominences: x must be 1-D")
+    peaks = np.empty(max(x.shape[0], 1), dtype=np.int64)
+    prom = np.empty(max(x.shape[0], 1), dtype=np.float64)
+    m = int(_lib.peak_prominences(_ptr(x), x.shape[0], _ptr(peaks), _ptr(prom))) if x.shape[0] else 0
+    return peaks[:m].copy(), prom[:m].copy()

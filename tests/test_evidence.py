@@ -370,3 +370,39 @@ def test_oscillation_reads_a_three_cycle_window():
     t = np.arange(300, dtype=float)
     o = oscillation(np.sin(2 * np.pi * t / 100))
     assert o.period == pytest.approx(100, rel=0.05) and o.cycles == pytest.approx(3, rel=0.05)
+
+
+def test_the_filters_and_peaks_match_scipy_signal():
+    # the evidence tests carry their own Butterworth filters and peak finder so that the command
+    # does not import scipy.signal at start-up; they must give scipy's numbers
+    from scipy import signal as sps
+
+    from diagnose import kernels
+    from diagnose.evidence import _signals
+    from diagnose.evidence.stuck import _prominent_peaks
+
+    rng = np.random.default_rng(3)
+    for order in (2, 4):
+        for _ in range(20):
+            x = rng.standard_normal(int(rng.integers(40, 2000))).cumsum()
+            w = float(rng.uniform(0.005, 0.9))
+            ours = _signals._sosfiltfilt(_signals._butter(order, (w,), "lowpass"), x)
+            ref = sps.sosfiltfilt(sps.butter(order, w, output="sos"), x)
+            assert np.max(np.abs(ours - ref)) <= 1e-9 * np.max(np.abs(ref))
+            lo = float(rng.uniform(0.005, 0.4))
+            hi = float(rng.uniform(1.2 * lo, 0.9))
+            ours = _signals._sosfiltfilt(_signals._butter(order, (lo, hi), "bandpass"), x)
+            ref = sps.sosfiltfilt(sps.butter(order, [lo, hi], btype="bandpass", output="sos"), x)
+            assert np.max(np.abs(ours - ref)) <= 1e-9 * np.max(np.abs(ref))
+    for k in range(100):
+        x = np.round(rng.standard_normal(int(rng.integers(3, 500))).cumsum(), 1 if k % 2 else 6)  # plateaus too
+        peaks, prom = kernels.peak_prominences(x)
+        ref, _ = sps.find_peaks(x)
+        assert np.array_equal(peaks, ref)
+        if ref.size:
+            assert np.array_equal(prom, sps.peak_prominences(x, ref)[0])
+        p_min = float(rng.uniform(0.0, 3.0))
+        assert np.array_equal(_prominent_peaks(x, p_min), sps.find_peaks(x, prominence=p_min)[0])
+    y, zf = kernels.sosfilt(np.array([[0.2, 0.3, 0.1, 1.0, -0.5, 0.2]]), np.arange(10.0), np.zeros((1, 2)))
+    ref, ref_zf = sps.sosfilt(np.array([[0.2, 0.3, 0.1, 1.0, -0.5, 0.2]]), np.arange(10.0), zi=np.zeros((1, 2)))
+    assert np.allclose(y, ref, rtol=1e-14, atol=0) and np.allclose(zf, ref_zf, rtol=1e-14, atol=1e-15)

@@ -25,7 +25,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 4
+#define KERNELS_ABI 5
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -490,6 +490,66 @@ int fused_sse_load(const double *x, int64_t n, int64_t m, const double *S_up, co
     ensure_isa();
     return FUSED_LOAD[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                                   ts_s, wload, with_t, y, w, sgn, out);
+}
+
+/* ---- signal helpers of the evidence tests (diagnose/evidence/_signals.py, stuck.py) ------------- */
+
+/*
+ * A cascade of second-order sections over x, in place, from the section states zi (n_sections x 2,
+ * updated): transposed direct form II, in the operation order of scipy.signal.sosfilt. sos rows are
+ * [b0, b1, b2, a0, a1, a2] with a0 = 1.
+ */
+void sosfilt(const double *sos, int64_t n_sections, double *x, int64_t n, double *zi)
+{
+    for (int64_t i = 0; i < n; i++) {
+        double x_cur = x[i];
+        for (int64_t s = 0; s < n_sections; s++) {
+            const double *c = sos + 6 * s;
+            double *z = zi + 2 * s;
+            double x_new = c[0] * x_cur + z[0];
+            z[0] = c[1] * x_cur - c[4] * x_new + z[1];
+            z[1] = c[2] * x_cur - c[5] * x_new;
+            x_cur = x_new;
+        }
+        x[i] = x_cur;
+    }
+}
+
+/*
+ * The local maxima of x (a flat top counts once, at its middle, rounded down) and each one's
+ * prominence over the whole record: its height above the higher of the lowest points between it
+ * and the nearest higher sample on either side (the definition of scipy.signal.peak_prominences).
+ * Writes at most n indices and prominences; returns how many.
+ */
+int64_t peak_prominences(const double *x, int64_t n, int64_t *peaks, double *prom)
+{
+    int64_t m = 0;
+    int64_t i = 1;
+    while (i < n - 1) {
+        if (x[i - 1] < x[i]) {
+            int64_t ahead = i + 1;
+            while (ahead < n - 1 && x[ahead] == x[i])
+                ahead++;
+            if (x[ahead] < x[i]) {
+                peaks[m++] = (i + ahead - 1) / 2;
+                i = ahead;
+            }
+        }
+        i++;
+    }
+    for (int64_t k = 0; k < m; k++) {
+        int64_t p = peaks[k];
+        double top = x[p];
+        double left_min = top, right_min = top;
+        for (int64_t j = p; j >= 0 && x[j] <= top; j--)
+            if (x[j] < left_min)
+                left_min = x[j];
+        for (int64_t j = p; j < n && x[j] <= top; j++)
+            if (x[j] < right_min)
+                right_min = x[j];
+        prom[k] = top - nmax(left_min, right_min);
+    }
+    return m;
 }
 
 /* ---- a Python module, so that pip builds and installs this file as an extension ---------------- */

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
 import numpy as np
-from scipy import signal as sps
 
+from .. import kernels
 from ..oscillation import acf
 
 MIN_SAMPLES = 32          # below this no test judges anything
@@ -39,8 +39,74 @@ def detrend(x: np.ndarray) -> np.ndarray:
 
 @lru_cache(maxsize=256)
 def _butter(order: int, edges: tuple[float, ...], btype: str) -> np.ndarray:
-    # designing a filter costs more than running it on a plant window: keep the designs
-    return sps.butter(order, list(edges) if len(edges) > 1 else edges[0], btype=btype, output="sos")
+    """Digital Butterworth filter as second-order sections (rows b0 b1 b2 1 a1 a2).
+
+    ``edges`` are fractions of Nyquist; ``btype`` "lowpass" (one edge) or "bandpass" (two). The
+    analogue prototype's poles are pre-warped, moved to the band and mapped by the bilinear
+    transform, as in scipy.signal.butter; sections pair conjugate poles, all zeros sit at -1
+    (low-pass) or one at +1 and one at -1 (band-pass), and the gain goes to the first section.
+    Designs are kept: designing costs more than filtering a plant window.
+    """
+    fs2 = 4.0                                          # 2 fs with fs = 2: edges are in Nyquist units
+    warped = [fs2 * np.tan(np.pi * w / 2.0) for w in edges]
+    proto = -np.exp(1j * np.pi * np.arange(-order + 1, order, 2) / (2 * order))
+    if btype == "lowpass":
+        p_s = proto * warped[0]
+        k_s = warped[0] ** order
+        z_count = 0
+    else:
+        bw = warped[1] - warped[0]
+        wo2 = warped[0] * warped[1]
+        p_lp = proto * bw / 2.0
+        root = np.sqrt(p_lp ** 2 - wo2)
+        p_s = np.concatenate([p_lp + root, p_lp - root])
+        k_s = bw ** order
+        z_count = order                                # zeros at s = 0, i.e. z = +1
+    p_z = (fs2 + p_s) / (fs2 - p_s)
+    n_poles = p_z.shape[0]
+    # gain of the bilinear map: zeros at s = 0 contribute fs2 each, the rest map to z = -1
+    k_z = k_s * float(np.real(fs2 ** z_count / np.prod(fs2 - p_s)))
+    upper = p_z[np.imag(p_z) > 0]
+    upper = upper[np.argsort(np.abs(upper))]          # the pole nearest the unit circle last
+    n_plus = z_count
+    rows = []
+    for p in upper:
+        if n_plus >= 2:
+            b = [1.0, -2.0, 1.0]
+            n_plus -= 2
+        elif n_plus == 1:
+            b = [1.0, 0.0, -1.0]
+            n_plus -= 1
+        else:
+            b = [1.0, 2.0, 1.0]
+        rows.append(b + [1.0, -2.0 * p.real, abs(p) ** 2])
+    if len(rows) * 2 != n_poles:
+        raise ValueError("Butterworth design: an odd order is not supported")
+    sos = np.asarray(rows, dtype=float)
+    sos[0, :3] *= k_z
+    return sos
+
+
+def _sos_zi(sos: np.ndarray) -> np.ndarray:
+    """Each section's state for a unit step in steady state (scipy.signal.sosfilt_zi)."""
+    zi = np.empty((sos.shape[0], 2))
+    scale = 1.0
+    for i, (b0, b1, b2, _, a1, a2) in enumerate(sos):
+        # (I - A^T) z = b[1:] - a[1:] b0 for the section's companion matrix A
+        m = np.array([[1.0 + a1, -1.0], [a2, 1.0]])
+        zi[i] = scale * np.linalg.solve(m, np.array([b1 - a1 * b0, b2 - a2 * b0]))
+        scale *= (b0 + b1 + b2) / (1.0 + a1 + a2)
+    return zi
+
+
+def _sosfiltfilt(sos: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Forward-backward filtering with odd extension at both ends (scipy.signal.sosfiltfilt)."""
+    edge = 3 * (2 * sos.shape[0] + 1)
+    ext = np.concatenate([2.0 * x[0] - x[edge:0:-1], x, 2.0 * x[-1] - x[-2:-(edge + 2):-1]])
+    zi = _sos_zi(sos)
+    y, _ = kernels.sosfilt(sos, ext, zi * ext[0])
+    y, _ = kernels.sosfilt(sos, y[::-1], zi * y[-1])
+    return y[::-1][edge:-edge]
 
 
 def _edge(f: float) -> float:
@@ -58,7 +124,7 @@ def lowpass(x: np.ndarray, fc: float, order: int = 2) -> np.ndarray:
     """Zero-phase Butterworth low-pass; ``fc`` in cycles per sample (Nyquist is 0.5)."""
     if fc >= 0.45 or _too_short(x.shape[0], order):
         return x.copy()
-    return sps.sosfiltfilt(_butter(order, (_edge(fc),), "lowpass"), x)
+    return _sosfiltfilt(_butter(order, (_edge(fc),), "lowpass"), x)
 
 
 def bandpass(x: np.ndarray, f_lo: float, f_hi: float, order: int = 2) -> np.ndarray:
@@ -70,7 +136,7 @@ def bandpass(x: np.ndarray, f_lo: float, f_hi: float, order: int = 2) -> np.ndar
         return lowpass(x, f_hi, order)
     if f_lo >= f_hi:
         return x - x.mean()
-    return sps.sosfiltfilt(_butter(order, (_edge(f_lo), _edge(f_hi)), "bandpass"), x)
+    return _sosfiltfilt(_butter(order, (_edge(f_lo), _edge(f_hi)), "bandpass"), x)
 
 
 def noise_sd(x: np.ndarray) -> float:

@@ -36,8 +36,8 @@ moves, in % of span.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import find_peaks
 
+from .. import kernels
 from ._gates import process_gate, record_gate
 from ._signals import Prepared, noise_sd, smoothed_noise_sd
 from .result import NO_STICTION, STICTION, Evidence, cannot_judge
@@ -55,10 +55,17 @@ def _robust_range(x: np.ndarray) -> float:
     return float(hi - lo)
 
 
+def _prominent_peaks(x: np.ndarray, prominence: float) -> np.ndarray:
+    """Local maxima of ``x`` at least ``prominence`` above their surroundings (as
+    ``scipy.signal.find_peaks(x, prominence=prominence)``)."""
+    peaks, prom = kernels.peak_prominences(x)
+    return peaks[prom >= prominence]
+
+
 def turning_points(x: np.ndarray, prominence: float) -> np.ndarray:
     """Indices of the alternating peaks and troughs of ``x`` (with the two ends)."""
-    pk, _ = find_peaks(x, prominence=prominence)
-    tr, _ = find_peaks(-x, prominence=prominence)
+    pk = _prominent_peaks(x, prominence)
+    tr = _prominent_peaks(-x, prominence)
     idx = np.concatenate([pk, tr])
     kind = np.concatenate([np.ones(pk.shape[0]), -np.ones(tr.shape[0])])
     order = np.argsort(idx)
