@@ -5,19 +5,17 @@ cd "$(dirname "$0")/.."
 cat <<'HDR'
 # Benchmarks
 
-Every figure below was measured on the 2-core development machine (the same kind CI uses) with the
-command shown beside it (one labelled exception in the service section, taken on another host). During this work the machine was shared with other jobs for most of the
-runs; each section says its load, and every speed target is compared against a baseline measured
-in the same run. Accuracy figures are deterministic (seeded). Targets and whether they are met are
-stated in each section and summarised in the closing notes of the issues. Each section below is
-assembled from a fragment `docs/_bench_<area>.md` that the benchmark scripts write (`--md`) by
-`bash docs/assemble_benchmarks.sh`.
+What each benchmark measures, the command that measures it, the machine and its load, the current
+figures, and each target with whether it is met. Unless a section says otherwise the machine is the
+2-CPU development machine (`Intel(R) Xeon(R) Processor`, AVX-512; the same kind CI uses), shared
+with other jobs: each section gives the load average it ran at. Speed targets are judged against a
+baseline measured in the same run (a ratio), or on CPU time, because wall times move with the load;
+accuracy figures are deterministic (seeded). Current accuracy on fresh seeds and real data is in
+[validation.md](validation.md); how figures moved across versions is in [changelog.md](changelog.md).
 
-## Stiction model kernel (issue 2)
-
-Measured with the single compiled kernel (issue 24): see "One engine" below
-(`python benchmarks/bench_stiction_model.py`: 189 / 328 / 682 M candidate-samples per second on
-the baseline / AVX2 / AVX-512 variants, 155-559x the pure-Python loop; targets >= 50 M and >= 50x).
+This page is assembled from the fragments `docs/_bench_<area>.md` (engine, fit, speed, narx,
+connectors, service, physics) by `bash docs/assemble_benchmarks.sh`; several benchmark scripts
+print their fragment with `--md`.
 
 HDR
 for f in engine fit speed narx connectors service physics; do
