@@ -31,9 +31,12 @@ ROOT = Path(__file__).resolve().parents[1]
 CHILD = r"""
 import json, sys, time, resource
 import numpy as np
-from benchmarks.plantsim import concealed
 from diagnose.record import LoopRecord
 from diagnose.physics import explain
+# the record is drawn by this checkout's plantsim (it imports nothing from diagnose): a baseline
+# tree may predate it
+sys.path.insert(0, sys.argv[6])
+from benchmarks.plantsim import concealed
 effect, seed, mv, n, threads = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "1", int(sys.argv[4]), sys.argv[5]
 loop = concealed(effect, seed, n=n)
 rec = LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp, mv=loop.mv if mv else None)
@@ -68,8 +71,12 @@ def cpu_model() -> str:
 
 def run_one(tree: Path, effect: str, seed: int, mv: bool, n: int, threads: str) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    out = subprocess.run([sys.executable, "-c", CHILD, effect, str(seed), "1" if mv else "0", str(n), threads],
-                         cwd=tree, env=env, capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", CHILD, effect, str(seed), "1" if mv else "0", str(n), threads,
+                          str(ROOT)],
+                         cwd=tree, env=env, capture_output=True, text=True)
+    if out.returncode != 0:
+        tail = (out.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise SystemExit(f"explain of {effect} {seed} in {tree} failed: {tail}")
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

@@ -157,7 +157,7 @@ def main(argv=None) -> int:
     ap.add_argument("--per-effect", type=int, default=5)
     ap.add_argument("--n", type=int, default=8000)
     ap.add_argument("--restricted", action="store_true", help="two-parameter/Kano valves on FOPTD/SOPTD only")
-    ap.add_argument("--mv-noise", type=float, default=0.1, help="stem measurement noise, % of span (RMS)")
+    ap.add_argument("--mv-noise", type=float, default=0.1, help="stem measurement noise, %% of span (RMS)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--baseline", default="", help="also run each record with this tree's explain")
