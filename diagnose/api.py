@@ -215,7 +215,7 @@ def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | No
     """Locate where the identified model and the record disagree and name the missing physics.
 
     The same as ``stiction explain FILE``: the record is read as `identify` reads it and passed to
-    `diagnose.physics.explain` (docs/missing-physics.md). It takes 10 s to 2 min per loop.
+    `diagnose.physics.explain` (docs/missing-physics.md). It takes 5-40 s per loop.
 
     Parameters
     ----------
