@@ -21,14 +21,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from diagnose.evidence import run_all  # noqa: E402
 from diagnose.oscillation import oscillation_context  # noqa: E402
-from diagnose.simulate import FOPTD, PIDController, simulate_loop, sinusoid, sticky_loop  # noqa: E402
+from diagnose.simulate import PIDController, make_process, simulate_loop, sinusoid, sticky_loop  # noqa: E402
 
 
 def records(n: int):
     yield "sticky flow", False, sticky_loop(3.0, 1.0, n=n, tau_s=2.0, delay_s=1.0, Kc=0.2, Ti_s=2.0,
                                             noise_std=0.05, load_walk_std=0.01, seed=0)
     yield "healthy, sine load", False, simulate_loop(
-        n=n, ts_s=0.25, process=FOPTD(gain=1.0, tau_s=10.0, delay_s=1.0), controller=PIDController(Kc=2.0, Ti_s=10.0),
+        n=n, ts_s=0.25, process=make_process("foptd", gain=1.0, tau_s=10.0, delay_s=1.0), controller=PIDController(Kc=2.0, Ti_s=10.0),
         load=sinusoid(n, 0.25, 20.0, 2.0), noise_std=0.05, seed=0, warmup=400)
     yield "sticky level", True, sticky_loop(3.0, 1.0, n=n, kind="integrating", gain=0.02, tau_s=0.0, delay_s=2.0,
                                              noise_std=0.02, load_walk_std=0.002, seed=0)
