@@ -471,3 +471,13 @@ def test_a_diagnosis_shows_itself_in_a_notebook(sticky_diag):
     labels = {ln.get_label() for ln in fig.axes[0].get_lines()}
     assert labels == {"recorded MV", "NARX-SP free run (MV)"}
     assert isinstance(sticky_diag.plot(), Figure)
+
+
+def test_an_explanation_shows_itself_in_a_notebook_and_plots_the_report_figure():
+    expl = _explanation("actuator_lag", True, tau_s=12.0)
+    page = expl._repr_html_()
+    assert "Missing physics in X1" in page and "actuator_lag" in page and "accepted" in page
+    assert "<script" not in page
+    assert repr(expl).startswith("Explanation(loop='X1', missing_physics='actuator_lag'")
+    fig = expl.plot()
+    assert len(fig.axes) >= 3 and any("missing physics: actuator_lag" in ax.get_title() for ax in fig.axes)

@@ -275,6 +275,37 @@ class Explanation:
         """The same explanation with ``first`` before its own warnings (e.g. how the file was read)."""
         return replace(self, warnings=tuple(first) + self.warnings)
 
+    def __repr__(self) -> str:
+        return (f"Explanation(loop={self.loop!r}, missing_physics={self.missing_physics!r}, "
+                f"target={self.target!r}, baseline_rmse={self.baseline_rmse:.4g}, "
+                f"improved_rmse={self.improved_rmse:.4g}, hypotheses={len(self.hypotheses)}, "
+                f"warnings={len(self.warnings)})")
+
+    def _repr_html_(self) -> str:
+        import html
+
+        e = html.escape
+        change = (1.0 - self.improved_rmse / self.baseline_rmse) if self.baseline_rmse > 0 else 0.0
+        rows = [("Missing physics", self.missing_physics or "none named"),
+                ("Held-out RMSE", f"{self.baseline_rmse:.4g} plain model, {self.improved_rmse:.4g} named "
+                                  f"model ({change:.0%} lower), in {'PV units' if self.target == 'pv' else '% of span'}"),
+                ("Explanation", self.explanation)]
+        for h in self.hypotheses:
+            verdict = "accepted" if h.accepted else (f"refused: {h.refused}" if h.refused else "not accepted")
+            rows.append((f"{h.name} ({h.stage})", f"held-out RMSE {h.heldout_rmse:.4g}, {verdict}"))
+        body = "".join(f"<tr><th style='text-align:left'>{e(k)}</th><td style='text-align:left'>{e(v)}</td></tr>"
+                       for k, v in rows)
+        warn = "".join(f"<li><code>{e(w.code)}</code> {e(w.message)}</li>" for w in self.warnings)
+        return (f"<div><strong>Missing physics in {e(self.loop)}</strong><table>{body}</table>"
+                + (f"<p>Warnings:</p><ul>{warn}</ul>" if warn else "") + "</div>")
+
+    def plot(self):
+        """The report's missing-physics figure as a new matplotlib `Figure`."""
+        from .figures import draw_explanation
+
+        title = f"{self.loop}: missing physics: {self.missing_physics or 'none named'}"
+        return draw_explanation(self.figure_data(), title=title, figsize=(8.0, 6.5))
+
     def figure_data(self) -> dict[str, Any]:
         """The figure's arrays as a dict (the fields of `FigureData`, plus ``target`` and
         ``missing_physics``)."""
