@@ -195,7 +195,8 @@ class Detection:
         if self.op_only:
             return {"op_only": True, "pv_unusable": self.pv_unusable}
         d: dict[str, Any] = {"insample_improvement": finite_or_none(self.insample_improvement),
-                             "op_noise_pct": finite_or_none(self.op_noise_pct), "S_min_pct": finite_or_none(self.S_min_pct),
+                             "op_noise_pct": finite_or_none(self.op_noise_pct),
+                             "S_min_pct": finite_or_none(self.S_min_pct),
                              "fitted_S_pct": finite_or_none(self.fitted_S_pct),
                              "fitted_J_pct": finite_or_none(self.fitted_J_pct), "integrating": self.integrating}
         if self.backlash_lr is not None:

@@ -18,8 +18,9 @@ corpus of several friction laws and the classic false alarms (``benchmarks/train
 and stored in ``verdict_model.json`` beside this module; docs/verdict.md lists them.
 
 Three models are stored: ``full`` (OP and PV), ``op_mv`` (the stem position recorded too) and
-``op_only`` (PV unusable: OP's shape alone), each with its own features and threshold. Nothing here reads files except `load_model`, which reads the
-packaged JSON once.
+``op_only`` (PV unusable: OP's shape alone), each with its own features and threshold. Between
+0.5 and the threshold the fit's own decisive evidence settles the verdict (`fit_rule`). Nothing
+here reads files except `load_model`, which reads the packaged JSON once.
 """
 
 from __future__ import annotations

@@ -288,7 +288,8 @@ class Explanation:
         change = (1.0 - self.improved_rmse / self.baseline_rmse) if self.baseline_rmse > 0 else 0.0
         rows = [("Missing physics", self.missing_physics or "none named"),
                 ("Held-out RMSE", f"{self.baseline_rmse:.4g} plain model, {self.improved_rmse:.4g} named "
-                                  f"model ({change:.0%} lower), in {'PV units' if self.target == 'pv' else '% of span'}"),
+                                  f"model ({change:.0%} lower), in "
+                                  + ("PV units" if self.target == "pv" else "% of span")),
                 ("Explanation", self.explanation)]
         for h in self.hypotheses:
             verdict = "accepted" if h.accepted else (f"refused: {h.refused}" if h.refused else "not accepted")
