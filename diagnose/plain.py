@@ -72,7 +72,8 @@ def percent_change(fraction: Any, none: str = "-") -> str:
     v = finite_or_none(fraction)
     if v is None:
         return none
-    return f"{100.0 * v:+.0f} %"
+    r = int(round(100.0 * v))           # an int: no "-0 %" for a change that rounds to nothing
+    return "0 %" if r == 0 else f"{r:+d} %"
 
 
 def percent(fraction: Any, none: str = "-") -> str:

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
+from ..plain import percent_change
 from ..record import LoopRecord
 from .baseline import Baseline, from_hammerstein, from_valve_fit, make_baseline
 from .hypotheses import PROCESS_SIDE, VALVE_SIDE, ExternalDisturbance, Fitted, PhysicsHypothesis, PlainModel, get
@@ -351,8 +352,8 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
                    + fitted.n_extra * math.log(n_tr))
         checks = [
             # one sign convention in every line: a change is signed, negative = the error falls
-            (red >= need, f"held-out RMSE change {-100 * red:+.0f} % against the refit plain model, "
-                          f"{-100 * need:+.0f} % or less needed" + (" (a load at the loop's own oscillation period)"
+            (red >= need, f"held-out RMSE change {percent_change(-red)} against the refit plain model, "
+                          f"{percent_change(-need)} or less needed" + (" (a load at the loop's own oscillation period)"
                                                                     if on_lc else "")),
             (r_h <= run.base_rmse * (1.0 - 0.5 * min_reduction),
              f"held-out RMSE not {50 * min_reduction:.0f} % below the baseline's"),
