@@ -59,8 +59,8 @@ S_MIN_PCT = 0.5
 #: class is ``unknown`` and S, J are not given (the fit found no band the evidence could be sized by).
 S_SIZE_MIN_PCT = 0.1
 #: In-sample relative reduction of the prediction-error cost (valve model against the linear model,
-#: whole record, same noise model) at which the fit's row says stiction (healthy valves in the
-#: simulated calibration runs stayed below 0.03; docs/fitting.md).
+#: whole record, same noise model) at which the fit's row says stiction (set above what healthy
+#: valves reach in the simulated calibration set; docs/fitting.md).
 INSAMPLE_THRESHOLD = 0.05
 #: The fitted band S at which the ``valve_band`` row says stiction, in multiples of OP's own
 #: sample-to-sample noise (a band within OP's noise is moved through by the noise itself).

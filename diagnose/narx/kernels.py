@@ -1,8 +1,9 @@
 """Compiled model-mode (free-run) loops for exported network weights.
 
 The networks are trained in torch; for long free runs the trained weights are exported to plain
-arrays and the same arithmetic runs here in a numba loop (a per-step torch call costs ~50 us, which
-makes 10 000 steps take half a second). These functions are the trained networks, not the plant.
+arrays and the same arithmetic runs here in a numba loop (a free run is sequential, one step at a
+time, and a per-step torch call costs far more than the step's arithmetic). These functions are
+the trained networks, not the plant.
 """
 
 from __future__ import annotations

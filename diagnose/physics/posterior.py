@@ -4,10 +4,10 @@ A stiction model simulated from a closed loop's OP is hypersensitive to its fric
 a limit cycle OP passes the real valve's threshold by only what the controller adds during the
 dead time before the real slip reverses it, so a model whose S is a few tenths of a per cent of
 span too high misses that slip and stays out of step until the next large excursion. The training
-data pin S no finer than that (on concealed drift records with the stem position, fits that train
-at the stem's noise, as well as the true model or better, their drift rate 6-8 % off, extrapolated
-four to eight times worse), so the held-out error of one fitted parameter set says as much about
-which of many equally good sets the search happened to stop at as about the physics.
+data pin S no finer than that (a drift fit can train at the stem's noise, as well as the true model,
+with its rate a few per cent off, and extrapolate several times worse; docs/missing-physics.md),
+so the held-out error of one fitted parameter set says as much about which of many equally good
+sets the search happened to stop at as about the physics.
 
 `predictive_mean` therefore judges a model by its posterior-predictive mean: the whole-record
 prediction averaged over parameter sets drawn around the fit, weighted by their training
@@ -15,9 +15,9 @@ likelihood. A broad cloud around the fit (per-parameter scales, three widths) lo
 directions the training data leave free, e.g. a drift rate traded against the starting friction;
 then `ADAPT_ROUNDS` importance-sampling rounds each draw from a Gaussian with the previous draws'
 likelihood-weighted mean and covariance (weights likelihood / proposal), so that a long ridge of
-equally good fits is followed further each round (fresh asymmetry 5003 from OP/PV: the opening
-friction runs from the fit's 2.5 % to the true 1.8 % of span at the same training error, held-out
-errors 0.37 to 0.13); the last round's draws are averaged. The likelihood of a set is
+equally good fits is followed further each round (e.g. an asymmetry's opening friction can run
+far from the fit's value to the true one at the same training error, with a very different
+held-out error); the last round's draws are averaged. The likelihood of a set is
 ``exp(-n_eff / 2 * (SSE / SSE_min - 1))`` with ``n_eff`` the effective number of independent
 training residuals (Gaussian errors, variance profiled at the best set). The linear coefficients
 (gain, bias, load terms) are refit by least squares for every set, as in every search. The

@@ -252,8 +252,7 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None, *, pro
 
     def joint(best: Structure) -> Structure:
         # S, J and the extra together in fine steps: the one-at-a-time steps above stop short of a
-        # J that needs the lag moved too (blind seed 10004 with MV: J 0.865 against the true 1.024
-        # at the true lag)
+        # J that needs the lag moved too (J and the lag trade off: each holds the other in place)
         S0, J0, e0 = best.S_up_pct, max(best.J_up_pct, 0.02), getattr(best, extra) if extra else 0.0
         dS0, dJ0 = best.dS_pct_per_s, best.dJ_pct_per_s
         ems = 1.0 + np.linspace(-0.1, 0.1, 11) if e0 else (1.0,)
@@ -279,9 +278,8 @@ def profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Structu
     whole start search (`fit_initial_state`).
 
     Where the valve stuck at the first sample and J trade off: at a wrong J the best stuck point is
-    another one, and at that stuck point the right J costs more (blind seed 10005 with MV: training
-    SSE 70 at the true valve with the fitted start, 19 with its own; the fit had stopped at J/S 0.42
-    against the true 0.31). A grid over J with the start held sees a wall."""
+    another one, and at that stuck point the right J costs more than the wrong one: the true valve
+    scores well only with its own start. A grid over J with the start held sees a wall."""
     S0 = max(struct.S_up_pct, 0.05)
     e0 = getattr(struct, extra) if extra else 0.0
     combos = []
@@ -314,9 +312,9 @@ def joint_process_polish(stage: Stage, struct: Structure, effect: str, rounds: i
 
     An installed characteristic and the process time constant trade off (a steeper gain change
     looks like a slower process near one operating point), as do a load's period and the dynamics
-    that carry the valve's share; one at a time each stays where the other holds it. On published
-    seed 1002 the characteristic stopped at c = 2.00 with tau 21 s and the wrong last direction of
-    the valve (training SSE 166, the true model 57); this polish reaches SSE 58."""
+    that carry the valve's share; one at a time each stays where the other holds it (a
+    characteristic can stop at a wrong exponent with a wrong time constant and the wrong last
+    direction of the valve, far above the true model's cost; the joint grid moves them together)."""
     if stage.fixed_dynamics:
         return struct
     ts = stage.ts_s

@@ -810,7 +810,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
             raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
         from connectors.tagmap import load_tagmap
 
-        load_tagmap(tags)  # a broken map is one error now, not one per file
+        load_tagmap(tags)  # a broken map is reported once, up front, not once per file
     db_path = Path(db) if db is not None else default_db_path()
     cfg = BatchConfig(out_dir=str(out), read_options=dict(read_options or {}), tags=tags, explain=explain,
                       narx=narx, pdf=pdf, db=str(db_path) if history else None)

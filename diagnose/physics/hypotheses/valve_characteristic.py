@@ -72,9 +72,9 @@ class ValveCharacteristic(PhysicsHypothesis):
         when the process integrates (no settled operating points).
 
         Setpoint changes over much of the travel expose a characteristic best, and make the
-        output-error cost a needle in c and the time constant (blind seed 10005: training SSE 45 at
-        the true c and dynamics, 1200-2000 with c off by 0.4, 27 000 with the lag 60 % short), so
-        that a coarse grid of c and dynamics starts nowhere near it."""
+        output-error cost a needle in c and the time constant (a modest error in either costs
+        orders of magnitude more than the true model), so that a coarse grid of c and dynamics
+        starts nowhere near it."""
         p = reference.process
         idx = np.flatnonzero(stage.train)
         if p.kind == "integrating" or idx.size < 60:
