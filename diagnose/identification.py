@@ -704,7 +704,12 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             S_int, J_int = valve_fit.S_interval_pct, valve_fit.J_interval_pct
             rmse, r2 = valve_fit.rmse, valve_fit.r2
             lin_v = fit_valve(op, record.mv, ts, stiction=False).hammerstein.cost
-            ins = (1.0 - valve_fit.hammerstein.cost / lin_v) if lin_v > 0 else None
+            # a stem that follows OP exactly leaves the linear valve a cost at rounding level: the
+            # ratio of two such costs means nothing, and there is nothing to improve on
+            if lin_v <= 1e-12 * max(float(np.var(record.mv)), 1e-300):
+                ins = 0.0
+            else:
+                ins = max(1.0 - valve_fit.hammerstein.cost / lin_v, -1.0)
         else:
             S, J = fit.S_pct, fit.J_pct
             S_int, J_int = fit.S_interval_pct, fit.J_interval_pct

@@ -192,3 +192,14 @@ def test_class_test_finds_the_needle_in_S():
     assert abs(fine["S_pct"] - 5.0) < 0.025
     assert fine["cost"] < 0.8 * coarse["cost"]
     assert fine["cls"] == "no_offset"
+
+
+def test_a_stem_that_follows_op_exactly_shows_no_gain_rather_than_a_ratio_of_rounding_errors():
+    # healthy valve, MV = OP to the last bit: both valve fits cost next to nothing, so the valve
+    # model's gain over the linear one is 0, not a ratio of two rounding errors
+    rec = sticky_loop(0.0, 0.0, n=2000, noise_std=0.05, seed=3)
+    assert np.array_equal(rec.mv, rec.op)
+    res = identify(rec)
+    row = {ev.test: ev for ev in res.evidence}["model_fit"]
+    assert res.method == "op_mv" and row.value == 0.0 and row.decision == "no_stiction"
+    assert not res.stiction
