@@ -37,6 +37,10 @@ if TYPE_CHECKING:
 MIN_WINDOW_SAMPLES = 100
 
 
+#: Seconds of polls without data (and without an error) after which a device counts as out.
+OUTAGE_AFTER_S = 1.0
+
+
 def _utc(t_s: float) -> str:
     from datetime import datetime, timezone
 
@@ -54,6 +58,7 @@ class DeviceState:
     ever_read: bool = False
     outages: int = 0
     last_error: str | None = None
+    missing_since_s: float | None = None   # first of the current run of polls without data
 
 
 @dataclass
@@ -223,6 +228,7 @@ class Monitor:
 
         ok = finite(values.get("op")) and finite(values.get("pv"))
         if ok:
+            dev.missing_since_s = None
             if dev.up is False:
                 self.stats.reconnects += 1
                 what = "reconnected" if dev.ever_read else "first answer"
@@ -233,11 +239,17 @@ class Monitor:
             dev.ever_read = True
             return
         err = self.poller.stats[loop].last_error if loop in self.poller.stats else None
+        if dev.missing_since_s is None:
+            dev.missing_since_s = t_s
+        # A poll that came back empty without an error is a late answer (a busy poller or link), not
+        # yet an outage: it becomes one when the device errs or stays silent for OUTAGE_AFTER_S.
+        if dev.up is True and err is None and t_s - dev.missing_since_s < OUTAGE_AFTER_S:
+            return
         if dev.up is not False:
             if dev.up is True:
                 self.stats.outages += 1
                 dev.outages += 1
-            dev.up, dev.since_s = False, t_s
+            dev.up, dev.since_s = False, dev.missing_since_s
             print(f"{_utc(t_s)} device {dev.name} ({dev.where}): "
                   f"{'outage' if dev.ever_read else 'no answer'}: {err or 'no data'}; retrying",
                   file=self.log, flush=True)
