@@ -20,13 +20,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.machine import cpu_model  # noqa: E402
 
 CHILD = r"""
 import json, sys, time, resource
@@ -57,16 +58,6 @@ print(json.dumps({"named": ex.missing_physics, "wall_s": wall, "cpu_s": cpu}))
 #: records 24000-24005), so the speed is measured over every kind of search
 RECORDS = [("none", 24000), ("actuator_lag", 24001), ("asymmetric_stiction", 24002),
            ("valve_characteristic", 24003), ("external_disturbance", 24004), ("time_varying_friction", 24005)]
-
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def run_one(tree: Path, effect: str, seed: int, mv: bool, n: int, threads: str) -> dict:

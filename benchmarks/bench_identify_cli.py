@@ -35,6 +35,10 @@ import tempfile
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.machine import cpu_model  # noqa: E402
+
 
 def _stiction_cmd() -> list[str]:
     exe = Path(sys.executable).with_name("stiction")
@@ -67,17 +71,6 @@ def _run(cmd: list[str], env: dict[str, str]) -> tuple[float, float, bytes]:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{proc.stderr.decode(errors='replace')}")
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     return wall, cpu, proc.stdout
-
-
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def main(argv=None) -> int:
@@ -120,7 +113,7 @@ def main(argv=None) -> int:
 
     lines = [f"`stiction identify FILE --json`, simulated loop S = 3 %, J = 1 %, n = {args.n} samples, "
              f"OP/PV only (stem position dropped); {args.runs} runs per variant, interleaved.",
-             f"Machine: {os.cpu_count()} CPUs ({_cpu_model()}), Python {platform.python_version()}; "
+             f"Machine: {os.cpu_count()} CPUs ({cpu_model()}), Python {platform.python_version()}; "
              f"load average {load0[0]:.2f} before, {load1[0]:.2f} after.",
              f"PYTHONDONTWRITEBYTECODE in this session: {os.environ.get('PYTHONDONTWRITEBYTECODE') or 'unset'}.",
              f"JSON outputs of this tree's variants identical: {'yes' if same else 'NO'}.",

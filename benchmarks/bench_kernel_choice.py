@@ -26,6 +26,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.machine import cpu_model  # noqa: E402
 
 C_PROBE = r"""
 import json, sys, time
@@ -89,17 +91,6 @@ print(json.dumps({"import_numpy_s": t1 - t0, "import_numba_s": t2 - t1, "first_c
 """
 
 
-def _cpu() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--numba-src", metavar="DIR")
@@ -119,7 +110,7 @@ def main(argv=None) -> int:
                 raise SystemExit(p.stderr)
             n_runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
     load1 = os.getloadavg()[0]
-    lines = [f"Machine: {os.cpu_count()} CPUs ({_cpu()}), Python {platform.python_version()}; load average "
+    lines = [f"Machine: {os.cpu_count()} CPUs ({cpu_model()}), Python {platform.python_version()}; load average "
              f"{load0:.2f} before, {load1:.2f} after; best of {args.runs} fresh interpreters.", "",
              "| path | start-up (s) | scoring kernel, ns per candidate-structure-sample |", "|---|---|---|"]
     if n_runs:

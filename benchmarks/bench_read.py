@@ -27,7 +27,6 @@ import io
 import json
 import os
 import pickle
-import platform
 import re
 import subprocess
 import sys
@@ -39,6 +38,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from benchmarks.machine import cpu_model  # noqa: E402
 FIXTURES = ROOT / "tests" / "data_connectors"
 SHARED = Path("/work/shared/data")
 #: The last revision with the hand-written reader (before connectors/ moved onto pandas).
@@ -46,16 +47,6 @@ BASELINE = "771abd294b05d48c236fe213c858c36d360ea304"
 
 
 # ------------------------------------------------------------------------------------------ helpers
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
 
 def baseline_tree(rev: str, dest: Path) -> Path:
     """Unpack ``connectors/`` of git revision ``rev`` into ``dest`` (returned, for PYTHONPATH)."""

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -29,6 +28,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.machine import cpu_model  # noqa: E402
 
 
 def records(n: int) -> list[tuple[str, float, float, np.ndarray, np.ndarray]]:
@@ -105,11 +106,7 @@ def main(argv=None) -> int:
         trees[args.baseline_src] = Path(args.baseline_src).resolve()
     results = {name: run_tree(src, recs) for name, src in trees.items()}
     load1 = os.getloadavg()
-    cpu = platform.processor() or platform.machine()
-    try:
-        cpu = next(ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
+    cpu = cpu_model()
     print(f"fit_valve on {len(recs)} records of {args.n} samples; {os.cpu_count()} CPUs ({cpu}); "
           f"load average {load0[0]:.2f} before, {load1[0]:.2f} after")
     summary = {}
