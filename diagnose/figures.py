@@ -135,26 +135,19 @@ def draw_phase(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = None
     axes = fig.subplots(1, 2 if two else 1, squeeze=False)[0]
     s = slice(max(record.n - PHASE_SAMPLES, 0), None)  # the last part: whole cycles stay legible
     shown = min(record.n, PHASE_SAMPLES)
-    ax = axes[0]
-    if pv_hat is not None:
-        ax.plot(record.op[s], pv_hat[s], lw=1.0, ls="--", color=COLORS["model"], label="fitted model", zorder=1)
-    ax.plot(record.op[s], record.pv[s], lw=0.8, color=COLORS["pv"], label="record", zorder=2)
-    ax.set_xlim(*record_limits(record.op[s]))
-    ax.set_ylim(*record_limits(record.pv[s]))
-    ax.set_xlabel("OP (% of span)")
-    ax.set_ylabel(_pv_label(record))
-    ax.set_title(f"OP-PV, last {shown} samples", fontsize=9)
-    ax.legend(loc="best", fontsize=7)
-    if record.mv is not None:
-        ax = axes[1]
-        if mv_hat is not None:
-            ax.plot(record.op[s], mv_hat[s], lw=1.0, ls="--", color=COLORS["model"], label="fitted valve", zorder=1)
-        ax.plot(record.op[s], record.mv[s], lw=0.8, color=COLORS["mv"], label="record", zorder=2)
-        ax.set_xlim(*record_limits(record.op[s]))
-        ax.set_ylim(*record_limits(record.mv[s]))
+    op = record.op[s]
+    panels = [(record.pv, pv_hat, "fitted model", COLORS["pv"], _pv_label(record), "OP-PV")]
+    if two:
+        panels.append((record.mv, mv_hat, "fitted valve", COLORS["mv"], "MV (% of span)", "OP-MV"))
+    for ax, (y, y_hat, model_label, color, ylabel, name) in zip(axes, panels):
+        if y_hat is not None:
+            ax.plot(op, y_hat[s], lw=1.0, ls="--", color=COLORS["model"], label=model_label, zorder=1)
+        ax.plot(op, y[s], lw=0.8, color=color, label="record", zorder=2)
+        ax.set_xlim(*record_limits(op))
+        ax.set_ylim(*record_limits(y[s]))
         ax.set_xlabel("OP (% of span)")
-        ax.set_ylabel("MV (% of span)")
-        ax.set_title(f"OP-MV, last {shown} samples", fontsize=9)
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{name}, last {shown} samples", fontsize=9)
         ax.legend(loc="best", fontsize=7)
     fig.subplots_adjust(left=0.15 if not two else 0.09, right=0.98, top=0.92, bottom=0.13, wspace=0.25)
     return fig
