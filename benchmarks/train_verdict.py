@@ -294,16 +294,9 @@ def decide(model: CombinerModel, rows: list[dict[str, Any]], kind: str,
     out = p >= model.threshold
     if model.fit_rule_floor is not None:
         dec_key = f"{kind}_decisions"
-        rule = np.array([fit_rule([_Row(t, d) for t, d in (r.get(dec_key) or {}).items()]) for r in rows])
+        rule = np.array([fit_rule(r.get(dec_key) or {}) for r in rows])
         out |= (p >= model.fit_rule_floor) & rule
     return out
-
-
-class _Row:
-    """A stored row's test and decision, as `fit_rule` reads evidence."""
-
-    def __init__(self, test: str, decision: str) -> None:
-        self.test, self.decision = test, decision
 
 
 def predict(model: CombinerModel, rows: list[dict[str, Any]], kind: str) -> np.ndarray:

@@ -123,13 +123,14 @@ class CombinerModel:
                    str(d.get("trained_on", "")), None if floor is None else float(floor))
 
 
-def fit_rule(evidence: Iterable[Any]) -> bool:
-    """The Hammerstein fit's own decisive evidence: a valve band clear of OP's noise, backed by a
-    clear improvement over a linear loop, a sharply determined S or a deadband-shaped fit.
+def fit_rule(decisions: Mapping[str, str]) -> bool:
+    """The Hammerstein fit's own decisive evidence, from each evidence row's decision by test name:
+    a valve band clear of OP's noise, backed by a clear improvement over a linear loop, a sharply
+    determined S or a deadband-shaped fit.
 
     On its own this rule calls a hard negative (compression, an external load) sticky too often;
     the combiner uses it only to settle records whose probability is near the threshold."""
-    d = {ev.test: ev.decision for ev in evidence}
+    d = decisions
     return d.get("valve_band") == "stiction" and any(
         d.get(k) == "stiction" for k in ("model_fit", "band_sharpness", "deadband_fit"))
 
@@ -216,7 +217,7 @@ def combine(evidence: Sequence[Any], *, kind: str = "full", model: CombinerModel
     p = m.probability(values)
     stiction = p >= m.threshold
     by_rule = bool(not stiction and m.fit_rule_floor is not None and p >= m.fit_rule_floor
-                   and fit_rule(evidence))
+                   and fit_rule({ev.test: ev.decision for ev in evidence}))
     stiction = stiction or by_rule
     judged = tuple(ev.test for ev in evidence if ev.decision != "cannot_judge")
     missing = tuple(ev.test for ev in evidence if ev.decision == "cannot_judge")
