@@ -61,10 +61,12 @@ def make_loop(directory: Path, n: int) -> Path:
     return out
 
 
-def _run(cmd: list[str], env: dict[str, str]) -> tuple[float, float, bytes]:
+def _run(cmd: list[str], env: dict[str, str], cwd: str) -> tuple[float, float, bytes]:
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True)
+    # run outside any source tree: ``python -c`` puts the working directory first on sys.path, ahead
+    # of PYTHONPATH, so from the repository root a baseline tree would silently run this one's code
+    proc = subprocess.run(cmd, env=env, capture_output=True, cwd=cwd)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
@@ -77,8 +79,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7, help="timed runs per variant (default 7)")
     ap.add_argument("--n", type=int, default=10000, help="samples in the simulated loop (default 10000)")
-    ap.add_argument("--baseline-src", metavar="DIR",
-                    help="also time the command from this source tree (run through PYTHONPATH)")
+    ap.add_argument("--baseline-src", metavar="DIR", action="append", default=[],
+                    help="also time the command from this source tree (run through PYTHONPATH); repeatable")
     ap.add_argument("--md", metavar="FILE", help="also write the results as a Markdown fragment")
     args = ap.parse_args(argv)
 
@@ -94,21 +96,21 @@ def main(argv=None) -> int:
         variants = {"identify": ([*_stiction_cmd(), *tail], base_env),
                     "identify, baseline kernels": ([sys.executable, "-c", isa0_code, *tail], base_env),
                     "identify, bytecode cached": ([*_stiction_cmd(), *tail], cached_env)}
-        if args.baseline_src:
-            env = dict(base_env, PYTHONPATH=str(Path(args.baseline_src).resolve()))
-            variants[f"identify from {args.baseline_src}"] = ([sys.executable, "-c", main_code, *tail], env)
+        for src in args.baseline_src:
+            env = dict(base_env, PYTHONPATH=str(Path(src).resolve()))
+            variants[f"identify from {src}"] = ([sys.executable, "-c", main_code, *tail], env)
         floors = {"python -c pass": [sys.executable, "-c", "pass"],
                   "python -c 'import numpy'": [sys.executable, "-c", "import numpy"]}
         # warm-up (writes caches), and the outputs of this tree's variants must agree
-        outs = {name: _run(cmd, env)[2] for name, (cmd, env) in variants.items()}
+        outs = {name: _run(cmd, env, tmp)[2] for name, (cmd, env) in variants.items()}
         same = len({v for k, v in outs.items() if not k.startswith("identify from")}) == 1
         load0 = os.getloadavg()
         times: dict[str, list[tuple[float, float]]] = {k: [] for k in [*variants, *floors]}
         for _ in range(args.runs):
             for name, (cmd, env) in variants.items():
-                times[name].append(_run(cmd, env)[:2])
+                times[name].append(_run(cmd, env, tmp)[:2])
             for name, c in floors.items():
-                times[name].append(_run(c, base_env)[:2])
+                times[name].append(_run(c, base_env, tmp)[:2])
         load1 = os.getloadavg()
 
     lines = [f"`stiction identify FILE --json`, simulated loop S = 3 %, J = 1 %, n = {args.n} samples, "
@@ -126,6 +128,11 @@ def main(argv=None) -> int:
         label = name
         lines.append(f"| {label} | {min(wall):.3f} | {statistics.median(wall):.3f} | {max(wall):.3f} | "
                      f"{statistics.median(cpu):.3f} |")
+    for src in args.baseline_src:
+        # run by run: the variants of one round ran back to back, under the same load
+        pairs = [a / b for (a, _), (b, _) in zip(times["identify"], times[f"identify from {src}"])]
+        lines.append(f"\nThis tree against {src}, wall run by run: median {statistics.median(pairs):.3f}x "
+                     f"(min {min(pairs):.3f}, max {max(pairs):.3f}).")
     text = "\n".join(lines) + "\n"
     sys.stdout.write(text)
     if args.md:

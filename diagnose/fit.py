@@ -28,8 +28,6 @@ from the residuals' lag-one autocorrelation.
 from __future__ import annotations
 
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -38,6 +36,7 @@ import numpy as np
 from .errors import DataError, NotFittedError
 from .objective import (Candidate, Objective, ProcessGrid, burn_in, legendre_basis, noise_prefilter,
                         op_offset, score_design, score_weights, validate_record)
+from .parallel import thread_map
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
                      PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit,
@@ -393,14 +392,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     candidates: list[tuple[Candidate, Objective, float | None]] = []
     if not long_record:
         candidates.append((single_search(obj, lim, search, stiction), obj, None))
-    n_threads = min(len(spans), threads if threads is not None else (os.cpu_count() or 1))
-    if n_threads > 1:
-        # the looks are independent and the kernels release the GIL: on several cores they run side
-        # by side (the result does not depend on it: every look is kept in its order)
-        with ThreadPoolExecutor(max_workers=n_threads) as pool:
-            candidates += list(pool.map(look, spans))
-    else:
-        candidates += [look(sp) for sp in spans]
+    # the looks are independent: on several cores they run side by side
+    candidates += thread_map(look, spans, threads)
     best, obj, x0 = min(candidates, key=lambda c: c[0].sse)
     if stiction and best.S_pct > 0:
         best = zoom(obj, best, lim, search.zoom)

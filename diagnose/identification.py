@@ -717,7 +717,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             ins = (1.0 - fit.cost / linear.cost) if linear.cost > 0 else 0.0
         if class_test and valve_fit is None and S >= S_MIN_PCT:
             ctest = search.class_test(op, pv, ts, fit, float(fit_opts.get("burn_frac", 0.05)),
-                                      fit_opts.get("gain_sign"))
+                                      fit_opts.get("gain_sign"), threads=fit_opts.get("threads"))
             if ctest["cls"] is not None or ctest["cost"] < ctest["cost_fit"]:
                 # the verdict's evidence stays that of the fit (no credit for the extra freedom)
                 S, J = ctest["S_pct"], ctest["J_pct"]

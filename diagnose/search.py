@@ -7,7 +7,7 @@ config, each returning scored `Candidate` objects and never changing the objecti
   best starts;
 * `dense_grid`: a dense (S, J/S, f0) grid at a few structures (the valley in S and J is narrow);
 * `shape_profile`: every class shape (J/S) picks its own structure, then gets the dense grid;
-* `nelder_mead`: local polish of (S, J, lags) by `scipy.optimize.minimize(method="Nelder-Mead")`;
+* `nelder_mead`: local polish of (S, J, lags) by the Nelder-Mead simplex (`simplex_minimize`);
 * `refine`: rounds of structure polish and Nelder-Mead;
 * `shape_bands`: the best candidate of each class band (deadband, undershoot, no offset, overshoot)
   over J/S, S and every dead time near the best lags, each refined with its own structure;
@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from .objective import MIN_SAMPLES, Candidate, Objective, ProcessGrid, burn_in, score_weights
+from .parallel import thread_count, thread_map
 from .process_model import lag_coefficient
 from .stiction_model import stiction_classes
 
@@ -350,11 +351,58 @@ class PolishConfig:
     n_refine: int = 3
 
 
+def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float) -> tuple[np.ndarray, float]:
+    """Minimise ``cost`` by the Nelder-Mead simplex (reflection 1, expansion 2, contraction and
+    shrink 1/2; Lagarias et al. 1998) from ``simplex`` (N + 1 points of N parameters): at most
+    ``max_iter`` iterations, stopping once every vertex's cost is within ``fatol`` of the best's.
+    Returns the best point and its cost.
+
+    The same iterations as ``scipy.optimize.minimize(method="Nelder-Mead")`` with
+    ``initial_simplex``, ``maxiter``, ``fatol`` and ``xatol=inf``, written here because importing
+    scipy.optimize costs a noticeable share of the ``stiction identify`` command's start-up.
+    """
+    sim = np.array(simplex, dtype=float)
+    N = sim.shape[1]
+    fsim = np.array([cost(v) for v in sim])
+    order = np.argsort(fsim)
+    sim, fsim = sim[order], fsim[order]
+    for _ in range(max_iter - 1):
+        if np.max(np.abs(fsim[0] - fsim[1:])) <= fatol:
+            break
+        xbar = sim[:-1].sum(axis=0) / N
+        worst = sim[-1]
+        xr = 2.0 * xbar - worst
+        fr = cost(xr)
+        if fr < fsim[0]:
+            xe = 3.0 * xbar - 2.0 * worst
+            fe = cost(xe)
+            sim[-1], fsim[-1] = (xe, fe) if fe < fr else (xr, fr)
+        elif fr < fsim[-2]:
+            sim[-1], fsim[-1] = xr, fr
+        else:
+            if fr < fsim[-1]:
+                xc = 1.5 * xbar - 0.5 * worst            # outside contraction
+                fc = cost(xc)
+                accept = fc <= fr
+            else:
+                xc = 0.5 * xbar + 0.5 * worst            # inside contraction
+                fc = cost(xc)
+                accept = fc < fsim[-1]
+            if accept:
+                sim[-1], fsim[-1] = xc, fc
+            else:
+                for j in range(1, N + 1):
+                    sim[j] = sim[0] + 0.5 * (sim[j] - sim[0])
+                    fsim[j] = cost(sim[j])
+        order = np.argsort(fsim)
+        sim, fsim = sim[order], fsim[order]
+    return sim[0], float(fsim[0])
+
+
 def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig, *,
                 lags: bool = True) -> Candidate:
     """Polish S, J (and the lags, when ``lags`` and the structure is not fixed) of one candidate by
-    `scipy.optimize.minimize` (Nelder-Mead). S and J stay at or below ``lim.S_cap``."""
-    from scipy.optimize import minimize
+    the Nelder-Mead simplex (`simplex_minimize`). S and J stay at or below ``lim.S_cap``."""
 
     kind, t1, t2, d = cand.structure
     tau0 = max(float(t1), 1e-6)
@@ -391,12 +439,10 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
         x0, steps = x0[:2], steps[:2]
     f0 = cost(x0)
     simplex = np.vstack([x0, x0 + np.diag(steps)])
-    res = minimize(cost, x0, method="Nelder-Mead",
-                   options={"initial_simplex": simplex, "maxiter": cfg.max_iter, "xatol": math.inf,
-                            "fatol": cfg.tol * (abs(f0) + 1e-12)})
-    if float(res.fun) >= cand.sse:
+    x_best, f_best = simplex_minimize(cost, simplex, cfg.max_iter, cfg.tol * (abs(f0) + 1e-12))
+    if f_best >= cand.sse:
         return cand
-    sse, S, J, key = scored(res.x)
+    sse, S, J, key = scored(x_best)
     k = int(np.argmin(sse))
     return Candidate(S, J, (1.0, -1.0)[k], key, float(sse[k]))
 
@@ -610,7 +656,8 @@ class ClassTestConfig:
 
 
 def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: float = 0.05,
-               gain_sign: float | None = None, cfg: ClassTestConfig = ClassTestConfig()) -> dict[str, Any]:
+               gain_sign: float | None = None, cfg: ClassTestConfig = ClassTestConfig(),
+               threads: int | None = None) -> dict[str, Any]:
     """Re-examine J with the valve's initial stuck point free, and test the special shapes.
 
     A real valve at the start of a record is stuck wherever its history left it, and a sticky valve
@@ -623,7 +670,8 @@ def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: floa
     (deadband) and J = S (no offset) are accepted when their best cost lies within the chi-square
     bound ``cost_free (1 + chi2 / nu)`` of the free fit (``nu`` = the fit's effective residuals - 2).
 
-    ``fit`` is a `diagnose.fit.HammersteinFit`.
+    ``fit`` is a `diagnose.fit.HammersteinFit`; the grids are scored on up to ``threads`` threads
+    (`diagnose.parallel.thread_count`; the result does not depend on it).
 
     Returns
     -------
@@ -653,7 +701,9 @@ def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: floa
         # scan S finely at a few shapes and add the best S and its close neighbours to the grid
         Sf = S0 * (1.0 + np.linspace(-0.1, 0.1, cfg.fine_S))
         Sm, Rm, Fm = np.meshgrid(Sf, np.asarray(cfg.fine_ratios), [1.0, -1.0], indexing="ij")
-        cf = obj.score(Sm.ravel(), (Sm * Rm).ravel(), Fm.ravel(), grid)[0][:, 0]
+        Sv, Jv, Fv = Sm.ravel(), (Sm * Rm).ravel(), Fm.ravel()
+        chunks = np.array_split(np.arange(Sv.shape[0]), thread_count(threads))
+        cf = np.concatenate(thread_map(lambda i: obj.score(Sv[i], Jv[i], Fv[i], grid)[0][:, 0], chunks, threads))
         S_star = float(Sm.ravel()[int(np.argmin(cf))])
         S_set = np.unique(np.concatenate([S_set, S_star * (1.0 + np.asarray(cfg.fine_near))]))
     ratios = np.asarray(cfg.J_ratios)
@@ -688,22 +738,30 @@ def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: floa
                 if ck < per_ratio[k][0]:
                     per_ratio[k] = (ck, F, xs0)
 
-    # stage 1: the fit's structure, every starting point
-    for dl in cfg.deltas:
-        for F in (1.0, -1.0):
-            m = Fg == F
-            xs0 = min(max(x0 + F * dl * max(S0, fit.J_pct), 0.0), 100.0)
-            c = obj.with_start(xs0).score(Sg[m], Jg[m], Fg[m], grid)[0][:, 0] * scale
-            keep(c, Sg[m], Jg[m], Rg[m], F, xs0)
+    # stage 1: the fit's structure, every starting point (scored side by side, kept in order)
+    starts = [(F, min(max(x0 + F * dl * max(S0, fit.J_pct), 0.0), 100.0)) for dl in cfg.deltas for F in (1.0, -1.0)]
+
+    def stage1(start):
+        F, xs0 = start
+        m = Fg == F
+        return obj.with_start(xs0).score(Sg[m], Jg[m], Fg[m], grid)[0][:, 0] * scale
+
+    for (F, xs0), c in zip(starts, thread_map(stage1, starts, threads)):
+        m = Fg == F
+        keep(c, Sg[m], Jg[m], Rg[m], F, xs0)
     # stage 2: per J/S ratio, its best start, with nearby structures (the lags and the dead time
     # trade off against J, so a shape is not rejected for want of its own structure)
     if cfg.structures:
         keys = [(p.kind, p.tau_s, p.tau2_s, dd) for dd in sorted({max(1, d - 1), d, d + 1})]
         keys += [(p.kind, p.tau_s * f, p.tau2_s * f, d) for f in (0.8, 1.25)]
         sgrid = ProcessGrid.of(keys, ts_s)
-        for k, r in enumerate(ratios):
-            _, F, xs0 = per_ratio[k]
-            c = obj.with_start(xs0).score(S_set, S_set * r, np.full(S_set.shape[0], F), sgrid)[0].min(axis=1) * scale
+        picks = [(r, per_ratio[k][1], per_ratio[k][2]) for k, r in enumerate(ratios)]
+
+        def stage2(pick):
+            r, F, xs0 = pick
+            return obj.with_start(xs0).score(S_set, S_set * r, np.full(S_set.shape[0], F), sgrid)[0].min(axis=1) * scale
+
+        for (r, F, xs0), c in zip(picks, thread_map(stage2, picks, threads)):
             keep(c, S_set, S_set * r, np.full(S_set.shape[0], r), F, xs0)
     nu = max((fit.n_eff if math.isfinite(fit.n_eff) else n) - 2.0, 1.0)
     c_free = best["free"][0]

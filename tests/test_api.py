@@ -56,6 +56,17 @@ def test_import_is_cheap_and_names_load_on_first_use():
         diagnose.no_such_thing  # noqa: B018
 
 
+def test_identifying_a_loop_leaves_scipy_unloaded(loop):
+    # importing scipy.optimize and scipy.special costs a noticeable share of a command whose whole
+    # budget is about a second: the identify path, read to result, does without them
+    _, path, _, _ = loop
+    code = ("import sys, dataclasses, diagnose; from diagnose.simulate import sticky_loop; "
+            "r = sticky_loop(3.0, 1.0, n=1200, noise_std=0.03, seed=2); "
+            "diagnose.identify(dataclasses.replace(r, mv=None)); diagnose.identify(sys.argv[1]); "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'); assert not bad, bad[:5]")
+    subprocess.run([sys.executable, "-c", code, str(path)], check=True)
+
+
 def test_a_path_gives_what_the_command_prints(loop):
     _, path, _, cli = loop
     ident = diagnose.identify(path)

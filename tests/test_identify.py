@@ -192,6 +192,9 @@ def test_class_test_finds_the_needle_in_S():
     assert abs(fine["S_pct"] - 5.0) < 0.025
     assert fine["cost"] < 0.8 * coarse["cost"]
     assert fine["cls"] == "no_offset"
+    # the grids scored on one thread or on several: the same answer to the last bit
+    assert class_test(rec.op, rec.pv, rec.ts_s, off, gain_sign=1, threads=1) == fine
+    assert class_test(rec.op, rec.pv, rec.ts_s, off, gain_sign=1, threads=3) == fine
 
 
 def test_a_stem_that_follows_op_exactly_shows_no_gain_rather_than_a_ratio_of_rounding_errors():

@@ -11,7 +11,7 @@ from diagnose.objective import Candidate, Objective, ProcessGrid, burn_in, score
 from diagnose.search import (BandConfig, DenseConfig, GridConfig, ModelSpace, PolishConfig, ZoomConfig,
                              best_structure, coarse_structures, dense_grid, global_grid, linear_fit, nelder_mead,
                              noise_model, polish_structure, profile_intervals, refine, resolve, shape_bands,
-                             shape_profile, start_state, zoom)
+                             shape_profile, simplex_minimize, start_state, zoom)
 from diagnose.simulate import make_process, simc_pi, simulate_loop, steps, sticky_loop
 from diagnose.stiction_model import StictionValve, stiction_batch
 
@@ -189,6 +189,36 @@ def test_nelder_mead_polishes_to_the_truth_and_never_worsens(clean):
     worse = dataclasses.replace(start, sse=0.0)         # a start that cannot be beaten is kept
     assert nelder_mead(obj, worse, lim, PolishConfig()) is worse
     assert refine(obj, start, lim, PolishConfig()).sse <= start.sse
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_simplex_takes_the_same_steps_as_scipys_nelder_mead(seed):
+    # the polish is written here only to keep scipy.optimize out of the command's start-up: on
+    # the same start it must take scipy's steps, stop where scipy stops, and land where scipy lands
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(3, 3))
+    target = rng.normal(size=3)
+    calls = {"ours": 0, "scipy": 0}
+
+    def cost(who):
+        def f(v):
+            calls[who] += 1
+            r = A @ (np.asarray(v) - target)
+            # a rough, flat-bottomed valley, as the stiction cost is (piecewise constant in S, J)
+            return float(r @ r + 0.3 * np.sum(np.abs(np.sin(5 * v))) + np.floor(4 * abs(v[0])) / 10)
+        return f
+
+    x0 = rng.normal(size=3)
+    simplex = np.vstack([x0, x0 + np.diag([0.15, 0.25, 0.3])])
+    for max_iter, fatol in [(60, 1e-3), (200, 1e-9), (5, 0.0)]:
+        calls.update(ours=0, scipy=0)
+        x, fx = simplex_minimize(cost("ours"), simplex, max_iter, fatol)
+        res = minimize(cost("scipy"), x0, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "maxiter": max_iter, "xatol": math.inf, "fatol": fatol})
+        assert np.array_equal(x, res.x) and fx == res.fun
+        assert calls["ours"] == calls["scipy"]
 
 
 def test_shape_bands_give_one_candidate_per_class_band(clean):

@@ -27,16 +27,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
+from ..parallel import thread_count, thread_map
 from ..plain import percent_change
 from ..record import LoopRecord
 from .baseline import Baseline, from_hammerstein, from_valve_fit, make_baseline
@@ -56,19 +55,6 @@ STRONG_BIC = -6.0
 #: fewer slips of the identified valve than this in the training / held-out part -> warning
 #: ``physics.valve_idle``: a valve that stays stuck carries no trace of its friction
 MIN_SLIPS_TRAIN, MIN_SLIPS_HELDOUT = 5, 3
-
-
-def _threads(threads: int | None) -> int:
-    return max(1, int(threads)) if threads is not None else max(1, min(os.cpu_count() or 1, 4))
-
-
-def _map(fn: Callable, items: Sequence, threads: int) -> list:
-    """``[fn(i) for i in items]``, on ``threads`` threads when more than one (the compiled kernels
-    release the interpreter lock); the order and the results do not depend on it."""
-    if threads <= 1 or len(items) <= 1:
-        return [fn(i) for i in items]
-    with ThreadPoolExecutor(max_workers=min(threads, len(items))) as pool:
-        return list(pool.map(fn, items))
 
 
 def _stage_for(record: LoopRecord, name: str, train: np.ndarray) -> Stage:
@@ -255,7 +241,7 @@ def _better_reference(stage: Stage, ref: Structure, ref_sse: float, fits: Iterab
     its search found a better plain valve."""
     mid = int(np.mean(np.flatnonzero(stage.train))) if stage.train.any() else 0
     proj = [p for f in fits for p in _plain_projections(f.structure, mid, stage.ts_s)]
-    refits = _map(lambda p: refine_plain(stage, p, rounds=1), proj, threads)
+    refits = thread_map(lambda p: refine_plain(stage, p, rounds=1), proj, threads)
     best_ref, best_sse = ref, ref_sse
     for r, c in refits:
         if c < best_sse:
@@ -289,14 +275,14 @@ def _run_stage(stage: Stage, hyps: Sequence[PhysicsHypothesis], *, given: Struct
                        residual=stage.y - ref_hat)
     # the longest searches first, so that threads finish together
     order = sorted(hyps, key=lambda h: -_COST_RANK.get(h.name, 0))
-    fits = dict(zip([h.name for h in order], _map(lambda h: h.fit(stage, plain), order, threads)))
+    fits = dict(zip([h.name for h in order], thread_map(lambda h: h.fit(stage, plain), order, threads)))
     better, better_sse = _better_reference(stage, ref, ref_sse, [fits[h.name] for h in hyps], threads)
     if better is not ref:
         ref, ref_sse = better, better_sse
         ref_hat, _, _ = predict(stage, ref)
         plain = PlainModel(ref, identified=base.structure, limit_cycle_period_s=mism.limit_cycle_period_s,
                            residual=stage.y - ref_hat)
-        again = _map(lambda h: h.refit(stage, fits[h.name], plain), order, threads)
+        again = thread_map(lambda h: h.refit(stage, fits[h.name], plain), order, threads)
         for h, f in zip(order, again):
             if f.train_sse < fits[h.name].train_sse:
                 fits[h.name] = f
@@ -317,7 +303,7 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
     as much as by physics), and apply the acceptance rules (module docstring)."""
     stage, ho = run.stage, run.stage.heldout
     n_eff_tr = effective_n((stage.y - run.ref_hat)[stage.train])
-    means = _map(lambda s: predictive_mean(stage, s, n_eff_tr).y_hat, [run.reference] + [f.structure for f in fits],
+    means = thread_map(lambda s: predictive_mean(stage, s, n_eff_tr).y_hat, [run.reference] + [f.structure for f in fits],
                  threads)
     run.ref_hat = means[0]
     run.ref_rmse = ref_rmse = rmse((stage.y - run.ref_hat)[ho])
@@ -450,7 +436,7 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
     warn: list[ExplainWarning] = [ExplainWarning(f"data_quality.{f.code}", f.message) for f in record.findings
                                   if f.severity in ("warning", "error")]
     given, source = _given_structures(identification, baseline)
-    nthreads = _threads(threads)
+    nthreads = thread_count(threads, cap=4)
 
     jobs = []
     for sn in stage_names:
@@ -465,7 +451,7 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
         jobs.append((sn, stage, mine))
     # the stages are independent: with two, each gets half the threads
     per = max(1, nthreads // len(jobs))
-    done = _map(lambda j: _run_stage(j[1], j[2], given=given.get(j[0]), source=source,
+    done = thread_map(lambda j: _run_stage(j[1], j[2], given=given.get(j[0]), source=source,
                                      use_fit_module=use_fit_module, min_reduction=min_reduction, threads=per),
                 jobs, min(nthreads, len(jobs)))
     runs: dict[str, _StageRun] = {j[0]: r for j, r in zip(jobs, done)}

@@ -1,0 +1,34 @@
+"""Independent pieces of one computation on several threads.
+
+The compiled kernels release the interpreter lock, so scoring different candidates, windows or
+hypotheses on threads uses the machine's cores within one process. Every caller keeps its results
+in the order of its items, so a result never depends on the number of threads.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def thread_count(threads: int | None, cap: int | None = None) -> int:
+    """Threads to use: ``threads`` (at least 1), or the machine's cores (at most ``cap``) when None.
+    A caller that runs several computations in parallel itself passes 1."""
+    if threads is not None:
+        return max(1, int(threads))
+    n = os.cpu_count() or 1
+    return max(1, min(n, cap) if cap is not None else n)
+
+
+def thread_map(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> list[R]:
+    """``[fn(i) for i in items]``, on up to ``threads`` threads (`thread_count`); in item order."""
+    items = list(items)
+    n = min(thread_count(threads), len(items))
+    if n <= 1:
+        return [fn(i) for i in items]
+    with ThreadPoolExecutor(max_workers=n) as pool:
+        return list(pool.map(fn, items))
