@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
 
-from .locate import Direction, Drift, Events, Frequency, Mismatch, OperatingPoint, Window
+from .locate import Mismatch
 from .model import Structure
 
 #: what the RMSEs of each stage measure
@@ -126,40 +126,26 @@ class OtherStage:
 
 
 @dataclass(frozen=True, eq=False)
-class StageMismatch:
+class StageMismatch(Mismatch):
     """Where the plain model misses on the reported stage: the localisation (`locate.Mismatch`) of
     the better-trained plain model's residual (``located_on``: ``reference`` or ``baseline``), and
     the stage's split and reference error."""
 
-    windows: tuple[Window, ...]
-    events: Events
-    direction: Direction
-    operating_point: OperatingPoint
-    frequency: Frequency
-    drift: Drift
-    hints: tuple[str, ...]
-    located_on: str
-    stage: str
-    train_fraction: float
-    heldout_start_s: float
-    reference_rmse: float
+    located_on: str = ""
+    stage: str = ""
+    train_fraction: float = float("nan")
+    heldout_start_s: float = float("nan")
+    reference_rmse: float = float("nan")
     other_stages: tuple[OtherStage, ...] = ()
 
     @classmethod
     def of(cls, m: Mismatch, **kw) -> "StageMismatch":
-        return cls(windows=m.windows, events=m.events, direction=m.direction, operating_point=m.operating_point,
-                   frequency=m.frequency, drift=m.drift, hints=m.hints, **kw)
-
-    @property
-    def limit_cycle_period_s(self) -> float | None:
-        return self.frequency.limit_cycle_period_s
+        return cls(**{f.name: getattr(m, f.name) for f in fields(Mismatch)}, **kw)
 
     def to_dict(self) -> dict[str, Any]:
-        d = {"windows": [w.to_dict() for w in self.windows], "events": self.events.to_dict(),
-             "direction": self.direction.to_dict(), "operating_point": self.operating_point.to_dict(),
-             "frequency": self.frequency.to_dict(), "drift": self.drift.to_dict(), "hints": list(self.hints),
-             "located_on": self.located_on, "stage": self.stage, "train_fraction": self.train_fraction,
-             "heldout_start_s": self.heldout_start_s, "reference_rmse": self.reference_rmse}
+        d = super().to_dict()
+        d.update({"located_on": self.located_on, "stage": self.stage, "train_fraction": self.train_fraction,
+                  "heldout_start_s": self.heldout_start_s, "reference_rmse": self.reference_rmse})
         if self.other_stages:
             d["other_stages"] = {o.stage: o.to_dict() for o in self.other_stages}
         return d
