@@ -36,7 +36,8 @@ CUTOFF_HARMONICS = 4.0    # low-pass edge: keeps harmonics 1 to 3 of the oscilla
 def _normal_cdf(z: np.ndarray) -> np.ndarray:
     # math.erfc rather than scipy.special.ndtr: importing scipy.special costs a noticeable share of
     # the command's start-up, for one call on a few thousand values
-    return np.array([0.5 * math.erfc(-v / math.sqrt(2.0)) for v in z.tolist()])
+    s2 = math.sqrt(2.0)
+    return np.array([0.5 * math.erfc(-v / s2) for v in z.tolist()])
 
 
 def _sin_cdf(z: np.ndarray) -> np.ndarray:

@@ -303,8 +303,8 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
     as much as by physics), and apply the acceptance rules (module docstring)."""
     stage, ho = run.stage, run.stage.heldout
     n_eff_tr = effective_n((stage.y - run.ref_hat)[stage.train])
-    means = thread_map(lambda s: predictive_mean(stage, s, n_eff_tr).y_hat, [run.reference] + [f.structure for f in fits],
-                 threads)
+    means = thread_map(lambda s: predictive_mean(stage, s, n_eff_tr).y_hat,
+                       [run.reference] + [f.structure for f in fits], threads)
     run.ref_hat = means[0]
     run.ref_rmse = ref_rmse = rmse((stage.y - run.ref_hat)[ho])
     e_ref = (stage.y - run.ref_hat)[ho]
@@ -452,8 +452,8 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
     # the stages are independent: with two, each gets half the threads
     per = max(1, nthreads // len(jobs))
     done = thread_map(lambda j: _run_stage(j[1], j[2], given=given.get(j[0]), source=source,
-                                     use_fit_module=use_fit_module, min_reduction=min_reduction, threads=per),
-                jobs, min(nthreads, len(jobs)))
+                                           use_fit_module=use_fit_module, min_reduction=min_reduction, threads=per),
+                      jobs, min(nthreads, len(jobs)))
     runs: dict[str, _StageRun] = {j[0]: r for j, r in zip(jobs, done)}
     return _assemble(record, runs, hyps, warn, train_fraction, n_tr)
 
