@@ -11,8 +11,9 @@ machine load affects them alike:
   without AVX2 runs; the numbers are the same);
 * ``identify, bytecode cached``: with Python's own compile cache (``__pycache__/*.pyc``) allowed, as
   on a user's machine, where this session sets ``PYTHONDONTWRITEBYTECODE`` (some containers do);
-* ``--baseline-src DIR``: the same command run from another source tree (e.g. an earlier commit
-  checked out with ``git worktree add``), through ``PYTHONPATH``: a before/after ratio in one run.
+* ``--baseline-src DIR`` (repeatable): the same command run from another source tree (e.g. an
+  earlier commit checked out with ``git worktree add``), through ``PYTHONPATH``: before/after
+  ratios, run by run, in one run. Every variant runs from a scratch directory.
 
 Two floors are timed as well: ``python -c pass`` and ``python -c "import numpy"``.
 
