@@ -266,6 +266,62 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
 }
 
 /*
+ * The stem rows of the fused kernels: LANES rows of nb = n + maxd samples (maxd, the longest dead
+ * time of the m candidates: samples of each lane's first position before the record, then its n
+ * samples). NULL when memory runs out.
+ */
+static double *V(fused_rows_, SFX)(int64_t n, int64_t m, const int64_t *d, int64_t *maxd, int64_t *nb)
+{
+    *maxd = 0;
+    for (int64_t i = 0; i < m; i++)
+        if (d[i] > *maxd)
+            *maxd = d[i];
+    *nb = n + *maxd;
+    return (double *)malloc(sizeof(double) * (size_t)(LANES * *nb));
+}
+
+/*
+ * The front both fused kernels share, for candidates i0 .. i0 + LANES - 1 (spare lanes repeat the
+ * last): each lane's stem row in buf (its valve by valve_lanes, then its valve characteristic cc,
+ * preceded by maxd samples of its first position, what a dead time sees before the record), the
+ * row its dead time reads (up), its first stem position u0 and its process coefficients.
+ */
+static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, int64_t i0, const double *S_up,
+                                        const double *J_up, const double *S_dn, const double *J_dn,
+                                        const double *dS, const double *dJ, const double *f0,
+                                        const double *a_lag, const double *y0, const double *xs0,
+                                        const double *cc, const double *a1, const double *a2, const int64_t *d,
+                                        const uint8_t *integ, double ts_s, double *buf, int64_t nb, int64_t maxd,
+                                        const double **up, VT *A1, VT *B1, VT *A2, VT *B2, VT *I, VT *N, VT *u0)
+{
+    double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
+    double yv[LANES], sv[LANES];
+    double *rows[LANES];
+    for (int g = 0; g < LANES; g++) {
+        int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last candidate */
+        su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
+        ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
+        rows[g] = buf + g * nb + maxd;
+        up[g] = rows[g] - d[i];
+        (*A1)[g] = a1[i];
+        (*B1)[g] = 1.0 - a1[i];
+        /* first order: z2 = 0 z2 + 1 z1, which is z1 exactly */
+        (*A2)[g] = a2[i] >= 0.0 ? a2[i] : 0.0;
+        (*B2)[g] = a2[i] >= 0.0 ? 1.0 - a2[i] : 1.0;
+        (*I)[g] = integ[i] ? ts_s : 0.0;
+        (*N)[g] = integ[i] ? 0.0 : 1.0;
+    }
+    V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+    for (int g = 0; g < LANES; g++) {
+        int64_t i = i0 + g < m ? i0 + g : m - 1;
+        characteristic_row(rows[g], n, cc[i]);
+        (*u0)[g] = rows[g][0];
+        for (int64_t k = 1; k <= maxd; k++)
+            rows[g][-k] = (*u0)[g];
+    }
+}
+
+/*
  * fused_sse for this instruction set: LANES candidates at a time, their valves (valve_lanes), the
  * characteristic on each stem row, then the process and the candidate's normal-equation sums in
  * the same lanes; fused_solve finishes each candidate. Each lane performs exactly the operations
@@ -282,47 +338,18 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
         return -1;
     if (m <= 0 || n <= 0)
         return 0;
-    int64_t maxd = 0;
-    for (int64_t i = 0; i < m; i++)
-        if (d[i] > maxd)
-            maxd = d[i];
-    /* each lane's row: maxd samples of its first input (what a dead time sees before the record),
-     * then its n samples */
-    int64_t nb = n + maxd;
-    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
+    int64_t maxd, nb;
+    double *buf = V(fused_rows_, SFX)(n, m, d, &maxd, &nb);
     if (buf == NULL)
         return -1;
     fused_fixed_t fx;
     fused_fixed(n, E, q, y, w, &fx);
     VT szE[FUSED_MAXP], sEz[FUSED_MAXP];
     for (int64_t i0 = 0; i0 < m; i0 += LANES) {
-        double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
-        double yv[LANES], sv[LANES];
-        double *rows[LANES];
         const double *up[LANES];
         VT A1, B1, A2, B2, I, N, u0;
-        for (int g = 0; g < LANES; g++) {
-            int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last candidate */
-            su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
-            ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
-            rows[g] = buf + g * nb + maxd;
-            up[g] = rows[g] - d[i];
-            A1[g] = a1[i];
-            B1[g] = 1.0 - a1[i];
-            /* first order: z2 = 0 z2 + 1 z1, which is z1 exactly */
-            A2[g] = a2[i] >= 0.0 ? a2[i] : 0.0;
-            B2[g] = a2[i] >= 0.0 ? 1.0 - a2[i] : 1.0;
-            I[g] = integ[i] ? ts_s : 0.0;
-            N[g] = integ[i] ? 0.0 : 1.0;
-        }
-        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
-        for (int g = 0; g < LANES; g++) {
-            int64_t i = i0 + g < m ? i0 + g : m - 1;
-            characteristic_row(rows[g], n, cc[i]);
-            u0[g] = rows[g][0];
-            for (int64_t k = 1; k <= maxd; k++)
-                rows[g][-k] = u0[g];
-        }
+        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+                             ts_s, buf, nb, maxd, up, &A1, &B1, &A2, &B2, &I, &N, &u0);
         VT z1 = u0, z2 = u0, ac = {0.0}, szz = {0.0}, sz = {0.0}, szy = {0.0};
         for (int64_t j = 0; j < q; j++) {
             szE[j] = (VT){0.0};
@@ -379,45 +406,22 @@ KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const doubl
     const int64_t q = with_t ? 3 : 2;
     if (m <= 0 || n <= 0)
         return 0;
-    int64_t maxd = 0;
-    for (int64_t i = 0; i < m; i++)
-        if (d[i] > maxd)
-            maxd = d[i];
-    int64_t nb = n + maxd;
-    double *buf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
+    int64_t maxd, nb;
+    double *buf = V(fused_rows_, SFX)(n, m, d, &maxd, &nb);
     if (buf == NULL)
         return -1;
     fused_fixed_t base;
     fused_fixed(n, NULL, 0, y, w, &base);
     for (int64_t i0 = 0; i0 < m; i0 += LANES) {
-        double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
-        double yv[LANES], sv[LANES], wl[LANES];
-        double *rows[LANES];
+        double wl[LANES];
         const double *up[LANES];
         VT A1, B1, A2, B2, I, N, u0, rs, rc;
+        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+                             ts_s, buf, nb, maxd, up, &A1, &B1, &A2, &B2, &I, &N, &u0);
         for (int g = 0; g < LANES; g++) {
-            int64_t i = i0 + g < m ? i0 + g : m - 1;
-            su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
-            ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
-            rows[g] = buf + g * nb + maxd;
-            up[g] = rows[g] - d[i];
-            A1[g] = a1[i];
-            B1[g] = 1.0 - a1[i];
-            A2[g] = a2[i] >= 0.0 ? a2[i] : 0.0;
-            B2[g] = a2[i] >= 0.0 ? 1.0 - a2[i] : 1.0;
-            I[g] = integ[i] ? ts_s : 0.0;
-            N[g] = integ[i] ? 0.0 : 1.0;
-            wl[g] = wload[i];
+            wl[g] = wload[i0 + g < m ? i0 + g : m - 1];
             rs[g] = sin(wl[g] * ts_s);
             rc[g] = cos(wl[g] * ts_s);
-        }
-        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
-        for (int g = 0; g < LANES; g++) {
-            int64_t i = i0 + g < m ? i0 + g : m - 1;
-            characteristic_row(rows[g], n, cc[i]);
-            u0[g] = rows[g][0];
-            for (int64_t k = 1; k <= maxd; k++)
-                rows[g][-k] = u0[g];
         }
         VT zero = {0.0};
         VT z1 = u0, z2 = u0, ac = zero, szz = zero, sz = zero, szy = zero, sn = zero, cs = zero;
