@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import StictionError
 
-ABI = 5
+ABI = 6
 
 
 class KernelsMissingError(StictionError, ImportError):
@@ -48,7 +48,7 @@ _C = ctypes.c_int
 _lib = _load()
 for _name, _args, _res in (
     ("valve_run", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I], None),
-    ("score", [_P, _I, _P, _I, _P, _I, _D, _D, _P, _P, _P, _I, _P, _D, _P, _D], _C),
+    ("score", [_P, _I, _P, _I, _P, _I, _C, _D, _D, _P, _P, _P, _I, _P, _D, _P, _D], _C),
     ("fused_sse", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I, _P,
                    _P, _D, _P], _C),
     ("fused_sse_load", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _C, _P,
@@ -79,6 +79,12 @@ def set_isa(level: int | None) -> str:
     at what the CPU supports; returns the variant now in use. For tests and benchmarks."""
     _lib.kernels_set_isa(_lib.kernels_max_isa() if level is None else int(level))
     return isa()
+
+
+def lanes() -> int:
+    """Doubles per vector in the variant in use (2 baseline, 4 AVX2, 8 AVX-512): how many
+    independent jobs one pass of a kernel scores for about the price of one."""
+    return (2, 4, 8)[int(_lib.kernels_isa())]
 
 
 def max_isa_level() -> int:
@@ -130,24 +136,28 @@ class ScoreData:
         self._args = (_ptr(self.x), self.n, _ptr(self.w), _ptr(self.yw), _ptr(self.Qw), self.K, _ptr(self.Qty))
 
 
-def score(data: ScoreData, valves: np.ndarray, structs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def score(data: ScoreData, valves: np.ndarray, structs: np.ndarray,
+          paired: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Output-error SSE and gain, each (m, P), of m valve candidates x P process structures.
 
     ``valves`` is (5, m): S, J, f0 and the start state y0, xs0 (NaN: at rest at the first input;
     see `valve_run`); ``structs`` is (4, P): lag poles a1, a2 (< 0: first order), dead
     time in samples, integrator (0/1); both C-contiguous float64. See ``score`` in
     diagnose/csrc/kernels_lanes.h; `diagnose.objective.Objective` prepares the arguments.
+    ``paired``: P == m and only valve i with structure i is scored; SSE and gain are then (m,).
+    The kernel keeps its scratch memory (a record's valve rows) per thread between calls.
     """
     m = valves.shape[1]
     P = structs.shape[1]
     if valves.shape[0] != 5 or structs.shape[0] != 4 or valves.dtype != np.float64 or structs.dtype != np.float64 \
-            or not valves.flags.c_contiguous or not structs.flags.c_contiguous:
-        raise ValueError("score: valves must be (5, m) and structs (4, P), C-contiguous float64")
-    out = np.empty((2, m, P))
+            or not valves.flags.c_contiguous or not structs.flags.c_contiguous or (paired and P != m):
+        raise ValueError("score: valves must be (5, m) and structs (4, P) (P = m when paired), "
+                         "C-contiguous float64")
+    out = np.empty((2, m) if paired else (2, m, P))
     if m and P:
         x, n, w, yw, Qw, K, Qty = data._args
-        rc = _lib.score(x, n, _ptr(valves), m, _ptr(structs), P, data.ts_s, data.ahp, w, yw, Qw, K, Qty, data.yyp,
-                        _ptr(out), data.gfix)
+        rc = _lib.score(x, n, _ptr(valves), m, _ptr(structs), P, int(paired), data.ts_s, data.ahp, w, yw, Qw, K,
+                        Qty, data.yyp, _ptr(out), data.gfix)
         if rc != 0:
             raise MemoryError("score: out of memory")
     return out[0], out[1]

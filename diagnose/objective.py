@@ -412,12 +412,14 @@ class Objective:
         valves[4] = np.nan if self.start_stuck_pct is None else self.start_stuck_pct
         return self.score_table(valves, grid.table)
 
-    def score_table(self, valves: np.ndarray, structs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def score_table(self, valves: np.ndarray, structs: np.ndarray,
+                    paired: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """`score` with the valves as a (5, m) array (S, J, f0, and the start state y0, xs0: the
         stem stuck at y0 after a motion in direction f0, the input then at xs0; NaN: at rest at
         ``x[0]``) and the structures as a `ProcessGrid.table` (4, P): the local searches' fast path
-        and the valve fit's start states."""
-        sse, gain = kernels.score(self._data, valves, structs)
+        and the valve fit's start states. ``paired`` (P = m): valve i with structure i only, two
+        (m,) arrays."""
+        sse, gain = kernels.score(self._data, valves, structs, paired)
         if self.gain_sign:
             # a process gain against the controller's action is the controller path (PV explained
             # through OP = f(PV)), not the plant: score it no better than no process at all

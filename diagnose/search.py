@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from . import kernels
 from .objective import MIN_SAMPLES, Candidate, Objective, ProcessGrid, burn_in, score_weights
 from .parallel import thread_count, thread_map
 from .process_model import lag_coefficient
@@ -351,7 +352,8 @@ class PolishConfig:
     n_refine: int = 3
 
 
-def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float) -> tuple[np.ndarray, float]:
+def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float, *,
+                     costs=None) -> tuple[np.ndarray, float]:
     """Minimise ``cost`` by the Nelder-Mead simplex (reflection 1, expansion 2, contraction and
     shrink 1/2; Lagarias et al. 1998) from ``simplex`` (N + 1 points of N parameters): at most
     ``max_iter`` iterations, stopping once every vertex's cost is within ``fatol`` of the best's.
@@ -360,10 +362,16 @@ def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float) -> 
     The same iterations as ``scipy.optimize.minimize(method="Nelder-Mead")`` with
     ``initial_simplex``, ``maxiter``, ``fatol`` and ``xatol=inf``, written here because importing
     scipy.optimize costs a noticeable share of the ``stiction identify`` command's start-up.
+
+    ``costs``, optional, scores several points (k, N) in one call, each exactly as ``cost`` would:
+    the start simplex and each shrink are then scored at once, and every reflection together
+    with the inside contraction, the step most often needed next (spent when it is not). Where
+    one call scores a few points for about the price of one (a vector kernel's lanes), this cuts
+    the calls by about a third; the iterations and the result stay exactly the same.
     """
     sim = np.array(simplex, dtype=float)
     N = sim.shape[1]
-    fsim = np.array([cost(v) for v in sim])
+    fsim = np.asarray(costs(sim), dtype=float).copy() if costs is not None else np.array([cost(v) for v in sim])
     order = np.argsort(fsim)
     sim, fsim = sim[order], fsim[order]
     for _ in range(max_iter - 1):
@@ -372,7 +380,11 @@ def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float) -> 
         xbar = sim[:-1].sum(axis=0) / N
         worst = sim[-1]
         xr = 2.0 * xbar - worst
-        fr = cost(xr)
+        xic = 0.5 * xbar + 0.5 * worst                   # inside contraction
+        if costs is not None:
+            fr, fic = (float(c) for c in costs(np.array([xr, xic])))
+        else:
+            fr, fic = cost(xr), None
         if fr < fsim[0]:
             xe = 3.0 * xbar - 2.0 * worst
             fe = cost(xe)
@@ -385,15 +397,14 @@ def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float) -> 
                 fc = cost(xc)
                 accept = fc <= fr
             else:
-                xc = 0.5 * xbar + 0.5 * worst            # inside contraction
-                fc = cost(xc)
+                xc = xic
+                fc = cost(xc) if fic is None else fic
                 accept = fc < fsim[-1]
             if accept:
                 sim[-1], fsim[-1] = xc, fc
             else:
-                for j in range(1, N + 1):
-                    sim[j] = sim[0] + 0.5 * (sim[j] - sim[0])
-                    fsim[j] = cost(sim[j])
+                sim[1:] = sim[0] + 0.5 * (sim[1:] - sim[0])
+                fsim[1:] = costs(sim[1:]) if costs is not None else [cost(v) for v in sim[1:]]
         order = np.argsort(fsim)
         sim, fsim = sim[order], fsim[order]
     return sim[0], float(fsim[0])
@@ -433,13 +444,33 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
     def cost(v):
         return float(scored(v)[0].min())
 
+    def costs(pts):
+        # several points in one paired kernel call: each point's valve in both starting directions
+        # with that point's own structure
+        k = len(pts)
+        valves = np.full((5, 2 * k), NAN)
+        structs = np.empty((4, 2 * k))
+        for i, v in enumerate(pts):
+            S, J, tau = unpack(v)
+            t1_ = min(tau, tau_max)
+            a2 = lag_coefficient(min(tau * ratio2, tau_max), ts) if kind == "soptd" else -1.0
+            valves[0, 2 * i: 2 * i + 2] = S
+            valves[1, 2 * i: 2 * i + 2] = J
+            structs[:, 2 * i: 2 * i + 2] = ((lag_coefficient(t1_, ts),), (a2,), (float(d),), (integ,))
+        valves[2, 0::2] = 1.0
+        valves[2, 1::2] = -1.0
+        sse, _ = obj.score_table(valves, structs, paired=True)
+        return sse.reshape(k, 2).min(axis=1)
+
     x0 = np.array([cand.S_pct / scale, cand.J_pct / scale, 0.0])
     steps = np.array([0.15, 0.15 + 0.1 * (cand.J_pct < 1e-9), 0.3])
     if not free_lags:
         x0, steps = x0[:2], steps[:2]
     f0 = cost(x0)
     simplex = np.vstack([x0, x0 + np.diag(steps)])
-    x_best, f_best = simplex_minimize(cost, simplex, cfg.max_iter, cfg.tol * (abs(f0) + 1e-12))
+    # batched points pay only where a kernel pass scores four jobs for about the price of two
+    x_best, f_best = simplex_minimize(cost, simplex, cfg.max_iter, cfg.tol * (abs(f0) + 1e-12),
+                                      costs=costs if kernels.lanes() >= 4 else None)
     if f_best >= cand.sse:
         return cand
     sse, S, J, key = scored(x_best)

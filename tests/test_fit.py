@@ -199,8 +199,9 @@ def test_refinements_keep_J_within_the_OP_range():
             c = (S - 3.0) ** 2 + 1.0 / (1.0 + J)
             return c[:, None], np.ones((S.shape[0], 1))
 
-        def score_table(self, valves, structs):
-            return self.score(valves[0], valves[1], valves[2], None)
+        def score_table(self, valves, structs, paired=False):
+            sse, gain = self.score(valves[0], valves[1], valves[2], None)
+            return (sse[:, 0], gain[:, 0]) if paired else (sse, gain)
 
     lim = resolve(np.linspace(45.0, 52.5, 200), 1.0, ModelSpace(structure=("foptd", 15.0, 0.0, 3.0)), 12, 12)
     cap = 9.0

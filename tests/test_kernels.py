@@ -95,6 +95,8 @@ def _score_reference(case, gfix):
     (7, 1, 1, False, np.nan),     # many candidates at one structure (the local searches)
     (2, 4, 0, True, 1.0),         # fixed gain, no load basis
     (1, 2, 2, False, np.nan),     # fewer jobs than lanes
+    (19, 5, 3, True, np.nan),     # blocks of candidates sharing a valve pass, an odd structure left over
+    (1, 40, 2, True, np.nan),     # one valve, dead times shared by several structures
 ])
 def test_score_equals_a_plain_computation_at_every_variant(m, P, K, hp, gfix):
     rng = np.random.default_rng(10 * m + P)
@@ -108,11 +110,33 @@ def test_score_equals_a_plain_computation_at_every_variant(m, P, K, hp, gfix):
     np.testing.assert_allclose(outs[0][1], ref_gain, rtol=1e-8, atol=1e-11)
 
 
+@pytest.mark.parametrize("m", [2, 4, 6, 8, 9, 16])
+def test_a_job_scores_the_same_whatever_shares_its_call(m):
+    # the kernel lays jobs out differently by their number (candidate blocks, shared rows, paired
+    # points with one dead time); a job's numbers must not depend on it
+    rng = np.random.default_rng(100 + m)
+    data, valves, grid, _ = _score_case(rng, 900, m, 6, 3, True, np.nan)
+    table = grid.table
+    same_d = np.ascontiguousarray(np.repeat(table[:, :1], m, axis=1))
+    same_d[0] = np.linspace(0.2, 0.95, m)           # each point its own lag, all one dead time
+    for structs in (table, same_d):
+        full_sse, full_gain = kernels.score(data, valves, structs)
+        alone = [kernels.score(data, np.ascontiguousarray(valves[:, i:i + 1]), structs) for i in range(m)]
+        assert np.array_equal(full_sse, np.vstack([a[0] for a in alone]))
+        assert np.array_equal(full_gain, np.vstack([a[1] for a in alone]))
+    pairs = _variants(lambda: kernels.score(data, valves, same_d, paired=True))
+    for sse, gain in pairs:
+        assert sse.shape == (m,)
+        assert np.array_equal(sse, np.diag(full_sse)) and np.array_equal(gain, np.diag(full_gain))
+
+
 def test_score_rejects_tables_of_the_wrong_shape():
     rng = np.random.default_rng(0)
     data, valves, grid, _ = _score_case(rng, 100, 2, 2, 1, False, np.nan)
     with pytest.raises(ValueError, match="valves must be"):
         kernels.score(data, np.ascontiguousarray(valves[:3]), grid.table)
+    with pytest.raises(ValueError, match="P = m when paired"):
+        kernels.score(data, valves, np.ascontiguousarray(grid.table[:, :1]), paired=True)
 
 
 def test_valve_run_with_a_start_state_equals_kanos_model_started_there():

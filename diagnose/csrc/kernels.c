@@ -21,15 +21,72 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 5
+#define KERNELS_ABI 6
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
 static inline double clip100(double v) { return nmin(nmax(v, 0.0), 100.0); }
+/*
+ * Scratch memory of the scoring kernel, one set per thread, kept between calls: a local search
+ * calls it thousands of times, and fresh rows for a long record on every call cost page faults
+ * comparable to the work itself. Freed when the thread ends.
+ */
+enum { SCRATCH_UBUF, SCRATCH_ROWS, SCRATCH_ORDER, SCRATCH_SLOTS };
+struct scratch {
+    void *p[SCRATCH_SLOTS];
+    size_t size[SCRATCH_SLOTS];
+};
+static pthread_key_t scratch_key;
+static pthread_once_t scratch_once = PTHREAD_ONCE_INIT;
+
+static void scratch_free(void *v)
+{
+    struct scratch *s = (struct scratch *)v;
+    for (int i = 0; i < SCRATCH_SLOTS; i++)
+        free(s->p[i]);
+    free(s);
+}
+
+static void scratch_init(void) { pthread_key_create(&scratch_key, scratch_free); }
+
+/* at least `bytes` of 64-byte aligned memory for `slot` of this thread (contents undefined), or NULL */
+static void *scratch(int slot, size_t bytes)
+{
+    pthread_once(&scratch_once, scratch_init);
+    struct scratch *s = (struct scratch *)pthread_getspecific(scratch_key);
+    if (s == NULL) {
+        s = (struct scratch *)calloc(1, sizeof *s);
+        if (s == NULL || pthread_setspecific(scratch_key, s) != 0) {
+            free(s);
+            return NULL;
+        }
+    }
+    if (s->size[slot] < bytes) {
+        void *p = NULL;
+        free(s->p[slot]);
+        s->p[slot] = NULL;
+        s->size[slot] = 0;
+        if (posix_memalign(&p, 64, bytes) != 0)
+            return NULL;
+        s->p[slot] = p;
+        s->size[slot] = bytes;
+    }
+    return s->p[slot];
+}
+
+/* how score_groups_ (kernels_lanes.h) reads each lane's input */
+enum { INPUT_VECTOR, INPUT_BROADCAST, INPUT_GATHER };
+
+static int cmp_i64(const void *a, const void *b)
+{
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
 
 /* Closed-form SSE and gain of one (candidate, structure) from its normal-equation sums. */
 static inline void finish_one(double szz, double szy, const double *szq, const double *Qty, int64_t K,
@@ -350,8 +407,8 @@ typedef void (*valve_run_fn)(const double *, int64_t, int64_t, const double *, c
                              const double *, const double *, const double *, const double *,
                              const double *, const double *, const double *, const double *, double,
                              double *, int64_t);
-typedef int (*score_fn)(const double *, int64_t, const double *, int64_t, const double *, int64_t, double, double,
-                        const double *, const double *, const double *, int64_t, const double *, double,
+typedef int (*score_fn)(const double *, int64_t, const double *, int64_t, const double *, int64_t, int, double,
+                        double, const double *, const double *, const double *, int64_t, const double *, double,
                         double *, double);
 
 static const valve_run_fn VALVE_RUN[] = {
@@ -450,11 +507,12 @@ void valve_run(const double *x, int64_t n, int64_t m, const double *S_up, const 
 }
 
 int score(const double *x, int64_t n, const double *valves, int64_t m, const double *structs, int64_t P,
-          double ts, double ahp, const double *w, const double *yw, const double *Qw, int64_t K,
+          int paired, double ts, double ahp, const double *w, const double *yw, const double *Qw, int64_t K,
           const double *Qty, double yyp, double *out, double gfix)
 {
     ensure_isa();
-    return SCORE[isa_for(m * P)](x, n, valves, m, structs, P, ts, ahp, w, yw, Qw, K, Qty, yyp, out, gfix);
+    return SCORE[isa_for(paired ? m : m * P)](x, n, valves, m, structs, P, paired, ts, ahp, w, yw, Qw, K, Qty,
+                                               yyp, out, gfix);
 }
 
 /*

@@ -89,6 +89,62 @@ static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double 
     }
 }
 
+/*
+ * nv (1 or 2) vectors of LANES plain valves (the same S and J both ways, no drift, no lag) over
+ * x[0..n): lane g of vector u has S s[u * LANES + g], J j[..], starting direction f[..] and start
+ * state y0 / xs0 (as valve_lanes), and writes all its lanes' stems of sample k as the one vector
+ * il[u][k]. Two vectors advance side by side (the step is a chain of dependent operations); every
+ * lane does exactly valve_lanes' operations, so the stems are the same bit for bit.
+ */
+static inline __attribute__((always_inline)) KATTR void V(valve_il_, SFX)(
+    const int nv, const double *x, int64_t n, const double *s, const double *j, const double *f_,
+    const double *y0_, const double *xs0_, VT *const *il)
+{
+    VT su[2], ju[2], f[2], yp[2], xss[2];
+    MT stuck[2];
+    double xp = clip100(x[0]);
+    for (int u = 0; u < nv; u++) {
+        double s0[LANES], j0[LANES], f0[LANES], ya[LANES], xa[LANES];
+        for (int g = 0; g < LANES; g++) {
+            /* S and J clipped to >= 0 as nonneg_ does */
+            s0[g] = 0.0 > s[u * LANES + g] ? 0.0 : s[u * LANES + g];
+            j0[g] = 0.0 > j[u * LANES + g] ? 0.0 : j[u * LANES + g];
+            f0[g] = f_[u * LANES + g];
+            double y = xp, st = xp;
+            double y0 = y0_[u * LANES + g], xs0 = xs0_[u * LANES + g];
+            if (!isnan(y0)) {
+                /* stuck at y0 after a motion in direction f: the input stood at y0 + f (S - J) / 2 */
+                y = clip100(y0);
+                st = y + f0[g] * ((s0[g] - j0[g]) / 2.0);
+                if (!isnan(xs0))
+                    st = xs0;
+            }
+            ya[g] = y;
+            xa[g] = st;
+        }
+        memcpy(&su[u], s0, sizeof(VT));
+        memcpy(&ju[u], j0, sizeof(VT));
+        memcpy(&f[u], f0, sizeof(VT));
+        memcpy(&yp[u], ya, sizeof(VT));
+        memcpy(&xss[u], xa, sizeof(VT));
+        il[u][0] = yp[u];
+        stuck[u] = (MT){0} - 1;
+    }
+    int up = 0;
+    for (int64_t k = 1; k < n; k++) {
+        double xk = clip100(x[k]);
+        double v = xk - xp;
+        int up_k = v > 0.0;
+        int stop = v == 0.0 || up_k != up;
+        for (int u = 0; u < nv; u++) {
+            V(valve_step_, SFX)(xk, xp, stop, &stuck[u], &xss[u], &f[u], &yp[u], su[u], ju[u], su[u], ju[u]);
+            il[u][k] = yp[u];
+        }
+        xp = xk;
+        up = up_k;
+    }
+}
+
 /* m candidate valves (arrays of m) -> out (m rows, leading dimension ld); see valve_lanes. */
 KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
@@ -111,6 +167,159 @@ KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const doubl
     }
 }
 
+/* The process, noise prefilter and normal-equation sums of ng (1 or 2) groups of LANES jobs. Each
+ * lane's input at sample k is read by `mode`: INPUT_VECTOR, lane-interleaved (in[u][k] holds all
+ * lanes' inputs); INPUT_BROADCAST, one row for all lanes (gp[u * LANES][k]); INPUT_GATHER, a row
+ * per lane (gp[u * LANES + g][k]), a scalar load per lane, the slowest. Two groups advance side by
+ * side: each lane's recursion is a chain of dependent operations, and a second independent chain
+ * fills the cycles the first waits on. Every lane does the same operations in the same order
+ * whatever the mode and the grouping, so the results are the same bit for bit. */
+static inline __attribute__((always_inline)) KATTR void V(score_groups_, SFX)(
+    const int ng, const int mode, int64_t n, const VT *const *in, const double *const *gp, const VT *A1,
+    const VT *B1, const VT *A2, const VT *B2, const VT *I, const VT *N, int hp, double ahp, const double *w,
+    const double *yw, const double *Qw, int64_t K, VT *sz_out, VT *sy_out, VT *sq_out)
+{
+    VT z1[2], z2[2], ac[2], pr[2], fh[2], sz[2], sy[2];
+    VT sq[2 * (K > 0 ? K : 1)];
+    VT zero = {0.0};
+    VT ahpv = zero + ahp;
+    for (int u = 0; u < ng; u++) {
+        z1[u] = z2[u] = ac[u] = pr[u] = fh[u] = sz[u] = sy[u] = zero;
+        for (int64_t j = 0; j < K; j++)
+            sq[u * K + j] = zero;
+    }
+    for (int64_t k = 0; k < n; k++) {
+        double wk = w[k];
+        double yk = yw[k];
+        const double *qrow = Qw + k * K;
+        for (int u = 0; u < ng; u++) {
+            VT ug;
+            if (mode == INPUT_VECTOR)
+                ug = in[u][k];
+            else if (mode == INPUT_BROADCAST)
+                ug = zero + gp[u * LANES][k];
+            else
+                for (int g = 0; g < LANES; g++)
+                    ug[g] = gp[u * LANES + g][k];
+            z1[u] = A1[u] * z1[u] + B1[u] * ug;
+            z2[u] = A2[u] * z2[u] + B2[u] * z1[u];
+            ac[u] += I[u] * z2[u];
+            VT v = N[u] * z2[u] + ac[u];
+            if (hp) {
+                fh[u] = ahpv * fh[u] + v - pr[u];
+                pr[u] = v;
+                v = fh[u];
+            }
+            if (wk != 0.0) {
+                sz[u] += wk * v * v;
+                sy[u] += yk * v;
+                for (int64_t j = 0; j < K; j++)
+                    sq[u * K + j] += qrow[j] * v;
+            }
+        }
+    }
+    for (int u = 0; u < ng; u++) {
+        sz_out[u] = sz[u];
+        sy_out[u] = sy[u];
+        for (int64_t j = 0; j < K; j++)
+            sq_out[u * K + j] = sq[u * K + j];
+    }
+}
+
+/* process chains side by side only where the registers hold both (AVX-512 has 32, the others 16);
+ * two valve vectors side by side pay on every variant */
+#undef BLOCK_GROUPS
+#undef BLOCK_VALVES
+#define BLOCK_GROUPS (LANES >= 8 ? 2 : 1)
+#define BLOCK_VALVES 2
+
+/*
+ * score_ for m >= LANES candidates: LANES candidates share one valve pass, written lane-interleaved,
+ * and then each structure's pass over them reads one vector per sample (all lanes have that
+ * structure's dead time) instead of gathering a scalar per lane. Same arguments and results.
+ */
+static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double *valves, int64_t m,
+                                        const double *structs, int64_t P, double ts, double ahp, const double *w,
+                                        const double *yw, const double *Qw, int64_t K, const double *Qty,
+                                        double yyp, double *out, double gfix)
+{
+    const double *S = valves, *J = valves + m, *F = valves + 2 * m, *Y0 = valves + 3 * m, *XS0 = valves + 4 * m;
+    const double *a1 = structs, *a2 = structs + P, *dd = structs + 2 * P, *integ = structs + 3 * P;
+    double *sse = out, *gain = out + m * P;
+    int64_t dmax = 0;
+    for (int64_t p = 0; p < P; p++)
+        if ((int64_t)dd[p] > dmax)
+            dmax = (int64_t)dd[p];
+    int64_t Kq = K > 0 ? K : 1;
+    VT sq[2 * Kq];
+    double szq[Kq];
+    VT *il = (VT *)scratch(SCRATCH_ROWS, sizeof(VT) * (size_t)(2 * (n + dmax)));
+    if (il == NULL)
+        return -1;
+    VT zero = {0.0};
+    for (int64_t k = 0; k < dmax; k++)
+        il[k] = il[n + dmax + k] = zero;    /* the input before the record, through a dead time */
+    VT *rows[2] = {il + dmax, il + (n + dmax) + dmax};
+    int hp = ahp >= 0.0;
+    for (int64_t i0 = 0; i0 < m; i0 += BLOCK_VALVES * LANES) {
+        int nv = BLOCK_VALVES == 2 && m - i0 > LANES ? 2 : 1;
+        double sv[2 * LANES], jv[2 * LANES], fv[2 * LANES], yv[2 * LANES], xv[2 * LANES];
+        for (int h = 0; h < nv * LANES; h++) {
+            int64_t i = i0 + h < m ? i0 + h : m - 1;       /* spare lanes repeat the last */
+            sv[h] = S[i];
+            jv[h] = J[i];
+            fv[h] = F[i];
+            yv[h] = Y0[i];
+            xv[h] = XS0[i];
+        }
+        if (nv == 2)
+            V(valve_il_, SFX)(2, x, n, sv, jv, fv, yv, xv, rows);
+        else
+            V(valve_il_, SFX)(1, x, n, sv, jv, fv, yv, xv, rows);
+        for (int u = 0; u < nv; u++) {
+            VT first = rows[u][0];
+            for (int64_t k = 0; k < n; k++)
+                rows[u][k] -= first;
+        }
+        /* the jobs (valve vector u, structure p) in (p, u) order, BLOCK_GROUPS at a time */
+        int64_t nj = nv * P;
+        for (int64_t q0 = 0; q0 < nj; q0 += BLOCK_GROUPS) {
+            int ng = BLOCK_GROUPS == 2 && nj - q0 > 1 ? 2 : 1;
+            VT A1[2], B1[2], A2[2], B2[2], I[2], N[2], sz[2], sy[2];
+            const VT *in[2];
+            int uu[2];
+            int64_t pp[2];
+            for (int r = 0; r < ng; r++) {
+                int64_t p = (q0 + r) / nv;
+                int u = (int)((q0 + r) % nv);
+                uu[r] = u;
+                pp[r] = p;
+                in[r] = rows[u] - (int64_t)dd[p];
+                A1[r] = zero + a1[p];
+                B1[r] = 1.0 - A1[r];
+                A2[r] = zero + nmax(a2[p], 0.0);
+                B2[r] = 1.0 - A2[r];
+                I[r] = zero + (integ[p] != 0.0 ? ts : 0.0);
+                N[r] = zero + (integ[p] != 0.0 ? 0.0 : 1.0);
+            }
+            if (ng == 2)
+                V(score_groups_, SFX)(2, INPUT_VECTOR, n, in, NULL, A1, B1, A2, B2, I, N, hp, ahp, w, yw, Qw, K,
+                                      sz, sy, sq);
+            else
+                V(score_groups_, SFX)(1, INPUT_VECTOR, n, in, NULL, A1, B1, A2, B2, I, N, hp, ahp, w, yw, Qw, K,
+                                      sz, sy, sq);
+            for (int r = 0; r < ng; r++)
+                for (int g = 0; g < LANES && i0 + uu[r] * LANES + g < m; g++) {
+                    for (int64_t j = 0; j < K; j++)
+                        szq[j] = sq[r * K + j][g];
+                    int64_t at = (i0 + uu[r] * LANES + g) * P + pp[r];
+                    finish_one(sz[r][g], sy[r][g], szq, Qty, K, yyp, gfix, &sse[at], &gain[at]);
+                }
+        }
+    }
+    return 0;
+}
+
 /*
  * Output-error scoring of every (valve candidate i, process structure p).
  *
@@ -121,17 +330,25 @@ KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const doubl
  * position; the noise prefilter (ahp >= 0) follows; the weighted normal-equation sums against the
  * data yw and the orthonormal load basis Qw (n x K) give the SSE after the load and the gain are
  * solved (closed form in finish_one; gfix: a fixed gain, NaN: free).
- * The m * P jobs run LANES at a time in (i, p) order. Returns 0, or -1 when memory runs out.
+ * With at least LANES candidates the work goes to score_blocks_. Otherwise the m * P jobs run LANES
+ * at a time, each candidate's structures in order of dead time (lanes that read the same row read
+ * it once); a group of distinct candidates behind one dead time gets its own lane-interleaved valve
+ * pass. With paired != 0 (then P == m) the jobs are the m pairs (i, i) only and out is 2 x m: a
+ * local search scores several points that each have their own structure in one call. Returns 0,
+ * or -1 when memory runs out.
  */
 KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64_t m, const double *structs,
-                         int64_t P, double ts, double ahp, const double *w, const double *yw, const double *Qw,
-                         int64_t K, const double *Qty, double yyp, double *out, double gfix)
+                         int64_t P, int paired, double ts, double ahp, const double *w, const double *yw,
+                         const double *Qw, int64_t K, const double *Qty, double yyp, double *out, double gfix)
 {
     const double *S = valves, *J = valves + m, *F = valves + 2 * m, *Y0 = valves + 3 * m, *XS0 = valves + 4 * m;
     const double *a1 = structs, *a2 = structs + P, *dd = structs + 2 * P, *integ = structs + 3 * P;
-    double *sse = out, *gain = out + m * P;
-    if (m <= 0 || P <= 0)
+    if (m <= 0 || P <= 0 || (paired && P != m))
         return 0;
+    if (!paired && m >= LANES && n > 0)
+        return V(score_blocks_, SFX)(x, n, valves, m, structs, P, ts, ahp, w, yw, Qw, K, Qty, yyp, out, gfix);
+    int64_t njobs = paired ? m : m * P;
+    double *sse = out, *gain = out + njobs;
     /* each lane's valve output relative to its first sample, after dmax zeros (the input before
      * the record, seen through the longest dead time): the process loop reads it without a branch */
     int64_t dmax = 0;
@@ -139,29 +356,87 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
         if ((int64_t)dd[p] > dmax)
             dmax = (int64_t)dd[p];
     int64_t nb = (n > 0 ? n : 1) + dmax;
-    double *ubuf = (double *)malloc(sizeof(double) * (size_t)(LANES * nb));
-    double *szq = (double *)malloc(sizeof(double) * (size_t)(K > 0 ? K : 1));
+    double *ubuf = (double *)scratch(SCRATCH_UBUF, sizeof(double) * (size_t)(LANES * nb));
+    double szq[K > 0 ? K : 1];
     VT sq[K > 0 ? K : 1];
-    if (ubuf == NULL || szq == NULL) {
-        free(ubuf);
-        free(szq);
+    if (ubuf == NULL)
         return -1;
-    }
     int64_t owner[LANES];       /* candidate whose valve output buffer b holds */
     for (int b = 0; b < LANES; b++) {
         owner[b] = -1;
-        for (int64_t k = 0; k < nb; k++)
+        for (int64_t k = 0; k < dmax; k++)     /* the rest is written before it is read */
             ubuf[b * nb + k] = 0.0;
     }
+    VT *il = NULL;              /* lane-interleaved valve rows of a direct group */
+    /* a candidate's jobs in order of dead time: lanes that read the same row load it once */
+    int64_t *order = NULL;
+    if (!paired && P > 1) {
+        order = (int64_t *)scratch(SCRATCH_ORDER, sizeof(int64_t) * (size_t)njobs);
+        if (order == NULL)
+            return -1;
+        for (int64_t t = 0; t < njobs; t++)
+            order[t] = ((t / P) * (dmax + 1) + (int64_t)dd[t % P]) * njobs + t;
+        qsort(order, (size_t)njobs, sizeof(int64_t), cmp_i64);
+        for (int64_t t = 0; t < njobs; t++)
+            order[t] %= njobs;
+    }
     int hp = ahp >= 0.0;
-    int64_t njobs = m * P;
     for (int64_t t0 = 0; t0 < njobs; t0 += LANES) {
         int64_t ci[LANES], pi[LANES];
         const double *ug_ptr[LANES];
         for (int g = 0; g < LANES; g++) {
             int64_t t = t0 + g < njobs ? t0 + g : njobs - 1;     /* pad the last group */
-            ci[g] = t / P;
-            pi[g] = t % P;
+            t = order ? order[t] : t;
+            ci[g] = paired ? t : t / P;
+            pi[g] = paired ? t : t % P;
+        }
+        /* a full group of distinct candidates behind one dead time (a local search's points): their
+         * valves write lane-interleaved rows, and the process pass reads a vector per sample */
+        int direct = t0 + LANES <= njobs;
+        for (int g = 1; g < LANES && direct; g++) {
+            direct = dd[pi[g]] == dd[pi[0]];
+            for (int h = 0; h < g && direct; h++)
+                direct = ci[h] != ci[g];
+        }
+        if (direct) {
+            if (il == NULL) {
+                il = (VT *)scratch(SCRATCH_ROWS, sizeof(VT) * (size_t)nb);
+                if (il == NULL)
+                    return -1;
+                for (int64_t k = 0; k < dmax; k++)
+                    il[k] = (VT){0.0};
+            }
+            double s4[LANES], j4[LANES], f4[LANES], y4[LANES], x4[LANES];
+            VT A1, B1, A2, B2, I, N, sz, sy;
+            for (int g = 0; g < LANES; g++) {
+                int64_t i = ci[g], p = pi[g];
+                s4[g] = S[i];
+                j4[g] = J[i];
+                f4[g] = F[i];
+                y4[g] = Y0[i];
+                x4[g] = XS0[i];
+                A1[g] = a1[p];
+                B1[g] = 1.0 - A1[g];
+                A2[g] = nmax(a2[p], 0.0);
+                B2[g] = 1.0 - A2[g];
+                I[g] = integ[p] != 0.0 ? ts : 0.0;
+                N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
+            }
+            VT *u0 = il + dmax;
+            V(valve_il_, SFX)(1, x, n, s4, j4, f4, y4, x4, &u0);
+            VT first = u0[0];
+            for (int64_t k = 0; k < n; k++)
+                u0[k] -= first;
+            const VT *in[1] = {u0 - (int64_t)dd[pi[0]]};
+            V(score_groups_, SFX)(1, INPUT_VECTOR, n, in, NULL, &A1, &B1, &A2, &B2, &I, &N, hp, ahp, w, yw, Qw,
+                                  K, &sz, &sy, sq);
+            for (int g = 0; g < LANES; g++) {
+                for (int64_t j = 0; j < K; j++)
+                    szq[j] = sq[j][g];
+                int64_t at = paired ? ci[g] : ci[g] * P + pi[g];
+                finish_one(sz[g], sy[g], szq, Qty, K, yyp, gfix, &sse[at], &gain[at]);
+            }
+            continue;
         }
         /* valve outputs: keep buffers of candidates still needed, fill the others */
         int used[LANES] = {0};
@@ -226,42 +501,23 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
             I[g] = integ[p] != 0.0 ? ts : 0.0;
             N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
         }
-        VT z1 = {0.0}, z2 = z1, ac = z1, pr = z1, fh = z1, sz = z1, sy = z1;
-        VT ahpv = z1 + ahp;
-        for (int64_t j = 0; j < K; j++)
-            sq[j] = z1;
-        for (int64_t k = 0; k < n; k++) {
-            VT ug;
-            for (int g = 0; g < LANES; g++)
-                ug[g] = ug_ptr[g][k];
-            z1 = A1 * z1 + B1 * ug;
-            z2 = A2 * z2 + B2 * z1;
-            ac += I * z2;
-            VT v = N * z2 + ac;
-            if (hp) {
-                fh = ahpv * fh + v - pr;
-                pr = v;
-                v = fh;
-            }
-            double wk = w[k];
-            if (wk != 0.0) {
-                double yk = yw[k];
-                sz += wk * v * v;
-                sy += yk * v;
-                const double *qrow = Qw + k * K;
-                for (int64_t j = 0; j < K; j++)
-                    sq[j] += qrow[j] * v;
-            }
-        }
+        VT sz, sy;
+        int same = 1;       /* every lane reads the same row (one valve, one dead time) */
+        for (int g = 1; g < LANES; g++)
+            same &= ug_ptr[g] == ug_ptr[0];
+        if (same)
+            V(score_groups_, SFX)(1, INPUT_BROADCAST, n, NULL, ug_ptr, &A1, &B1, &A2, &B2, &I, &N, hp, ahp, w, yw,
+                                  Qw, K, &sz, &sy, sq);
+        else
+            V(score_groups_, SFX)(1, INPUT_GATHER, n, NULL, ug_ptr, &A1, &B1, &A2, &B2, &I, &N, hp, ahp, w, yw,
+                                  Qw, K, &sz, &sy, sq);
         for (int g = 0; g < LANES && t0 + g < njobs; g++) {
             for (int64_t j = 0; j < K; j++)
                 szq[j] = sq[j][g];
-            int64_t at = ci[g] * P + pi[g];
+            int64_t at = paired ? ci[g] : ci[g] * P + pi[g];
             finish_one(sz[g], sy[g], szq, Qty, K, yyp, gfix, &sse[at], &gain[at]);
         }
     }
-    free(ubuf);
-    free(szq);
     return 0;
 }
 
