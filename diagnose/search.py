@@ -369,45 +369,58 @@ def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float, *,
     one call scores a few points for about the price of one (a vector kernel's lanes), this cuts
     the calls by about a third; the iterations and the result stay exactly the same.
     """
-    sim = np.array(simplex, dtype=float)
-    N = sim.shape[1]
-    fsim = np.asarray(costs(sim), dtype=float).copy() if costs is not None else np.array([cost(v) for v in sim])
-    order = np.argsort(fsim)
-    sim, fsim = sim[order], fsim[order]
+    # plain floats, not small arrays: numpy's overhead on three-element vectors costs as much as
+    # scoring a short window, and it holds the interpreter lock the looks on other threads wait
+    # for. The arithmetic is numpy's, operation for operation (the centroid adds the vertices in
+    # order; the sort is stable and puts NaN last, as argsort does), so the steps stay scipy's.
+    sim = [[float(c) for c in v] for v in np.asarray(simplex, dtype=float)]
+    N = len(sim[0])
+    fsim = [float(f) for f in costs(np.array(sim))] if costs is not None else [cost(np.array(v)) for v in sim]
+
+    def ordered():
+        idx = sorted(range(N + 1), key=lambda i: (fsim[i] != fsim[i], fsim[i]))
+        return [sim[i] for i in idx], [fsim[i] for i in idx]
+
+    sim, fsim = ordered()
     for _ in range(max_iter - 1):
-        if np.max(np.abs(fsim[0] - fsim[1:])) <= fatol:
+        spread = [abs(fsim[0] - f) for f in fsim[1:]]
+        if all(d == d for d in spread) and max(spread) <= fatol:
             break
-        xbar = sim[:-1].sum(axis=0) / N
+        xbar = list(sim[0])
+        for v in sim[1:-1]:
+            xbar = [a + b for a, b in zip(xbar, v)]
+        xbar = [a / N for a in xbar]
         worst = sim[-1]
-        xr = 2.0 * xbar - worst
-        xic = 0.5 * xbar + 0.5 * worst                   # inside contraction
+        xr = [2.0 * a - w for a, w in zip(xbar, worst)]
+        xic = [0.5 * a + 0.5 * w for a, w in zip(xbar, worst)]       # inside contraction
         if costs is not None:
             fr, fic = (float(c) for c in costs(np.array([xr, xic])))
         else:
-            fr, fic = cost(xr), None
+            fr, fic = cost(np.array(xr)), None
         if fr < fsim[0]:
-            xe = 3.0 * xbar - 2.0 * worst
-            fe = cost(xe)
+            xe = [3.0 * a - 2.0 * w for a, w in zip(xbar, worst)]
+            fe = cost(np.array(xe))
             sim[-1], fsim[-1] = (xe, fe) if fe < fr else (xr, fr)
         elif fr < fsim[-2]:
             sim[-1], fsim[-1] = xr, fr
         else:
             if fr < fsim[-1]:
-                xc = 1.5 * xbar - 0.5 * worst            # outside contraction
-                fc = cost(xc)
+                xc = [1.5 * a - 0.5 * w for a, w in zip(xbar, worst)]   # outside contraction
+                fc = cost(np.array(xc))
                 accept = fc <= fr
             else:
                 xc = xic
-                fc = cost(xc) if fic is None else fic
+                fc = cost(np.array(xc)) if fic is None else fic
                 accept = fc < fsim[-1]
             if accept:
                 sim[-1], fsim[-1] = xc, fc
             else:
-                sim[1:] = sim[0] + 0.5 * (sim[1:] - sim[0])
-                fsim[1:] = costs(sim[1:]) if costs is not None else [cost(v) for v in sim[1:]]
-        order = np.argsort(fsim)
-        sim, fsim = sim[order], fsim[order]
-    return sim[0], float(fsim[0])
+                best = sim[0]
+                sim = [best] + [[b + 0.5 * (c - b) for b, c in zip(best, v)] for v in sim[1:]]
+                fsim = [fsim[0]] + ([float(f) for f in costs(np.array(sim[1:]))] if costs is not None
+                                    else [cost(np.array(v)) for v in sim[1:]])
+        sim, fsim = ordered()
+    return np.array(sim[0]), float(fsim[0])
 
 
 def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig, *,
