@@ -483,6 +483,9 @@ def test_explain_names_a_concealed_effect_and_the_error_falls(effect, seed, with
     fd = ex.figure_data()
     assert fd["observed"].shape == fd["improved"].shape == (rec.n,)
     assert 0 < fd["train_end_s"] < rec.duration_s
+    # the localisation's arrays reach the drawing code under their own names
+    assert "mismatch" not in fd and fd["window_rms"].shape == fd["window_t_s"].shape
+    assert fd["window_rms"] is ex.arrays.mismatch.window_rms
 
 
 def test_explain_rejects_what_it_cannot_use():

@@ -550,11 +550,9 @@ def _figure_data(run: _StageRun, improved_hat: np.ndarray, record: LoopRecord, n
         improved=improved_hat, residual_baseline=st.y - run.baseline.y_hat, residual_located=st.y - run.loc_hat,
         residual_improved=st.y - improved_hat, located_on=run.located_on, op_pct=st.x, stem_hat_pct=run.loc_stem,
         train_start_s=float(int(np.argmax(st.train)) * st.ts_s), train_end_s=float(n_tr * st.ts_s),
-        windows=tuple((w.start_s, w.end_s) for w in m.windows), window_t_s=a.window_t_s, window_rms=a.window_rms,
-        profile_lag_s=a.profile_lag_s, after_slip_profile=a.after_slip_profile,
-        op_bin_centres_pct=a.op_bin_centres_pct, op_bin_rms=a.op_bin_rms,
-        direction_rms=(m.direction.opening.rms, m.direction.closing.rms), freq_hz=a.freq_hz,
-        residual_psd=a.residual_psd, limit_cycle_period_s=m.limit_cycle_period_s, slip_t_s=a.slips * st.ts_s,
+        windows=tuple((w.start_s, w.end_s) for w in m.windows), mismatch=a,
+        direction_rms=(m.direction.opening.rms, m.direction.closing.rms),
+        limit_cycle_period_s=m.limit_cycle_period_s, slip_t_s=a.slips * st.ts_s,
         units="% of span" if st.name == "valve" else (record.units.get("pv") or "PV units"))
 
 

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .locate import Mismatch
+from .locate import Mismatch, MismatchArrays
 from .model import Structure
 
 #: what the RMSEs of each stage measure
@@ -167,9 +167,9 @@ class FigureData:
     """Arrays of the reported stage for the figure (`diagnose.physics.figures`): times (s), the
     recorded target and the baseline's, reference's and improved model's simulations, their
     residuals (``residual_located``: of the model the localisation ran on), OP and the simulated
-    stem (%), the training part's start and end (s), the located windows, and the localisation's
-    arrays (window RMS, the profile after slips, RMS by OP bin and by direction, the residual's
-    spectrum, slip times)."""
+    stem (%), the training part's start and end (s), the located windows, the localisation's own
+    arrays (``mismatch``: window RMS, the profile after slips, RMS by OP bin, the residual's
+    spectrum), the RMS by direction, the limit cycle's period and the slip times (s)."""
 
     t_s: np.ndarray
     observed: np.ndarray
@@ -185,15 +185,8 @@ class FigureData:
     train_start_s: float
     train_end_s: float
     windows: tuple[tuple[float, float], ...]
-    window_t_s: np.ndarray
-    window_rms: np.ndarray
-    profile_lag_s: np.ndarray
-    after_slip_profile: np.ndarray
-    op_bin_centres_pct: np.ndarray
-    op_bin_rms: np.ndarray
+    mismatch: MismatchArrays
     direction_rms: tuple[float, float]
-    freq_hz: np.ndarray
-    residual_psd: np.ndarray
     limit_cycle_period_s: float | None
     slip_t_s: np.ndarray
     units: str
@@ -294,9 +287,11 @@ class Explanation:
         return draw_explanation(self.figure_data(), title=title, figsize=(8.0, 6.5))
 
     def figure_data(self) -> dict[str, Any]:
-        """The figure's arrays as a dict (the fields of `FigureData`, plus ``target`` and
-        ``missing_physics``)."""
-        a = {f: getattr(self.arrays, f) for f in self.arrays.__dataclass_fields__}
+        """The figure's arrays as a dict: the fields of `FigureData`, those of its `MismatchArrays`
+        in place of ``mismatch``, ``target`` and ``missing_physics``."""
+        a = {f: getattr(self.arrays, f) for f in self.arrays.__dataclass_fields__ if f != "mismatch"}
+        m = self.arrays.mismatch
+        a.update({f: getattr(m, f) for f in m.__dataclass_fields__})
         a["target"] = self.target
         a["missing_physics"] = self.missing_physics
         return a
