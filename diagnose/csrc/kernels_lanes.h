@@ -167,6 +167,20 @@ KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const doubl
     }
 }
 
+/* lane g's process coefficients for structure p of a score call: lags a1 and a2 (a2 < 0: first
+ * order, taken as z2 = z1), the integrator's step and the weight of the lag output */
+static inline __attribute__((always_inline)) KATTR void V(proc_lane_, SFX)(
+    int g, int64_t p, const double *a1, const double *a2, const double *integ, double ts, VT *A1, VT *B1,
+    VT *A2, VT *B2, VT *I, VT *N)
+{
+    (*A1)[g] = a1[p];
+    (*B1)[g] = 1.0 - (*A1)[g];
+    (*A2)[g] = nmax(a2[p], 0.0);
+    (*B2)[g] = 1.0 - (*A2)[g];
+    (*I)[g] = integ[p] != 0.0 ? ts : 0.0;
+    (*N)[g] = integ[p] != 0.0 ? 0.0 : 1.0;
+}
+
 /* The process, noise prefilter and normal-equation sums of ng (1 or 2) groups of LANES jobs. Each
  * lane's input at sample k is read by `mode`: INPUT_VECTOR, lane-interleaved (in[u][k] holds all
  * lanes' inputs); INPUT_BROADCAST, one row for all lanes (gp[u * LANES][k]); INPUT_GATHER, a row
@@ -295,12 +309,15 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
                 uu[r] = u;
                 pp[r] = p;
                 in[r] = rows[u] - (int64_t)dd[p];
-                A1[r] = zero + a1[p];
-                B1[r] = 1.0 - A1[r];
-                A2[r] = zero + nmax(a2[p], 0.0);
-                B2[r] = 1.0 - A2[r];
-                I[r] = zero + (integ[p] != 0.0 ? ts : 0.0);
-                N[r] = zero + (integ[p] != 0.0 ? 0.0 : 1.0);
+                VT ca1, cb1, ca2, cb2, ci, cn;
+                for (int g = 0; g < LANES; g++)
+                    V(proc_lane_, SFX)(g, p, a1, a2, integ, ts, &ca1, &cb1, &ca2, &cb2, &ci, &cn);
+                A1[r] = ca1;
+                B1[r] = cb1;
+                A2[r] = ca2;
+                B2[r] = cb2;
+                I[r] = ci;
+                N[r] = cn;
             }
             if (ng == 2)
                 V(score_groups_, SFX)(2, INPUT_VECTOR, n, in, NULL, A1, B1, A2, B2, I, N, hp, ahp, w, yw, Qw, K,
@@ -415,12 +432,7 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 f4[g] = F[i];
                 y4[g] = Y0[i];
                 x4[g] = XS0[i];
-                A1[g] = a1[p];
-                B1[g] = 1.0 - A1[g];
-                A2[g] = nmax(a2[p], 0.0);
-                B2[g] = 1.0 - A2[g];
-                I[g] = integ[p] != 0.0 ? ts : 0.0;
-                N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
+                V(proc_lane_, SFX)(g, p, a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
             }
             VT *u0 = il + dmax;
             V(valve_il_, SFX)(1, x, n, s4, j4, f4, y4, x4, &u0);
@@ -494,12 +506,7 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
         for (int g = 0; g < LANES; g++) {
             int64_t p = pi[g];
             ug_ptr[g] = ubuf + buf_of[g] * nb + dmax - (int64_t)dd[p];
-            A1[g] = a1[p];
-            B1[g] = 1.0 - A1[g];
-            A2[g] = nmax(a2[p], 0.0);
-            B2[g] = 1.0 - A2[g];
-            I[g] = integ[p] != 0.0 ? ts : 0.0;
-            N[g] = integ[p] != 0.0 ? 0.0 : 1.0;
+            V(proc_lane_, SFX)(g, p, a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
         }
         VT sz, sy;
         int same = 1;       /* every lane reads the same row (one valve, one dead time) */
