@@ -370,3 +370,21 @@ def test_kill_9_of_the_batch_takes_its_workers_with_it(tmp_path):
                 pass
         if proc.poll() is None:
             proc.kill()
+
+
+@pytest.mark.parametrize("workers,scheduler", [(1, None), (2, None), (3, "local"), (2, "tcp://10.0.0.1:8786")])
+def test_workers_share_the_cores_between_their_threads(plant, tmp_path, monkeypatch, workers, scheduler):
+    # each worker's fits run on threads too: workers x threads must not exceed the cores here, and
+    # a remote scheduler's machines are unknown (one thread each)
+    seen = []
+    monkeypatch.setattr(B, "make_executor", lambda n, sched: B._Inline())
+    monkeypatch.setattr(B, "process_file", lambda cfg, path: seen.append(cfg.threads) or {
+        "path": path, "digest": None, "rows": []})
+    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("FIC1.csv", "FIC2.csv", "FIC3.csv"):
+        (logs / name).write_bytes((plant / "logs" / name).read_bytes())
+    B.run_batch([logs], tmp_path / "out", workers=workers, scheduler=scheduler, history=False, progress=False)
+    want = 1 if scheduler and scheduler != "local" else 4 // min(workers, 3)
+    assert seen == [want] * 3

@@ -76,6 +76,9 @@ class BatchConfig:
         Write ``LOOP.pdf`` too.
     db : str, optional
         History database, read by workers for each loop's earlier runs (degradation warning).
+    threads : int, optional
+        Threads each loop's diagnosis may use (None: the machine's cores). `run_batch` gives each
+        worker its share of the cores; the results do not depend on it.
     """
 
     out_dir: str
@@ -85,6 +88,7 @@ class BatchConfig:
     narx: bool = True
     pdf: bool = True
     db: str | None = None
+    threads: int | None = None
 
     def options_key(self) -> str:
         """The part of the input hash that the options make (what changes the result)."""
@@ -343,7 +347,7 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
         if row is not None:
             return row
     try:
-        diag = diagnose(record, explain=cfg.explain, narx=cfg.narx)
+        diag = diagnose(record, explain=cfg.explain, narx=cfg.narx, threads=cfg.threads)
         end = end_of_record(record.start, record.n, record.ts_s)
         hist = [r for r in previous_runs(cfg.db, _tag(record), exclude_hash=ih)
                 if end is None or not r.get("data_end") or r["data_end"] < end]
@@ -853,9 +857,14 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
             else:
                 todo.append(str(f))
         if todo:
-            ex = make_executor(min(workers, len(todo)) if not scheduler else workers, scheduler)
+            n_exec = min(workers, len(todo)) if not scheduler else workers
+            ex = make_executor(n_exec, scheduler)
+            # a worker's fits use threads too: share the cores out, or workers x threads
+            # oversubscribe them (a remote scheduler's machines are not known: one thread each)
+            local = scheduler in (None, "local")
+            task_cfg = replace(cfg, threads=max(1, (os.cpu_count() or 1) // n_exec) if local else 1)
             try:
-                futures = [ex.submit(process_file, cfg, f) for f in todo]
+                futures = [ex.submit(process_file, task_cfg, f) for f in todo]
                 path_of = {id(fu): f for fu, f in zip(futures, todo)}
                 for fu in ex.as_completed(futures):
                     try:

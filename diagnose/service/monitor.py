@@ -90,8 +90,9 @@ def window_id(record: Any) -> str:
 
 
 def diagnose_window(record: LoopRecord, out_dir: str, explain: bool | str = False,
-                    figures: bool = False) -> Diagnosis:
-    """Diagnose one window and write its JSON and Markdown (runs in a worker process)."""
+                    figures: bool = False, threads: int | None = None) -> Diagnosis:
+    """Diagnose one window and write its JSON and Markdown (runs in a worker process; ``threads``:
+    the worker's share of the cores, see `diagnose.service.pipeline.diagnose`)."""
     from connectors.historian import atomic_write
 
     from .batch import _worker_setup, safe_name
@@ -101,7 +102,8 @@ def diagnose_window(record: LoopRecord, out_dir: str, explain: bool | str = Fals
     _worker_setup()
     loop = safe_name(record.name)
     wid = window_id(record)
-    diag = replace(diagnose(record, explain=explain), loop_id=loop, window=wid, input_hash=f"window:{wid}")
+    diag = replace(diagnose(record, explain=explain, threads=threads), loop_id=loop, window=wid,
+                   input_hash=f"window:{wid}")
     d = Path(out_dir) / loop
     names: list[str] = []
     if figures:
@@ -258,7 +260,9 @@ class Monitor:
     # ------------------------------------------------------------------------------ windows
     def _submit(self, record: Any) -> Any:
         self._ensure_pool()
-        return self._pool.submit(diagnose_window, record, str(self.out_dir), self.explain, self.figures)
+        # the workers' fits run on threads too: each worker gets its share of the cores
+        threads = max(1, (os.cpu_count() or 1) // max(self.workers, 1))
+        return self._pool.submit(diagnose_window, record, str(self.out_dir), self.explain, self.figures, threads)
 
     def _ensure_pool(self) -> None:
         if self._pool is None:

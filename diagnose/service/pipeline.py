@@ -426,14 +426,14 @@ def _narx_stage(record: LoopRecord, ident: Identification,
     return sel, NarxRun(mv_hat, pv_hat, rmse, against)
 
 
-def _explain_stage(record: LoopRecord, notes: list[Note]) -> Explanation | None:
+def _explain_stage(record: LoopRecord, notes: list[Note], threads: int | None = None) -> Explanation | None:
     mod = _optional("diagnose.physics")
     if mod is None or not hasattr(mod, "explain"):
         notes.append(Note("service.explain_unavailable",
                           "the missing-physics stage is not installed; no explanation section"))
         return None
     try:
-        return mod.explain(record)
+        return mod.explain(record, threads=threads)
     except StictionError as exc:
         notes.append(Note("service.explain_failed", f"missing-physics explanation failed: {exc}"))
     except Exception as exc:
@@ -472,7 +472,7 @@ def assemble(record: LoopRecord, ident: Identification, *, notes: Sequence[Note]
 
 
 def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = True,
-             identify_options: Mapping[str, Any] | None = None) -> Diagnosis:
+             identify_options: Mapping[str, Any] | None = None, threads: int | None = None) -> Diagnosis:
     """Diagnose one loop: everything a report needs.
 
     Parameters
@@ -485,6 +485,10 @@ def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = Tr
         Select the NARX-SP model nearest to the identified (S, J) and free-run it over the record.
     identify_options : mapping, optional
         Passed to `diagnose.identification.identify`.
+    threads : int, optional
+        Threads the identification and the missing-physics stage may use (None: the machine's
+        cores). A caller that diagnoses several loops at once passes its share of the cores, so
+        that loops x threads does not oversubscribe the machine; results do not depend on it.
 
     Raises
     ------
@@ -497,7 +501,10 @@ def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = Tr
     t0 = time.perf_counter()
     with pywarnings.catch_warnings(record=True) as caught:
         pywarnings.simplefilter("always")
-        ident = identify(record, **dict(identify_options or {}))
+        opts = dict(identify_options or {})
+        if threads is not None:
+            opts.setdefault("threads", threads)
+        ident = identify(record, **opts)
     timings["identify"] = time.perf_counter() - t0
     notes: list[Note] = []
     known = {w.message for w in ident.warnings}
@@ -518,7 +525,7 @@ def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = Tr
         explain, why = _explain_wanted(ident)
     if explain:
         t2 = time.perf_counter()
-        expl = _explain_stage(record, notes)
+        expl = _explain_stage(record, notes, threads)
         timings["explain"] = time.perf_counter() - t2
     return assemble(record, ident, notes=notes, narx_run=run, explanation=expl, explain_auto=why,
                     timings_s=timings)
