@@ -438,42 +438,37 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
     tau_max = lim.tau_max_s
     integ = 1.0 if kind == "integrating" else 0.0
 
-    def unpack(v):
+    def point(v):
+        """S, J, the lags (s) and the kernel's structure row of a simplex point."""
         S = min(abs(v[0]) * scale, S_cap)
         J = min(abs(v[1]) * scale, S_cap)
         tau = tau0 * math.exp(v[2]) if free_lags else tau0
-        return S, J, tau
-
-    def scored(v):
-        # the kernel's tables built directly: this runs thousands of times per fit
-        S, J, tau = unpack(v)
         t1_ = min(tau, tau_max)
-        a2 = lag_coefficient(min(tau * ratio2, tau_max), ts) if kind == "soptd" else -1.0
-        structs = np.array([[lag_coefficient(t1_, ts)], [a2], [float(d)], [integ]])
-        valves = np.array([[S, S], [J, J], [1.0, -1.0], [NAN, NAN], [NAN, NAN]])
-        sse, _ = obj.score_table(valves, structs)
-        return sse[:, 0], S, J, (kind, t1_, min(tau * ratio2, tau_max) if kind == "soptd" else 0.0, d)
-
-    def cost(v):
-        return float(scored(v)[0].min())
+        t2_ = min(tau * ratio2, tau_max) if kind == "soptd" else 0.0
+        a2 = lag_coefficient(t2_, ts) if kind == "soptd" else -1.0
+        return S, J, t1_, t2_, (lag_coefficient(t1_, ts), a2, float(d), integ)
 
     def costs(pts):
-        # several points in one paired kernel call: each point's valve in both starting directions
-        # with that point's own structure
+        # the kernel's tables built directly (this runs thousands of times per fit): each point's
+        # valve in both starting directions with that point's own structure, one paired call
         k = len(pts)
         valves = np.full((5, 2 * k), NAN)
         structs = np.empty((4, 2 * k))
         for i, v in enumerate(pts):
-            S, J, tau = unpack(v)
-            t1_ = min(tau, tau_max)
-            a2 = lag_coefficient(min(tau * ratio2, tau_max), ts) if kind == "soptd" else -1.0
+            S, J, _, _, row = point(v)
             valves[0, 2 * i: 2 * i + 2] = S
             valves[1, 2 * i: 2 * i + 2] = J
-            structs[:, 2 * i: 2 * i + 2] = ((lag_coefficient(t1_, ts),), (a2,), (float(d),), (integ,))
+            structs[:, 2 * i] = structs[:, 2 * i + 1] = row
         valves[2, 0::2] = 1.0
         valves[2, 1::2] = -1.0
         sse, _ = obj.score_table(valves, structs, paired=True)
-        return sse.reshape(k, 2).min(axis=1)
+        return sse.reshape(k, 2)
+
+    def cost(v):
+        return float(costs([v])[0].min())
+
+    def batch(pts):
+        return costs(pts).min(axis=1)
 
     x0 = np.array([cand.S_pct / scale, cand.J_pct / scale, 0.0])
     steps = np.array([0.15, 0.15 + 0.1 * (cand.J_pct < 1e-9), 0.3])
@@ -483,12 +478,13 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
     simplex = np.vstack([x0, x0 + np.diag(steps)])
     # batched points pay only where a kernel pass scores four jobs for about the price of two
     x_best, f_best = simplex_minimize(cost, simplex, cfg.max_iter, cfg.tol * (abs(f0) + 1e-12),
-                                      costs=costs if kernels.lanes() >= 4 else None)
+                                      costs=batch if kernels.lanes() >= 4 else None)
     if f_best >= cand.sse:
         return cand
-    sse, S, J, key = scored(x_best)
+    S, J, t1_, t2_, _ = point(x_best)
+    sse = costs([x_best])[0]
     k = int(np.argmin(sse))
-    return Candidate(S, J, (1.0, -1.0)[k], key, float(sse[k]))
+    return Candidate(S, J, (1.0, -1.0)[k], (kind, t1_, t2_, d), float(sse[k]))
 
 
 def refine(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig) -> Candidate:
