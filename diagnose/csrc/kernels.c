@@ -247,9 +247,9 @@ static double fused_solve(double szz, double sz, double szy, const double *szE, 
     return nmax(yy - 2.0 * cb + cac, 0.0);
 }
 
-/* The installed characteristic in place over a stem row (c = 0: left linear). A stem that stays
- * where it stuck gives the same flow: computed once per stay. */
-static void characteristic_row(double *row, int64_t n, double c)
+/* The installed characteristic in place over a stem row of n samples stride apart (c = 0: left
+ * linear). A stem that stays where it stuck gives the same flow: computed once per stay. */
+static void characteristic_row(double *row, int64_t n, int64_t stride, double c)
 {
     if (fabs(c) < 1e-9 || n <= 0)
         return;
@@ -257,12 +257,12 @@ static void characteristic_row(double *row, int64_t n, double c)
     double zp = row[0], up = 100.0 * expm1(c * zp / 100.0) / den;
     row[0] = up;
     for (int64_t k = 1; k < n; k++) {
-        double z = row[k];
+        double z = row[k * stride];
         if (z != zp) {
             zp = z;
             up = 100.0 * expm1(c * z / 100.0) / den;
         }
-        row[k] = up;
+        row[k * stride] = up;
     }
 }
 

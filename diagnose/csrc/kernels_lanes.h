@@ -30,12 +30,14 @@ static inline __attribute__((always_inline)) KATTR VT V(nonneg_, SFX)(VT v)
 /*
  * Up to LANES candidate valves over x[0..n): candidate g has stiction (su, ju) opening and (sd, jd)
  * closing, drift (ds, dj) per second, starting direction f, actuator lag pole a (0: none) and start
- * state y0 / xs0 (NaN: at rest at the first input), and writes its (lagged) stem to rows[g][0..n).
+ * state y0 / xs0 (NaN: at rest at the first input), and writes its (lagged) stem to rows[g][0..n), or
+ * with vec, all lanes' stems of sample k as the one vector il[k]. valve_lanes and valve_lanes_vec
+ * below are the two.
  */
-static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double *su_, const double *ju_,
-                                        const double *sd_, const double *jd_, const double *ds_,
-                                        const double *dj_, const double *f_, const double *a_,
-                                        const double *y0_, const double *xs0_, double ts, double **rows)
+static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
+    const double *x, int64_t n, const double *su_, const double *ju_, const double *sd_, const double *jd_,
+    const double *ds_, const double *dj_, const double *f_, const double *a_, const double *y0_,
+    const double *xs0_, double ts, double **rows, VT *il, const int vec)
 {
     VT su0, ju0, sd0, jd0, ds, dj, f, a, yp, xss, z;
     int drift = 0, lag = 0;
@@ -64,8 +66,11 @@ static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double 
         xss[g] = s;
     }
     z = yp;
-    for (int g = 0; g < LANES; g++)
-        rows[g][0] = z[g];
+    if (vec)
+        il[0] = z;
+    else
+        for (int g = 0; g < LANES; g++)
+            rows[g][0] = z[g];
     MT stuck = (MT){0} - 1;
     int up = 0;
     for (int64_t k = 1; k < n; k++) {
@@ -82,11 +87,31 @@ static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double 
 
         V(valve_step_, SFX)(xk, xp, v == 0.0 || up_k != up, &stuck, &xss, &f, &yp, su, ju, sd, jd);
         z = lag ? a * z + (1.0 - a) * yp : yp;
-        for (int g = 0; g < LANES; g++)
-            rows[g][k] = z[g];
+        if (vec)
+            il[k] = z;
+        else
+            for (int g = 0; g < LANES; g++)
+                rows[g][k] = z[g];
         xp = xk;
         up = up_k;
     }
+}
+
+static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double *su, const double *ju,
+                                        const double *sd, const double *jd, const double *ds, const double *dj,
+                                        const double *f, const double *a, const double *y0, const double *xs0,
+                                        double ts, double **rows)
+{
+    V(valve_core_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, rows, NULL, 0);
+}
+
+/* valve_lanes writing all lanes' stems of sample k as the one vector il[k] */
+static KATTR void V(valve_lanes_vec_, SFX)(const double *x, int64_t n, const double *su, const double *ju,
+                                            const double *sd, const double *jd, const double *ds,
+                                            const double *dj, const double *f, const double *a,
+                                            const double *y0, const double *xs0, double ts, VT *il)
+{
+    V(valve_core_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, NULL, il, 1);
 }
 
 /*
@@ -529,43 +554,45 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
 }
 
 /*
- * The stem rows of the fused kernels: LANES rows of nb = n + maxd samples (maxd, the longest dead
- * time of the m candidates: samples of each lane's first position before the record, then its n
- * samples). NULL when memory runs out.
+ * The stem rows of the fused kernels, stored lane by lane: n + maxd vectors (maxd, the longest
+ * dead time of the m candidates: each lane's first position before the record, then its n samples),
+ * vector k holding every lane's sample. NULL when memory runs out.
  */
-static double *V(fused_rows_, SFX)(int64_t n, int64_t m, const int64_t *d, int64_t *maxd, int64_t *nb)
+static VT *V(fused_rows_, SFX)(int64_t n, int64_t m, const int64_t *d, int64_t *maxd)
 {
     *maxd = 0;
     for (int64_t i = 0; i < m; i++)
         if (d[i] > *maxd)
             *maxd = d[i];
-    *nb = n + *maxd;
-    return (double *)malloc(sizeof(double) * (size_t)(LANES * *nb));
+    void *p = NULL;
+    return posix_memalign(&p, sizeof(VT), sizeof(VT) * (size_t)(n + *maxd)) == 0 ? (VT *)p : NULL;
 }
 
 /*
  * The front both fused kernels share, for candidates i0 .. i0 + LANES - 1 (spare lanes repeat the
- * last): each lane's stem row in buf (its valve by valve_lanes, then its valve characteristic cc,
- * preceded by maxd samples of its first position, what a dead time sees before the record), the
- * row its dead time reads (up), its first stem position u0 and its process coefficients.
+ * last): the lanes' stems in buf (their valves by valve_lanes, then each lane's valve
+ * characteristic cc, preceded by maxd vectors of the first positions, what a dead time sees before
+ * the record), where each lane's dead time starts reading (off: lane g's input at sample k is
+ * buf[off[g] + k][g]), whether every lane reads from the same place (same: then buf[off[0] + k] is
+ * the input vector), the first stem positions u0 and the process coefficients.
  */
 static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, int64_t i0, const double *S_up,
                                         const double *J_up, const double *S_dn, const double *J_dn,
                                         const double *dS, const double *dJ, const double *f0,
                                         const double *a_lag, const double *y0, const double *xs0,
                                         const double *cc, const double *a1, const double *a2, const int64_t *d,
-                                        const uint8_t *integ, double ts_s, double *buf, int64_t nb, int64_t maxd,
-                                        const double **up, VT *A1, VT *B1, VT *A2, VT *B2, VT *I, VT *N, VT *u0)
+                                        const uint8_t *integ, double ts_s, VT *buf, int64_t maxd, int64_t *off,
+                                        int *same, VT *A1, VT *B1, VT *A2, VT *B2, VT *I, VT *N, VT *u0)
 {
     double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
     double yv[LANES], sv[LANES];
-    double *rows[LANES];
+    *same = 1;
     for (int g = 0; g < LANES; g++) {
         int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last candidate */
         su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
         ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
-        rows[g] = buf + g * nb + maxd;
-        up[g] = rows[g] - d[i];
+        off[g] = maxd - d[i];
+        *same &= off[g] == off[0];
         (*A1)[g] = a1[i];
         (*B1)[g] = 1.0 - a1[i];
         /* first order: z2 = 0 z2 + 1 z1, which is z1 exactly */
@@ -574,14 +601,15 @@ static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, in
         (*I)[g] = integ[i] ? ts_s : 0.0;
         (*N)[g] = integ[i] ? 0.0 : 1.0;
     }
-    V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+    VT *rows = buf + maxd;
+    V(valve_lanes_vec_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
     for (int g = 0; g < LANES; g++) {
         int64_t i = i0 + g < m ? i0 + g : m - 1;
-        characteristic_row(rows[g], n, cc[i]);
-        (*u0)[g] = rows[g][0];
-        for (int64_t k = 1; k <= maxd; k++)
-            rows[g][-k] = (*u0)[g];
+        characteristic_row((double *)rows + g, n, LANES, cc[i]);
     }
+    *u0 = rows[0];
+    for (int64_t k = 1; k <= maxd; k++)
+        rows[-k] = *u0;
 }
 
 /*
@@ -601,18 +629,20 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
         return -1;
     if (m <= 0 || n <= 0)
         return 0;
-    int64_t maxd, nb;
-    double *buf = V(fused_rows_, SFX)(n, m, d, &maxd, &nb);
+    int64_t maxd;
+    VT *buf = V(fused_rows_, SFX)(n, m, d, &maxd);
     if (buf == NULL)
         return -1;
     fused_fixed_t fx;
     fused_fixed(n, E, q, y, w, &fx);
     VT szE[FUSED_MAXP], sEz[FUSED_MAXP];
     for (int64_t i0 = 0; i0 < m; i0 += LANES) {
-        const double *up[LANES];
+        int64_t off[LANES];
+        int same;
         VT A1, B1, A2, B2, I, N, u0;
         V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
-                             ts_s, buf, nb, maxd, up, &A1, &B1, &A2, &B2, &I, &N, &u0);
+                             ts_s, buf, maxd, off, &same, &A1, &B1, &A2, &B2, &I, &N, &u0);
+        const VT *in = buf + off[0];
         VT z1 = u0, z2 = u0, ac = {0.0}, szz = {0.0}, sz = {0.0}, szy = {0.0};
         for (int64_t j = 0; j < q; j++) {
             szE[j] = (VT){0.0};
@@ -620,8 +650,11 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
         }
         for (int64_t k = 0; k < n; k++) {
             VT ud;
-            for (int g = 0; g < LANES; g++)
-                ud[g] = up[g][k];
+            if (same)
+                ud = in[k];
+            else
+                for (int g = 0; g < LANES; g++)
+                    ud[g] = buf[off[g] + k][g];
             z1 = A1 * z1 + B1 * ud;
             z2 = A2 * z2 + B2 * z1;
             ac += I * z2;
@@ -669,18 +702,20 @@ KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const doubl
     const int64_t q = with_t ? 3 : 2;
     if (m <= 0 || n <= 0)
         return 0;
-    int64_t maxd, nb;
-    double *buf = V(fused_rows_, SFX)(n, m, d, &maxd, &nb);
+    int64_t maxd;
+    VT *buf = V(fused_rows_, SFX)(n, m, d, &maxd);
     if (buf == NULL)
         return -1;
     fused_fixed_t base;
     fused_fixed(n, NULL, 0, y, w, &base);
     for (int64_t i0 = 0; i0 < m; i0 += LANES) {
         double wl[LANES];
-        const double *up[LANES];
+        int64_t off[LANES];
+        int same;
         VT A1, B1, A2, B2, I, N, u0, rs, rc;
         V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
-                             ts_s, buf, nb, maxd, up, &A1, &B1, &A2, &B2, &I, &N, &u0);
+                             ts_s, buf, maxd, off, &same, &A1, &B1, &A2, &B2, &I, &N, &u0);
+        const VT *in = buf + off[0];
         for (int g = 0; g < LANES; g++) {
             wl[g] = wload[i0 + g < m ? i0 + g : m - 1];
             rs[g] = sin(wl[g] * ts_s);
@@ -704,8 +739,11 @@ KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const doubl
                 }
             }
             VT ud;
-            for (int g = 0; g < LANES; g++)
-                ud[g] = up[g][k];
+            if (same)
+                ud = in[k];
+            else
+                for (int g = 0; g < LANES; g++)
+                    ud[g] = buf[off[g] + k][g];
             z1 = A1 * z1 + B1 * ud;
             z2 = A2 * z2 + B2 * z1;
             ac += I * z2;
