@@ -28,70 +28,85 @@ static inline __attribute__((always_inline)) KATTR VT V(nonneg_, SFX)(VT v)
 }
 
 /*
- * Up to LANES candidate valves over x[0..n): candidate g has stiction (su, ju) opening and (sd, jd)
- * closing, drift (ds, dj) per second, starting direction f, actuator lag pole a (0: none) and start
- * state y0 / xs0 (NaN: at rest at the first input), and writes its (lagged) stem to rows[g][0..n), or
- * with vec, all lanes' stems of sample k as the one vector il[k]. valve_lanes and valve_lanes_vec
- * below are the two.
+ * nv (1 or 2) vectors of LANES candidate valves over x[0..n): lane g of vector u (its parameters at
+ * index u * LANES + g) has stiction (su, ju) opening and (sd, jd) closing, drift (ds, dj) per
+ * second, starting direction f, actuator lag pole a (0: none) and start state y0 / xs0 (NaN: at
+ * rest at the first input). With vec it writes all lanes' (lagged) stems of sample k as the one
+ * vector il[u][k]; without (nv = 1 only), lane g's stem to rows[g][0..n). Two vectors advance side
+ * by side (the step is a chain of dependent operations); each lane does the same operations either
+ * way. valve_lanes and valve_lanes_vec below are the one-vector forms.
  */
 static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
-    const double *x, int64_t n, const double *su_, const double *ju_, const double *sd_, const double *jd_,
-    const double *ds_, const double *dj_, const double *f_, const double *a_, const double *y0_,
-    const double *xs0_, double ts, double **rows, VT *il, const int vec)
+    const int nv, const double *x, int64_t n, const double *su_, const double *ju_, const double *sd_,
+    const double *jd_, const double *ds_, const double *dj_, const double *f_, const double *a_,
+    const double *y0_, const double *xs0_, double ts, double **rows, VT *const *il, const int vec)
 {
-    VT su0, ju0, sd0, jd0, ds, dj, f, a, yp, xss, z;
-    int drift = 0, lag = 0;
-    for (int g = 0; g < LANES; g++) {
-        su0[g] = su_[g]; ju0[g] = ju_[g]; sd0[g] = sd_[g]; jd0[g] = jd_[g];
-        ds[g] = ds_[g]; dj[g] = dj_[g]; f[g] = f_[g]; a[g] = a_[g];
-        if (ds_[g] != 0.0 || dj_[g] != 0.0)
-            drift = 1;
-        if (a_[g] != 0.0)
-            lag = 1;
-    }
-    VT su = V(nonneg_, SFX)(su0), ju = V(nonneg_, SFX)(ju0);
-    VT sd = V(nonneg_, SFX)(sd0), jd = V(nonneg_, SFX)(jd0);
+    VT su0[2], ju0[2], sd0[2], jd0[2], ds[2], dj[2], f[2], a[2], yp[2], xss[2], z[2];
+    VT su[2], ju[2], sd[2], jd[2];
+    MT stuck[2];
+    int drift[2] = {0, 0}, lag[2] = {0, 0};
     double xp = clip100(x[0]);
-    for (int g = 0; g < LANES; g++) {
-        double y = xp, s = xp;
-        if (!isnan(y0_[g])) {
-            /* stuck at y0 after a motion in direction f: the input stood at y0 + f (S_f - J_f) / 2 */
-            y = clip100(y0_[g]);
-            double h0 = (f[g] > 0 ? (su[g] - ju[g]) : (sd[g] - jd[g])) / 2.0;
-            s = y + f[g] * h0;
-            if (!isnan(xs0_[g]))
-                s = xs0_[g];
+    for (int u = 0; u < nv; u++) {
+        const double *src[] = {su_, ju_, sd_, jd_, ds_, dj_, f_, a_};
+        VT *dst[] = {&su0[u], &ju0[u], &sd0[u], &jd0[u], &ds[u], &dj[u], &f[u], &a[u]};
+        for (int r = 0; r < 8; r++)
+            memcpy(dst[r], src[r] + u * LANES, sizeof(VT));
+        for (int g = 0; g < LANES; g++) {
+            if (ds[u][g] != 0.0 || dj[u][g] != 0.0)
+                drift[u] = 1;
+            if (a[u][g] != 0.0)
+                lag[u] = 1;
         }
-        yp[g] = y;
-        xss[g] = s;
+        su[u] = V(nonneg_, SFX)(su0[u]);
+        ju[u] = V(nonneg_, SFX)(ju0[u]);
+        sd[u] = V(nonneg_, SFX)(sd0[u]);
+        jd[u] = V(nonneg_, SFX)(jd0[u]);
+        double ya[LANES], xa[LANES];
+        for (int g = 0; g < LANES; g++) {
+            double y = xp, st = xp, y0 = y0_[u * LANES + g], xs0 = xs0_[u * LANES + g];
+            if (!isnan(y0)) {
+                /* stuck at y0 after a motion in direction f: the input stood at y0 + f (S_f - J_f) / 2 */
+                y = clip100(y0);
+                double h0 = (f[u][g] > 0 ? (su[u][g] - ju[u][g]) : (sd[u][g] - jd[u][g])) / 2.0;
+                st = y + f[u][g] * h0;
+                if (!isnan(xs0))
+                    st = xs0;
+            }
+            ya[g] = y;
+            xa[g] = st;
+        }
+        memcpy(&yp[u], ya, sizeof(VT));
+        memcpy(&xss[u], xa, sizeof(VT));
+        z[u] = yp[u];
+        if (vec)
+            il[u][0] = z[u];
+        else
+            for (int g = 0; g < LANES; g++)
+                rows[g][0] = z[u][g];
+        stuck[u] = (MT){0} - 1;
     }
-    z = yp;
-    if (vec)
-        il[0] = z;
-    else
-        for (int g = 0; g < LANES; g++)
-            rows[g][0] = z[g];
-    MT stuck = (MT){0} - 1;
     int up = 0;
     for (int64_t k = 1; k < n; k++) {
-        if (drift) {
-            double t = (double)k * ts;
-            su = V(nonneg_, SFX)(su0 + ds * t);
-            sd = V(nonneg_, SFX)(sd0 + ds * t);
-            ju = V(nonneg_, SFX)(ju0 + dj * t);
-            jd = V(nonneg_, SFX)(jd0 + dj * t);
-        }
         double xk = clip100(x[k]);
         double v = xk - xp;
         int up_k = v > 0.0;
-
-        V(valve_step_, SFX)(xk, xp, v == 0.0 || up_k != up, &stuck, &xss, &f, &yp, su, ju, sd, jd);
-        z = lag ? a * z + (1.0 - a) * yp : yp;
-        if (vec)
-            il[k] = z;
-        else
-            for (int g = 0; g < LANES; g++)
-                rows[g][k] = z[g];
+        int stop = v == 0.0 || up_k != up;
+        for (int u = 0; u < nv; u++) {
+            if (drift[u]) {
+                double t = (double)k * ts;
+                su[u] = V(nonneg_, SFX)(su0[u] + ds[u] * t);
+                sd[u] = V(nonneg_, SFX)(sd0[u] + ds[u] * t);
+                ju[u] = V(nonneg_, SFX)(ju0[u] + dj[u] * t);
+                jd[u] = V(nonneg_, SFX)(jd0[u] + dj[u] * t);
+            }
+            V(valve_step_, SFX)(xk, xp, stop, &stuck[u], &xss[u], &f[u], &yp[u], su[u], ju[u], sd[u], jd[u]);
+            z[u] = lag[u] ? a[u] * z[u] + (1.0 - a[u]) * yp[u] : yp[u];
+            if (vec)
+                il[u][k] = z[u];
+            else
+                for (int g = 0; g < LANES; g++)
+                    rows[g][k] = z[u][g];
+        }
         xp = xk;
         up = up_k;
     }
@@ -102,7 +117,7 @@ static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double 
                                         const double *f, const double *a, const double *y0, const double *xs0,
                                         double ts, double **rows)
 {
-    V(valve_core_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, rows, NULL, 0);
+    V(valve_core_, SFX)(1, x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, rows, NULL, 0);
 }
 
 /* valve_lanes writing all lanes' stems of sample k as the one vector il[k] */
@@ -111,63 +126,7 @@ static KATTR void V(valve_lanes_vec_, SFX)(const double *x, int64_t n, const dou
                                             const double *dj, const double *f, const double *a,
                                             const double *y0, const double *xs0, double ts, VT *il)
 {
-    V(valve_core_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, NULL, il, 1);
-}
-
-/*
- * nv (1 or 2) vectors of LANES plain valves (the same S and J both ways, no drift, no lag) over
- * x[0..n): lane g of vector u has S s[u * LANES + g], J j[..], starting direction f[..] and start
- * state y0 / xs0 (as valve_lanes), and writes all its lanes' stems of sample k as the one vector
- * il[u][k]. Two vectors advance side by side (the step is a chain of dependent operations); every
- * lane does exactly valve_lanes' operations, so the stems are the same bit for bit.
- */
-static inline __attribute__((always_inline)) KATTR void V(valve_il_, SFX)(
-    const int nv, const double *x, int64_t n, const double *s, const double *j, const double *f_,
-    const double *y0_, const double *xs0_, VT *const *il)
-{
-    VT su[2], ju[2], f[2], yp[2], xss[2];
-    MT stuck[2];
-    double xp = clip100(x[0]);
-    for (int u = 0; u < nv; u++) {
-        double s0[LANES], j0[LANES], f0[LANES], ya[LANES], xa[LANES];
-        for (int g = 0; g < LANES; g++) {
-            /* S and J clipped to >= 0 as nonneg_ does */
-            s0[g] = 0.0 > s[u * LANES + g] ? 0.0 : s[u * LANES + g];
-            j0[g] = 0.0 > j[u * LANES + g] ? 0.0 : j[u * LANES + g];
-            f0[g] = f_[u * LANES + g];
-            double y = xp, st = xp;
-            double y0 = y0_[u * LANES + g], xs0 = xs0_[u * LANES + g];
-            if (!isnan(y0)) {
-                /* stuck at y0 after a motion in direction f: the input stood at y0 + f (S - J) / 2 */
-                y = clip100(y0);
-                st = y + f0[g] * ((s0[g] - j0[g]) / 2.0);
-                if (!isnan(xs0))
-                    st = xs0;
-            }
-            ya[g] = y;
-            xa[g] = st;
-        }
-        memcpy(&su[u], s0, sizeof(VT));
-        memcpy(&ju[u], j0, sizeof(VT));
-        memcpy(&f[u], f0, sizeof(VT));
-        memcpy(&yp[u], ya, sizeof(VT));
-        memcpy(&xss[u], xa, sizeof(VT));
-        il[u][0] = yp[u];
-        stuck[u] = (MT){0} - 1;
-    }
-    int up = 0;
-    for (int64_t k = 1; k < n; k++) {
-        double xk = clip100(x[k]);
-        double v = xk - xp;
-        int up_k = v > 0.0;
-        int stop = v == 0.0 || up_k != up;
-        for (int u = 0; u < nv; u++) {
-            V(valve_step_, SFX)(xk, xp, stop, &stuck[u], &xss[u], &f[u], &yp[u], su[u], ju[u], su[u], ju[u]);
-            il[u][k] = yp[u];
-        }
-        xp = xk;
-        up = up_k;
-    }
+    V(valve_core_, SFX)(1, x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, NULL, &il, 1);
 }
 
 /* m candidate valves (arrays of m) -> out (m rows, leading dimension ld); see valve_lanes. */
@@ -302,7 +261,7 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
     int hp = ahp >= 0.0;
     for (int64_t i0 = 0; i0 < m; i0 += BLOCK_VALVES * LANES) {
         int nv = BLOCK_VALVES == 2 && m - i0 > LANES ? 2 : 1;
-        double sv[2 * LANES], jv[2 * LANES], fv[2 * LANES], yv[2 * LANES], xv[2 * LANES];
+        double sv[2 * LANES], jv[2 * LANES], fv[2 * LANES], yv[2 * LANES], xv[2 * LANES], zr[2 * LANES];
         for (int h = 0; h < nv * LANES; h++) {
             int64_t i = i0 + h < m ? i0 + h : m - 1;       /* spare lanes repeat the last */
             sv[h] = S[i];
@@ -310,11 +269,12 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
             fv[h] = F[i];
             yv[h] = Y0[i];
             xv[h] = XS0[i];
+            zr[h] = 0.0;
         }
         if (nv == 2)
-            V(valve_il_, SFX)(2, x, n, sv, jv, fv, yv, xv, rows);
+            V(valve_core_, SFX)(2, x, n, sv, jv, sv, jv, zr, zr, fv, zr, yv, xv, ts, NULL, rows, 1);
         else
-            V(valve_il_, SFX)(1, x, n, sv, jv, fv, yv, xv, rows);
+            V(valve_core_, SFX)(1, x, n, sv, jv, sv, jv, zr, zr, fv, zr, yv, xv, ts, NULL, rows, 1);
         for (int u = 0; u < nv; u++) {
             VT first = rows[u][0];
             for (int64_t k = 0; k < n; k++)
@@ -448,7 +408,7 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 for (int64_t k = 0; k < dmax; k++)
                     il[k] = (VT){0.0};
             }
-            double s4[LANES], j4[LANES], f4[LANES], y4[LANES], x4[LANES];
+            double s4[LANES], j4[LANES], f4[LANES], y4[LANES], x4[LANES], zr[LANES];
             VT A1, B1, A2, B2, I, N, sz, sy;
             for (int g = 0; g < LANES; g++) {
                 int64_t i = ci[g], p = pi[g];
@@ -457,10 +417,11 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 f4[g] = F[i];
                 y4[g] = Y0[i];
                 x4[g] = XS0[i];
+                zr[g] = 0.0;
                 V(proc_lane_, SFX)(g, p, a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
             }
             VT *u0 = il + dmax;
-            V(valve_il_, SFX)(1, x, n, s4, j4, f4, y4, x4, &u0);
+            V(valve_lanes_vec_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, y4, x4, ts, u0);
             VT first = u0[0];
             for (int64_t k = 0; k < n; k++)
                 u0[k] -= first;
