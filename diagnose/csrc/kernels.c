@@ -79,6 +79,23 @@ static void *scratch(int slot, size_t bytes)
     return s->p[slot];
 }
 
+/* Plain valves (S and J the same both ways, no drift, no lag) for up to two vectors of the widest
+ * variant's lanes, taken from score's valve table (5 x m: S, J, F, y0, xs0) by plain_valve. */
+typedef struct {
+    double S[16], J[16], F[16], y0[16], xs0[16];
+} plain_valves_t;
+
+static const double ZEROS[16];
+
+static inline void plain_valve(plain_valves_t *pv, int h, const double *valves, int64_t m, int64_t i)
+{
+    pv->S[h] = valves[i];
+    pv->J[h] = valves[m + i];
+    pv->F[h] = valves[2 * m + i];
+    pv->y0[h] = valves[3 * m + i];
+    pv->xs0[h] = valves[4 * m + i];
+}
+
 /* how score_groups_ (kernels_lanes.h) reads each lane's input */
 enum { INPUT_VECTOR, INPUT_BROADCAST, INPUT_GATHER };
 

@@ -241,7 +241,6 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
                                         const double *yw, const double *Qw, int64_t K, const double *Qty,
                                         double yyp, double *out, double gfix)
 {
-    const double *S = valves, *J = valves + m, *F = valves + 2 * m, *Y0 = valves + 3 * m, *XS0 = valves + 4 * m;
     const double *a1 = structs, *a2 = structs + P, *dd = structs + 2 * P, *integ = structs + 3 * P;
     double *sse = out, *gain = out + m * P;
     int64_t dmax = 0;
@@ -261,20 +260,15 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
     int hp = ahp >= 0.0;
     for (int64_t i0 = 0; i0 < m; i0 += BLOCK_VALVES * LANES) {
         int nv = BLOCK_VALVES == 2 && m - i0 > LANES ? 2 : 1;
-        double sv[2 * LANES], jv[2 * LANES], fv[2 * LANES], yv[2 * LANES], xv[2 * LANES], zr[2 * LANES];
-        for (int h = 0; h < nv * LANES; h++) {
-            int64_t i = i0 + h < m ? i0 + h : m - 1;       /* spare lanes repeat the last */
-            sv[h] = S[i];
-            jv[h] = J[i];
-            fv[h] = F[i];
-            yv[h] = Y0[i];
-            xv[h] = XS0[i];
-            zr[h] = 0.0;
-        }
+        plain_valves_t pv;
+        for (int h = 0; h < nv * LANES; h++)
+            plain_valve(&pv, h, valves, m, i0 + h < m ? i0 + h : m - 1);    /* spare lanes repeat the last */
         if (nv == 2)
-            V(valve_core_, SFX)(2, x, n, sv, jv, sv, jv, zr, zr, fv, zr, yv, xv, ts, NULL, rows, 1);
+            V(valve_core_, SFX)(2, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
+                                rows, 1);
         else
-            V(valve_core_, SFX)(1, x, n, sv, jv, sv, jv, zr, zr, fv, zr, yv, xv, ts, NULL, rows, 1);
+            V(valve_core_, SFX)(1, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
+                                rows, 1);
         for (int u = 0; u < nv; u++) {
             VT first = rows[u][0];
             for (int64_t k = 0; k < n; k++)
@@ -343,7 +337,6 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                          int64_t P, int paired, double ts, double ahp, const double *w, const double *yw,
                          const double *Qw, int64_t K, const double *Qty, double yyp, double *out, double gfix)
 {
-    const double *S = valves, *J = valves + m, *F = valves + 2 * m, *Y0 = valves + 3 * m, *XS0 = valves + 4 * m;
     const double *a1 = structs, *a2 = structs + P, *dd = structs + 2 * P, *integ = structs + 3 * P;
     if (m <= 0 || P <= 0 || (paired && P != m))
         return 0;
@@ -408,20 +401,14 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 for (int64_t k = 0; k < dmax; k++)
                     il[k] = (VT){0.0};
             }
-            double s4[LANES], j4[LANES], f4[LANES], y4[LANES], x4[LANES], zr[LANES];
+            plain_valves_t pv;
             VT A1, B1, A2, B2, I, N, sz, sy;
             for (int g = 0; g < LANES; g++) {
-                int64_t i = ci[g], p = pi[g];
-                s4[g] = S[i];
-                j4[g] = J[i];
-                f4[g] = F[i];
-                y4[g] = Y0[i];
-                x4[g] = XS0[i];
-                zr[g] = 0.0;
-                V(proc_lane_, SFX)(g, p, a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
+                plain_valve(&pv, g, valves, m, ci[g]);
+                V(proc_lane_, SFX)(g, pi[g], a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
             }
             VT *u0 = il + dmax;
-            V(valve_lanes_vec_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, y4, x4, ts, u0);
+            V(valve_lanes_vec_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, u0);
             VT first = u0[0];
             for (int64_t k = 0; k < n; k++)
                 u0[k] -= first;
@@ -468,19 +455,14 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
         }
         if (nneed > 0 && n > 0) {
             /* the new candidates' valves in one pass (spare lanes repeat the first) */
-            double s4[LANES], j4[LANES], f4[LANES], zr[LANES], y4[LANES], x4[LANES];
+            plain_valves_t pv;
             double *o4[LANES];
             for (int g = 0; g < LANES; g++) {
                 int h = g < nneed ? g : 0;
-                s4[g] = S[need_i[h]];
-                j4[g] = J[need_i[h]];
-                f4[g] = F[need_i[h]];
-                y4[g] = Y0[need_i[h]];
-                x4[g] = XS0[need_i[h]];
-                zr[g] = 0.0;
+                plain_valve(&pv, g, valves, m, need_i[h]);
                 o4[g] = need_u[h];
             }
-            V(valve_lanes_, SFX)(x, n, s4, j4, s4, j4, zr, zr, f4, zr, y4, x4, ts, o4);
+            V(valve_lanes_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, o4);
             for (int h = 0; h < nneed; h++) {
                 double *row = need_u[h];
                 double first = row[0];
