@@ -24,6 +24,12 @@ def thread_count(threads: int | None, cap: int | None = None) -> int:
     return max(1, min(n, cap) if cap is not None else n)
 
 
+def cores_per_worker(workers: int) -> int:
+    """Threads each of ``workers`` processes on this machine may give its fits: the cores divided
+    among them, at least one, so that workers x threads does not oversubscribe the machine."""
+    return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
+
+
 def thread_map(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> list[R]:
     """``[fn(i) for i in items]``, on up to ``threads`` threads (`thread_count`); in item order."""
     items = list(items)

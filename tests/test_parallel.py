@@ -26,3 +26,14 @@ def test_thread_count_honours_the_caller_and_the_cap():
     assert thread_count(None) == cores
     assert thread_count(None, cap=1) == 1 and thread_count(None, cap=64) == cores
     assert thread_map(lambda i: i, [], threads=4) == []
+
+
+def test_workers_share_the_cores_and_get_at_least_one(monkeypatch):
+    import os
+
+    from diagnose.parallel import cores_per_worker
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    assert [cores_per_worker(w) for w in (0, 1, 2, 3, 8, 16)] == [8, 8, 4, 2, 1, 1]
+    monkeypatch.setattr(os, "cpu_count", lambda: None)
+    assert cores_per_worker(4) == 1

@@ -48,6 +48,7 @@ from connectors import FILE_SUFFIXES as INPUT_SUFFIXES
 from connectors.historian import atomic_write
 
 from ..errors import DataError, StictionError
+from ..parallel import cores_per_worker
 from .report import SUMMARY_COLUMNS
 
 if TYPE_CHECKING:
@@ -862,7 +863,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
             # a worker's fits use threads too: share the cores out, or workers x threads
             # oversubscribe them (a remote scheduler's machines are not known: one thread each)
             local = scheduler in (None, "local")
-            task_cfg = replace(cfg, threads=max(1, (os.cpu_count() or 1) // n_exec) if local else 1)
+            task_cfg = replace(cfg, threads=cores_per_worker(n_exec) if local else 1)
             try:
                 futures = [ex.submit(process_file, task_cfg, f) for f in todo]
                 path_of = {id(fu): f for fu, f in zip(futures, todo)}

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, TextIO
 
 from ..errors import DataError, StictionError
+from ..parallel import cores_per_worker
 from ..plain import duration
 
 if TYPE_CHECKING:
@@ -261,8 +262,8 @@ class Monitor:
     def _submit(self, record: Any) -> Any:
         self._ensure_pool()
         # the workers' fits run on threads too: each worker gets its share of the cores
-        threads = max(1, (os.cpu_count() or 1) // max(self.workers, 1))
-        return self._pool.submit(diagnose_window, record, str(self.out_dir), self.explain, self.figures, threads)
+        return self._pool.submit(diagnose_window, record, str(self.out_dir), self.explain, self.figures,
+                                 cores_per_worker(self.workers))
 
     def _ensure_pool(self) -> None:
         if self._pool is None:
