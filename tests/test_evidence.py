@@ -18,7 +18,7 @@ from diagnose.evidence import (
 from diagnose.evidence.bicoherence import apparent_stiction
 from diagnose.evidence.curve_fit import stiction_index
 from diagnose.evidence.d2pdf import d2_index
-from diagnose.evidence.result import DECISIONS
+from diagnose.evidence.result import DECISIONS, graded
 from diagnose.evidence._signals import half_cycles, oscillation, sample_range
 from diagnose.simulate import PIDController, make_process, simulate_loop, sinusoid, sticky_loop
 
@@ -320,6 +320,12 @@ def test_pv_usable_accepts_a_noisy_pv():
 
 
 # --- the result type and run_all -----------------------------------------------------------------
+
+def test_graded_decisions_include_both_thresholds():
+    # the grey zone is open: a value on either threshold is decided, one between them is not
+    assert [graded(v, 0.6, 0.4) for v in (0.7, 0.6, 0.5, 0.4, 0.3)] == [
+        "stiction", "stiction", "undetermined", "no_stiction", "no_stiction"]
+
 
 def test_evidence_to_dict_is_json_and_drops_non_finite():
     e = Evidence("x", float("nan"), 0.5, "undetermined", "n", extras={"a": 1.0, "b": float("inf")})

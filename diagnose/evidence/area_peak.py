@@ -21,7 +21,7 @@ import numpy as np
 
 from ._gates import oscillation_gate, process_gate, record_gate
 from ._signals import Prepared, lowpass, sample_range, segment_matrix
-from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge
+from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge, graded
 
 TEST = "singhal_area"
 HIGH = 1.25     # R at or above: stiction
@@ -99,14 +99,11 @@ def _singhal_area(p: Prepared, integrating: bool | None) -> Evidence:
     R, a1, a2 = area_ratio(e, start, end)
     ex = {"threshold_low": LOW, "half_cycles": float(start.shape[0]), "period_s": o.period * p.ts_s}
     what = "the control error" if p.sp_moves else "PV"
-    if R >= HIGH:
-        return Evidence(TEST, R, HIGH, STICTION,
-                        f"Each half-cycle of {what} peaks late, area before the peak {R:.2f} times the area after "
-                        "it: a step-like rise and a fast return, as after a sticky valve's jumps.", extras=ex)
-    if R <= LOW:
-        return Evidence(TEST, R, HIGH, NO_STICTION,
-                        f"The half-cycles of {what} are symmetric or peak early (area ratio {R:.2f} <= {LOW}), as "
-                        "for a sinusoid: not the late peak a sticky valve gives.", extras=ex)
-    return Evidence(TEST, R, HIGH, UNDETERMINED,
-                    f"The half-cycles of {what} peak a little late (area ratio {R:.2f}, between {LOW} and {HIGH}): "
-                    "too little to tell stiction from noise.", extras=ex)
+    decision = graded(R, HIGH, LOW)
+    note = {STICTION: f"Each half-cycle of {what} peaks late, area before the peak {R:.2f} times the area after "
+                      "it: a step-like rise and a fast return, as after a sticky valve's jumps.",
+            NO_STICTION: f"The half-cycles of {what} are symmetric or peak early (area ratio {R:.2f} <= {LOW}), as "
+                         "for a sinusoid: not the late peak a sticky valve gives.",
+            UNDETERMINED: f"The half-cycles of {what} peak a little late (area ratio {R:.2f}, between {LOW} and "
+                          f"{HIGH}): too little to tell stiction from noise."}[decision]
+    return Evidence(TEST, R, HIGH, decision, note, extras=ex)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ._gates import oscillation_gate, process_gate, record_gate
 from ._signals import Prepared, lowpass, sample_range, segment_matrix
-from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge
+from .result import Evidence, cannot_judge, graded
 
 TEST = "he_curve_fit"
 HIGH = 0.6      # SI at or above: stiction (He et al. 2007)
@@ -158,11 +158,7 @@ def _he_curve_fit(p: Prepared, integrating: bool | None) -> Evidence:
     if isinstance(res, Evidence):
         return res
     si, ex = res
-    return Evidence(TEST, si, HIGH, _decide(si), _sentence(si, what), extras=ex)
-
-
-def _decide(si: float) -> str:
-    return STICTION if si >= HIGH else NO_STICTION if si <= LOW else UNDETERMINED
+    return Evidence(TEST, si, HIGH, graded(si, HIGH, LOW), _sentence(si, what), extras=ex)
 
 
 def _sentence(si: float, what: str) -> str:

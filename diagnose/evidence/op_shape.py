@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from ._gates import record_gate
 from ._signals import Prepared
-from .curve_fit import HIGH, _decide, fit_shape
-from .result import NO_STICTION, STICTION, Evidence
+from .curve_fit import HIGH, LOW, fit_shape
+from .result import NO_STICTION, STICTION, Evidence, graded
 
 TEST = "op_shape"
 
@@ -51,7 +51,7 @@ def _op_shape(p: Prepared) -> Evidence:
     if isinstance(res, Evidence):
         return res
     si, ex = res
-    decision = _decide(si)
+    decision = graded(si, HIGH, LOW)
     if decision == STICTION:
         note = (f"OP alone: a regular saw-tooth with straight ramps (SI {si:.2f} >= {HIGH}), as a sticky valve "
                 "forces on the controller; weaker evidence than PV-based tests, since any square-like error "

@@ -77,6 +77,12 @@ class Evidence:
                 "extras": dict(self.extras)}
 
 
+def graded(value: float, high: float, low: float) -> str:
+    """The decision of a test with a grey zone: stiction at or above ``high``, no stiction at or
+    below ``low``, undetermined between."""
+    return STICTION if value >= high else NO_STICTION if value <= low else UNDETERMINED
+
+
 def cannot_judge(test: str, reason: str, note: str, threshold: float | None = None,
                  **extras: float) -> Evidence:
     """An `Evidence` that says the test could not run, and why."""

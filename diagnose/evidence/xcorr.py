@@ -21,7 +21,7 @@ import numpy as np
 
 from ._gates import oscillation_gate, process_gate, record_gate
 from ._signals import Prepared
-from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge
+from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge, graded
 
 TEST = "horch_xcorr"
 ODD = 2.0 / 3.0     # delta at or above: odd CCF, stiction
@@ -95,14 +95,11 @@ def _horch_xcorr(p: Prepared, integrating: bool | None) -> Evidence:
     delta = abs(tl + tr) / (tr - tl)
     ex = {"threshold_low": EVEN, "tau_left_s": tl * p.ts_s, "tau_right_s": tr * p.ts_s,
           "ccf_lag0": float(r[max_lag]), "period_s": period * p.ts_s}
-    if delta >= ODD:
-        return Evidence(TEST, delta, ODD, STICTION,
-                        f"The OP-PV cross-correlation is odd (delta {delta:.2f} >= {ODD:.2f}): PV follows OP a "
-                        "quarter period late, as when a sticky valve jumps.", extras=ex)
-    if delta <= EVEN:
-        return Evidence(TEST, delta, ODD, NO_STICTION,
-                        f"The OP-PV cross-correlation is even (delta {delta:.2f} <= {EVEN:.2f}): OP and PV move in "
-                        "antiphase, as for an external disturbance or aggressive tuning.", extras=ex)
-    return Evidence(TEST, delta, ODD, UNDETERMINED,
-                    f"The OP-PV cross-correlation is neither clearly odd nor even (delta {delta:.2f} between "
-                    f"{EVEN:.2f} and {ODD:.2f}).", extras=ex)
+    decision = graded(delta, ODD, EVEN)
+    note = {STICTION: f"The OP-PV cross-correlation is odd (delta {delta:.2f} >= {ODD:.2f}): PV follows OP a "
+                      "quarter period late, as when a sticky valve jumps.",
+            NO_STICTION: f"The OP-PV cross-correlation is even (delta {delta:.2f} <= {EVEN:.2f}): OP and PV move in "
+                         "antiphase, as for an external disturbance or aggressive tuning.",
+            UNDETERMINED: f"The OP-PV cross-correlation is neither clearly odd nor even (delta {delta:.2f} between "
+                          f"{EVEN:.2f} and {ODD:.2f})."}[decision]
+    return Evidence(TEST, delta, ODD, decision, note, extras=ex)
