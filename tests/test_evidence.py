@@ -323,8 +323,11 @@ def test_pv_usable_accepts_a_noisy_pv():
 
 def test_graded_decisions_include_both_thresholds():
     # the grey zone is open: a value on either threshold is decided, one between them is not
-    assert [graded(v, 0.6, 0.4) for v in (0.7, 0.6, 0.5, 0.4, 0.3)] == [
-        "stiction", "stiction", "undetermined", "no_stiction", "no_stiction"]
+    notes = {"stiction": "s", "no_stiction": "n", "undetermined": "u"}
+    got = [graded("t", v, 0.6, 0.4, notes, {"k": 1.0}) for v in (0.7, 0.6, 0.5, 0.4, 0.3)]
+    assert [e.decision for e in got] == ["stiction", "stiction", "undetermined", "no_stiction", "no_stiction"]
+    assert [e.note for e in got] == ["s", "s", "u", "n", "n"]
+    assert all(e.threshold == 0.6 and e.extras == {"k": 1.0} for e in got)
 
 
 def test_evidence_to_dict_is_json_and_drops_non_finite():

@@ -99,11 +99,10 @@ def _singhal_area(p: Prepared, integrating: bool | None) -> Evidence:
     R, a1, a2 = area_ratio(e, start, end)
     ex = {"threshold_low": LOW, "half_cycles": float(start.shape[0]), "period_s": o.period * p.ts_s}
     what = "the control error" if p.sp_moves else "PV"
-    decision = graded(R, HIGH, LOW)
-    note = {STICTION: f"Each half-cycle of {what} peaks late, area before the peak {R:.2f} times the area after "
-                      "it: a step-like rise and a fast return, as after a sticky valve's jumps.",
-            NO_STICTION: f"The half-cycles of {what} are symmetric or peak early (area ratio {R:.2f} <= {LOW}), as "
-                         "for a sinusoid: not the late peak a sticky valve gives.",
-            UNDETERMINED: f"The half-cycles of {what} peak a little late (area ratio {R:.2f}, between {LOW} and "
-                          f"{HIGH}): too little to tell stiction from noise."}[decision]
-    return Evidence(TEST, R, HIGH, decision, note, extras=ex)
+    return graded(TEST, R, HIGH, LOW, {
+        STICTION: f"Each half-cycle of {what} peaks late, area before the peak {R:.2f} times the area after "
+                  "it: a step-like rise and a fast return, as after a sticky valve's jumps.",
+        NO_STICTION: f"The half-cycles of {what} are symmetric or peak early (area ratio {R:.2f} <= {LOW}), as "
+                     "for a sinusoid: not the late peak a sticky valve gives.",
+        UNDETERMINED: f"The half-cycles of {what} peak a little late (area ratio {R:.2f}, between {LOW} and "
+                      f"{HIGH}): too little to tell stiction from noise."}, ex)

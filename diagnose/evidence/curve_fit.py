@@ -23,7 +23,7 @@ import numpy as np
 
 from ._gates import oscillation_gate, process_gate, record_gate
 from ._signals import Prepared, lowpass, sample_range, segment_matrix
-from .result import Evidence, cannot_judge, graded
+from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge, graded
 
 TEST = "he_curve_fit"
 HIGH = 0.6      # SI at or above: stiction (He et al. 2007)
@@ -158,14 +158,10 @@ def _he_curve_fit(p: Prepared, integrating: bool | None) -> Evidence:
     if isinstance(res, Evidence):
         return res
     si, ex = res
-    return Evidence(TEST, si, HIGH, graded(si, HIGH, LOW), _sentence(si, what), extras=ex)
-
-
-def _sentence(si: float, what: str) -> str:
-    if si >= HIGH:
-        return (f"{what}'s half-cycles fit a triangle better than a sinusoid (SI {si:.2f} >= {HIGH}): "
-                "straight ramps with sharp turns, as a sticky valve makes.")
-    if si <= LOW:
-        return (f"{what}'s half-cycles fit a sinusoid better than a triangle (SI {si:.2f} <= {LOW}): "
-                "a smooth oscillation, as from a linear cause.")
-    return f"{what}'s half-cycles fit a triangle and a sinusoid about equally (SI {si:.2f}, between {LOW} and {HIGH})."
+    return graded(TEST, si, HIGH, LOW, {
+        STICTION: (f"{what}'s half-cycles fit a triangle better than a sinusoid (SI {si:.2f} >= {HIGH}): "
+                   "straight ramps with sharp turns, as a sticky valve makes."),
+        NO_STICTION: (f"{what}'s half-cycles fit a sinusoid better than a triangle (SI {si:.2f} <= {LOW}): "
+                      "a smooth oscillation, as from a linear cause."),
+        UNDETERMINED: (f"{what}'s half-cycles fit a triangle and a sinusoid about equally (SI {si:.2f}, between "
+                       f"{LOW} and {HIGH}).")}, ex)

@@ -21,7 +21,7 @@ from __future__ import annotations
 from ._gates import record_gate
 from ._signals import Prepared
 from .curve_fit import HIGH, LOW, fit_shape
-from .result import NO_STICTION, STICTION, Evidence, graded
+from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, graded
 
 TEST = "op_shape"
 
@@ -51,15 +51,11 @@ def _op_shape(p: Prepared) -> Evidence:
     if isinstance(res, Evidence):
         return res
     si, ex = res
-    decision = graded(si, HIGH, LOW)
-    if decision == STICTION:
-        note = (f"OP alone: a regular saw-tooth with straight ramps (SI {si:.2f} >= {HIGH}), as a sticky valve "
-                "forces on the controller; weaker evidence than PV-based tests, since any square-like error "
-                "gives the same shape.")
-    elif decision == NO_STICTION:
-        note = (f"OP alone: the oscillation is smooth, close to a sinusoid (SI {si:.2f}); not the ramps a sticky "
-                "valve forces; weaker evidence than PV-based tests.")
-    else:
-        note = (f"OP alone: the oscillation is between a triangle and a sinusoid (SI {si:.2f}); without PV this "
-                "cannot be told apart.")
-    return Evidence(TEST, si, HIGH, decision, note, extras=ex)
+    return graded(TEST, si, HIGH, LOW, {
+        STICTION: (f"OP alone: a regular saw-tooth with straight ramps (SI {si:.2f} >= {HIGH}), as a sticky valve "
+                   "forces on the controller; weaker evidence than PV-based tests, since any square-like error "
+                   "gives the same shape."),
+        NO_STICTION: (f"OP alone: the oscillation is smooth, close to a sinusoid (SI {si:.2f}); not the ramps a "
+                      "sticky valve forces; weaker evidence than PV-based tests."),
+        UNDETERMINED: (f"OP alone: the oscillation is between a triangle and a sinusoid (SI {si:.2f}); without PV "
+                       "this cannot be told apart.")}, ex)

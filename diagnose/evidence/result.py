@@ -77,10 +77,12 @@ class Evidence:
                 "extras": dict(self.extras)}
 
 
-def graded(value: float, high: float, low: float) -> str:
-    """The decision of a test with a grey zone: stiction at or above ``high``, no stiction at or
-    below ``low``, undetermined between."""
-    return STICTION if value >= high else NO_STICTION if value <= low else UNDETERMINED
+def graded(test: str, value: float, high: float, low: float, notes: Mapping[str, str],
+           extras: Mapping[str, float] | None = None) -> Evidence:
+    """The `Evidence` of a test with a grey zone: stiction at or above ``high``, no stiction at or
+    below ``low``, undetermined between; ``notes`` gives the sentence for each of the three."""
+    decision = STICTION if value >= high else NO_STICTION if value <= low else UNDETERMINED
+    return Evidence(test, value, high, decision, notes[decision], extras=dict(extras or {}))
 
 
 def cannot_judge(test: str, reason: str, note: str, threshold: float | None = None,

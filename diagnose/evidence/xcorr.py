@@ -95,11 +95,10 @@ def _horch_xcorr(p: Prepared, integrating: bool | None) -> Evidence:
     delta = abs(tl + tr) / (tr - tl)
     ex = {"threshold_low": EVEN, "tau_left_s": tl * p.ts_s, "tau_right_s": tr * p.ts_s,
           "ccf_lag0": float(r[max_lag]), "period_s": period * p.ts_s}
-    decision = graded(delta, ODD, EVEN)
-    note = {STICTION: f"The OP-PV cross-correlation is odd (delta {delta:.2f} >= {ODD:.2f}): PV follows OP a "
-                      "quarter period late, as when a sticky valve jumps.",
-            NO_STICTION: f"The OP-PV cross-correlation is even (delta {delta:.2f} <= {EVEN:.2f}): OP and PV move in "
-                         "antiphase, as for an external disturbance or aggressive tuning.",
-            UNDETERMINED: f"The OP-PV cross-correlation is neither clearly odd nor even (delta {delta:.2f} between "
-                          f"{EVEN:.2f} and {ODD:.2f})."}[decision]
-    return Evidence(TEST, delta, ODD, decision, note, extras=ex)
+    return graded(TEST, delta, ODD, EVEN, {
+        STICTION: f"The OP-PV cross-correlation is odd (delta {delta:.2f} >= {ODD:.2f}): PV follows OP a "
+                  "quarter period late, as when a sticky valve jumps.",
+        NO_STICTION: f"The OP-PV cross-correlation is even (delta {delta:.2f} <= {EVEN:.2f}): OP and PV move in "
+                     "antiphase, as for an external disturbance or aggressive tuning.",
+        UNDETERMINED: f"The OP-PV cross-correlation is neither clearly odd nor even (delta {delta:.2f} between "
+                      f"{EVEN:.2f} and {ODD:.2f})."}, ex)
