@@ -1,0 +1,48 @@
+"""The level-loop check (benchmarks/level_loops.py): its records and its summary."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks import level_loops as L  # noqa: E402
+
+
+def test_records_are_seeded_and_sticky_ones_carry_their_truth():
+    a, ta = L.level_loop(2, 4)
+    b, tb = L.level_loop(2, 4)
+    assert ta == tb and np.array_equal(a.pv, b.pv) and np.array_equal(a.op, b.op)
+    assert ta["sticky"] and ta["S_pct"] in (0.3, 0.5, 1.0, 2.0) and a.n == ta["n"]
+    healthy, th = L.level_loop(2, 3)
+    assert not th["sticky"] and th["S_pct"] == 0.0
+    # a healthy valve follows OP exactly: the stem moves whenever OP does
+    assert np.allclose(healthy.mv, healthy.op)
+
+
+def test_stem_moves_counts_runs_of_motion_not_moving_samples():
+    mv = np.array([0, 0, 1, 2, 2, 2, 3, 3, 4, 5, 6, 6], float)
+    assert L.stem_moves(mv) == 3
+    assert L.stem_moves(np.zeros(10)) == 0
+
+
+def test_summary_counts_calls_by_class_and_leaves_out_stuck_valves():
+    rows = [
+        {"sticky": True, "S_pct": 0.5, "load_step": 0.0, "n": 751, "called": True, "lr": 30.0},
+        {"sticky": True, "S_pct": 0.5, "load_step": 0.05, "n": 751, "called": False, "lr": 5.0},
+        {"sticky": True, "S_pct": 2.0, "load_step": 0.05, "n": 3000, "called": True, "lr": 40.0},
+        {"sticky": False, "S_pct": 0.0, "load_step": 0.0, "n": 751, "called": False, "lr": 8.0},
+        {"sticky": False, "S_pct": 0.0, "load_step": 0.0, "n": 751, "called": True, "lr": 2.0},
+        {"sticky": True, "S_pct": 1.0, "load_step": 0.0, "n": 751, "moves": 0},   # valve never free
+    ]
+    lines = L.summarise(rows)
+    assert lines[0].startswith("3 sticky records") and "1 sticky records left out" in lines[0]
+    assert "called sticky: 0.667" in lines[1] and "left alone: 0.500" in lines[1]
+    # lr: 30 and 40 beat both healthy, 5 beats one of two -> (2 + 2 + 1) / 6
+    assert f"{5 / 6:.3f}" in lines[2]
+    assert "0.5: 1/2" in lines[3] and "2: 1/1" in lines[3]
+
+
+def test_auc_handles_ties_and_missing_values():
+    assert L.auc([1.0, None], [1.0]) == 0.5
+    assert np.isnan(L.auc([], [1.0]))
