@@ -15,19 +15,29 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity where the system reports one (a
+    container's cpuset or ``taskset`` leaves fewer than the machine has, and threads beyond them only
+    queue), else the machine's count."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def thread_count(threads: int | None, cap: int | None = None) -> int:
     """Threads to use: ``threads`` (at least 1), or the machine's cores (at most ``cap``) when None.
     A caller that runs several computations in parallel itself passes 1."""
     if threads is not None:
         return max(1, int(threads))
-    n = os.cpu_count() or 1
+    n = usable_cores()
     return max(1, min(n, cap) if cap is not None else n)
 
 
 def cores_per_worker(workers: int) -> int:
     """Threads each of ``workers`` processes on this machine may give its fits: the cores divided
     among them, at least one, so that workers x threads does not oversubscribe the machine."""
-    return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
+    return max(1, usable_cores() // max(1, int(workers)))
 
 
 def thread_map(fn: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> list[R]:

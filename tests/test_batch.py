@@ -380,7 +380,9 @@ def test_workers_share_the_cores_between_their_threads(plant, tmp_path, monkeypa
     monkeypatch.setattr(B, "make_executor", lambda n, sched: B._Inline())
     monkeypatch.setattr(B, "process_file", lambda cfg, path: seen.append(cfg.threads) or {
         "path": path, "digest": None, "rows": []})
-    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    from diagnose import parallel
+
+    monkeypatch.setattr(parallel, "usable_cores", lambda: 4)
     logs = tmp_path / "logs"
     logs.mkdir()
     for name in ("FIC1.csv", "FIC2.csv", "FIC3.csv"):

@@ -48,7 +48,7 @@ from connectors import FILE_SUFFIXES as INPUT_SUFFIXES
 from connectors.historian import atomic_write
 
 from ..errors import DataError, StictionError
-from ..parallel import cores_per_worker
+from ..parallel import cores_per_worker, usable_cores
 from .report import SUMMARY_COLUMNS
 
 if TYPE_CHECKING:
@@ -824,7 +824,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     if not files and not missing:
         raise DataError("no input files found (looked for " + ", ".join(INPUT_SUFFIXES) +
                         f" in {', '.join(map(str, inputs))})")
-    workers = workers or os.cpu_count() or 1
+    workers = workers or usable_cores()
     rows: list[dict[str, Any]] = list(missing)
     bar = Progress(len(files), stream=stream, enabled=progress)
     hist = History(db_path) if history else None
