@@ -40,7 +40,7 @@ from .parallel import thread_map
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
                      PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit,
-                     nelder_mead, noise_model, polish_structure, refine, resolve, search_windows,
+                     nelder_mead, noise_model, polish_structure, refine_many, resolve, search_windows,
                      shape_bands, shape_profile, start_state, widest_window, zoom)
 from .stiction_model import stiction_batch
 
@@ -253,14 +253,14 @@ def single_search(obj: Objective, lim: Limits, cfg: SearchConfig, stiction: bool
     results.sort(key=lambda r: r.sse)
     done: dict = {}         # the same start refines to the same result: refine it once
 
-    def refined(c: Candidate) -> Candidate:
-        if c not in done:
-            done[c] = refine(obj, c, lim, cfg.polish)
-        return done[c]
+    def refined(starts: list[Candidate]) -> list[Candidate]:
+        todo = [c for c in dict.fromkeys(starts) if c not in done]
+        done.update(zip(todo, refine_many(obj, todo, lim, cfg.polish)))
+        return [done[c] for c in starts]
 
-    out = [refined(c) for c in results[: max(2, cfg.polish.n_refine)]]
+    out = refined(results[: max(2, cfg.polish.n_refine)])
     top = min(out, key=lambda r: r.sse)
-    out += [refined(c) for c in shape_bands(obj, top, lim, cfg.bands)]
+    out += refined(shape_bands(obj, top, lim, cfg.bands))
     return min(out + results, key=lambda r: r.sse)
 
 

@@ -369,84 +369,162 @@ def simplex_minimize(cost, simplex: np.ndarray, max_iter: int, fatol: float, *,
     one call scores a few points for about the price of one (a vector kernel's lanes), this cuts
     the calls by about a third; the iterations and the result stay exactly the same.
     """
+    if costs is None:
+        score = lambda pts: [cost(np.array(v)) for _, v in pts]         # noqa: E731
+    else:
+        score = lambda pts: costs(np.array([v for _, v in pts]))       # noqa: E731
+    return simplex_minimize_many(score, [simplex], max_iter, [fatol], pair=costs is not None)[0]
+
+
+def simplex_minimize_many(score, simplexes, max_iter: int, fatols, *, pair: bool = True) -> list:
+    """Several independent Nelder-Mead minimisations (`simplex_minimize`) in lockstep: each
+    simplex takes exactly the steps it would take alone, and every stage of an iteration (the
+    reflections, then the expansions and contractions, then the shrinks) is scored for all the
+    simplexes that need it in one call, ``score([(j, point), ...])`` returning one cost per
+    (simplex index, point) pair. With ``pair``, each reflection is scored together with the inside
+    contraction. Returns ``[(best point, best cost), ...]`` in the order of ``simplexes``.
+    """
     # plain floats, not small arrays: numpy's overhead on three-element vectors costs as much as
     # scoring a short window, and it holds the interpreter lock the looks on other threads wait
     # for. The arithmetic is numpy's, operation for operation (the centroid adds the vertices in
     # order; the sort is stable and puts NaN last, as argsort does), so the steps stay scipy's.
-    sim = [[float(c) for c in v] for v in np.asarray(simplex, dtype=float)]
-    N = len(sim[0])
-    fsim = [float(f) for f in costs(np.array(sim))] if costs is not None else [cost(np.array(v)) for v in sim]
+    K = len(simplexes)
+    sims = [[[float(c) for c in v] for v in np.asarray(sx, dtype=float)] for sx in simplexes]
+    flat = [(j, v) for j in range(K) for v in sims[j]]
+    fl = [float(f) for f in score(flat)]
+    fsims, i = [], 0
+    for j in range(K):
+        fsims.append(fl[i:i + len(sims[j])])
+        i += len(sims[j])
 
-    def ordered():
-        idx = sorted(range(N + 1), key=lambda i: (fsim[i] != fsim[i], fsim[i]))
-        return [sim[i] for i in idx], [fsim[i] for i in idx]
+    def ordered(j):
+        sim, fsim = sims[j], fsims[j]
+        idx = sorted(range(len(sim)), key=lambda i: (fsim[i] != fsim[i], fsim[i]))
+        sims[j], fsims[j] = [sim[i] for i in idx], [fsim[i] for i in idx]
 
-    sim, fsim = ordered()
+    for j in range(K):
+        ordered(j)
+    active = list(range(K))
     for _ in range(max_iter - 1):
-        spread = [abs(fsim[0] - f) for f in fsim[1:]]
-        if all(d == d for d in spread) and max(spread) <= fatol:
+        still = []
+        for j in active:
+            fsim = fsims[j]
+            spread = [abs(fsim[0] - f) for f in fsim[1:]]
+            if not (all(d == d for d in spread) and max(spread) <= fatols[j]):
+                still.append(j)
+        active = still
+        if not active:
             break
-        xbar = list(sim[0])
-        for v in sim[1:-1]:
-            xbar = [a + b for a, b in zip(xbar, v)]
-        xbar = [a / N for a in xbar]
-        worst = sim[-1]
-        xr = [2.0 * a - w for a, w in zip(xbar, worst)]
-        xic = [0.5 * a + 0.5 * w for a, w in zip(xbar, worst)]       # inside contraction
-        if costs is not None:
-            fr, fic = (float(c) for c in costs(np.array([xr, xic])))
-        else:
-            fr, fic = cost(np.array(xr)), None
-        if fr < fsim[0]:
-            xe = [3.0 * a - 2.0 * w for a, w in zip(xbar, worst)]
-            fe = cost(np.array(xe))
-            sim[-1], fsim[-1] = (xe, fe) if fe < fr else (xr, fr)
-        elif fr < fsim[-2]:
-            sim[-1], fsim[-1] = xr, fr
-        else:
-            if fr < fsim[-1]:
-                xc = [1.5 * a - 0.5 * w for a, w in zip(xbar, worst)]   # outside contraction
-                fc = cost(np.array(xc))
-                accept = fc <= fr
+        step = {}
+        ask = []
+        for j in active:
+            sim = sims[j]
+            N = len(sim[0])
+            xbar = list(sim[0])
+            for v in sim[1:-1]:
+                xbar = [a + b for a, b in zip(xbar, v)]
+            xbar = [a / N for a in xbar]
+            worst = sim[-1]
+            xr = [2.0 * a - w for a, w in zip(xbar, worst)]
+            xic = [0.5 * a + 0.5 * w for a, w in zip(xbar, worst)]       # inside contraction
+            step[j] = {"xbar": xbar, "worst": worst, "xr": xr, "xic": xic, "fic": None}
+            ask.append((j, xr))
+            if pair:
+                ask.append((j, xic))
+        got = [float(c) for c in score(ask)]
+        for k, (j, _) in enumerate(ask):
+            if pair and k % 2:
+                step[j]["fic"] = got[k]
             else:
-                xc = xic
-                fc = cost(np.array(xc)) if fic is None else fic
-                accept = fc < fsim[-1]
-            if accept:
-                sim[-1], fsim[-1] = xc, fc
+                step[j]["fr"] = got[k]
+        # the expansions and contractions
+        ask = []
+        for j in active:
+            st, fsim = step[j], fsims[j]
+            xbar, worst, fr = st["xbar"], st["worst"], st["fr"]
+            if fr < fsim[0]:
+                st["x2"] = [3.0 * a - 2.0 * w for a, w in zip(xbar, worst)]
+                st["kind"] = "expand"
+            elif fr < fsim[-2]:
+                st["kind"] = "reflect"
+            elif fr < fsim[-1]:
+                st["x2"] = [1.5 * a - 0.5 * w for a, w in zip(xbar, worst)]   # outside contraction
+                st["kind"] = "outside"
+            else:
+                st["x2"] = st["xic"]
+                st["kind"] = "inside"
+                if st["fic"] is not None:
+                    st["f2"] = st["fic"]
+            if "x2" in st and "f2" not in st:
+                ask.append((j, st["x2"]))
+        if ask:
+            for (j, _), c in zip(ask, score(ask)):
+                step[j]["f2"] = float(c)
+        # the shrinks
+        ask = []
+        for j in active:
+            st, sim, fsim = step[j], sims[j], fsims[j]
+            kind = st["kind"]
+            if kind == "expand":
+                sim[-1], fsim[-1] = (st["x2"], st["f2"]) if st["f2"] < st["fr"] else (st["xr"], st["fr"])
+            elif kind == "reflect":
+                sim[-1], fsim[-1] = st["xr"], st["fr"]
+            elif (st["f2"] <= st["fr"]) if kind == "outside" else (st["f2"] < fsim[-1]):
+                sim[-1], fsim[-1] = st["x2"], st["f2"]
             else:
                 best = sim[0]
-                sim = [best] + [[b + 0.5 * (c - b) for b, c in zip(best, v)] for v in sim[1:]]
-                fsim = [fsim[0]] + ([float(f) for f in costs(np.array(sim[1:]))] if costs is not None
-                                    else [cost(np.array(v)) for v in sim[1:]])
-        sim, fsim = ordered()
-    return np.array(sim[0]), float(fsim[0])
+                sims[j] = [best] + [[b + 0.5 * (c - b) for b, c in zip(best, v)] for v in sim[1:]]
+                st["shrink"] = True
+                ask += [(j, v) for v in sims[j][1:]]
+        if ask:
+            got = [float(c) for c in score(ask)]
+            k = 0
+            for j in active:
+                if step[j].get("shrink"):
+                    n_new = len(sims[j]) - 1
+                    fsims[j] = [fsims[j][0]] + got[k:k + n_new]
+                    k += n_new
+        for j in active:
+            ordered(j)
+    return [(np.array(sims[j][0]), float(fsims[j][0])) for j in range(K)]
 
 
 def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig, *,
                 lags: bool = True) -> Candidate:
     """Polish S, J (and the lags, when ``lags`` and the structure is not fixed) of one candidate by
     the Nelder-Mead simplex (`simplex_minimize`). S and J stay at or below ``lim.S_cap``."""
+    return nelder_mead_many(obj, [cand], lim, cfg, lags=lags)[0]
 
-    kind, t1, t2, d = cand.structure
-    tau0 = max(float(t1), 1e-6)
-    ratio2 = float(t2) / tau0 if kind == "soptd" else 0.0
-    scale = max(cand.S_pct, 0.05)
+
+def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
+                     lags: bool = True) -> list[Candidate]:
+    """`nelder_mead` of several candidates on one objective, their simplexes in lockstep
+    (`simplex_minimize_many`): each candidate's result is the one it gets alone, and each stage of
+    an iteration scores every candidate's points in one kernel call, filling the kernel's lanes."""
     free_lags = lags and not lim.fixed
     S_cap = lim.S_cap
     ts = obj.ts_s
     tau_max = lim.tau_max_s
-    integ = 1.0 if kind == "integrating" else 0.0
 
-    def point(v):
-        """S, J, the lags (s) and the kernel's structure row of a simplex point."""
-        S = min(abs(v[0]) * scale, S_cap)
-        J = min(abs(v[1]) * scale, S_cap)
-        tau = tau0 * math.exp(v[2]) if free_lags else tau0
-        t1_ = min(tau, tau_max)
-        t2_ = min(tau * ratio2, tau_max) if kind == "soptd" else 0.0
-        a2 = lag_coefficient(t2_, ts) if kind == "soptd" else -1.0
-        return S, J, t1_, t2_, (lag_coefficient(t1_, ts), a2, float(d), integ)
+    def pointer(cand):
+        kind, t1, t2, d = cand.structure
+        tau0 = max(float(t1), 1e-6)
+        ratio2 = float(t2) / tau0 if kind == "soptd" else 0.0
+        scale = max(cand.S_pct, 0.05)
+        integ = 1.0 if kind == "integrating" else 0.0
+
+        def point(v):
+            """S, J, the lags (s) and the kernel's structure row of a simplex point."""
+            S = min(abs(v[0]) * scale, S_cap)
+            J = min(abs(v[1]) * scale, S_cap)
+            tau = tau0 * math.exp(v[2]) if free_lags else tau0
+            t1_ = min(tau, tau_max)
+            t2_ = min(tau * ratio2, tau_max) if kind == "soptd" else 0.0
+            a2 = lag_coefficient(t2_, ts) if kind == "soptd" else -1.0
+            return S, J, t1_, t2_, (lag_coefficient(t1_, ts), a2, float(d), integ)
+        return point, scale
+
+    points = [pointer(c) for c in cands]
 
     def costs(pts):
         # the kernel's tables built directly (this runs thousands of times per fit): each point's
@@ -454,8 +532,8 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
         k = len(pts)
         valves = np.full((5, 2 * k), NAN)
         structs = np.empty((4, 2 * k))
-        for i, v in enumerate(pts):
-            S, J, _, _, row = point(v)
+        for i, (j, v) in enumerate(pts):
+            S, J, _, _, row = points[j][0](v)
             valves[0, 2 * i: 2 * i + 2] = S
             valves[1, 2 * i: 2 * i + 2] = J
             structs[:, 2 * i] = structs[:, 2 * i + 1] = row
@@ -464,36 +542,47 @@ def nelder_mead(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig,
         sse, _ = obj.score_table(valves, structs, paired=True)
         return sse.reshape(k, 2)
 
-    def cost(v):
-        return float(costs([v])[0].min())
+    simplexes, fatols = [], []
+    x0s = []
+    for c, (_, scale) in zip(cands, points):
+        x0 = np.array([c.S_pct / scale, c.J_pct / scale, 0.0])
+        steps = np.array([0.15, 0.15 + 0.1 * (c.J_pct < 1e-9), 0.3])
+        if not free_lags:
+            x0, steps = x0[:2], steps[:2]
+        x0s.append(x0)
+        simplexes.append(np.vstack([x0, x0 + np.diag(steps)]))
+    f0s = costs([(j, x0) for j, x0 in enumerate(x0s)]).min(axis=1)
+    fatols = [cfg.tol * (abs(float(f0)) + 1e-12) for f0 in f0s]
+    # a reflection paired with its inside contraction pays only where a kernel pass scores four
+    # jobs for about the price of two
+    found = simplex_minimize_many(lambda pts: costs(pts).min(axis=1), simplexes, cfg.max_iter, fatols,
+                                  pair=kernels.lanes() >= 4)
+    better = [j for j, (c, (_, f_best)) in enumerate(zip(cands, found)) if f_best < c.sse]
+    out = list(cands)
+    if better:
+        sse = costs([(j, found[j][0]) for j in better])
+        for j, row in zip(better, sse):
+            kind, _, _, d = cands[j].structure
+            S, J, t1_, t2_, _ = points[j][0](found[j][0])
+            k = int(np.argmin(row))
+            out[j] = Candidate(S, J, (1.0, -1.0)[k], (kind, t1_, t2_, d), float(row[k]))
+    return out
 
-    def batch(pts):
-        return costs(pts).min(axis=1)
 
-    x0 = np.array([cand.S_pct / scale, cand.J_pct / scale, 0.0])
-    steps = np.array([0.15, 0.15 + 0.1 * (cand.J_pct < 1e-9), 0.3])
-    if not free_lags:
-        x0, steps = x0[:2], steps[:2]
-    f0 = cost(x0)
-    simplex = np.vstack([x0, x0 + np.diag(steps)])
-    # batched points pay only where a kernel pass scores four jobs for about the price of two
-    x_best, f_best = simplex_minimize(cost, simplex, cfg.max_iter, cfg.tol * (abs(f0) + 1e-12),
-                                      costs=batch if kernels.lanes() >= 4 else None)
-    if f_best >= cand.sse:
-        return cand
-    S, J, t1_, t2_, _ = point(x_best)
-    sse = costs([x_best])[0]
-    k = int(np.argmin(sse))
-    return Candidate(S, J, (1.0, -1.0)[k], (kind, t1_, t2_, d), float(sse[k]))
+def refine_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig) -> list[Candidate]:
+    """`refine` of several candidates on one objective, their Nelder-Mead polishes in lockstep
+    (`nelder_mead_many`): the results are those of `refine` on each."""
+    cands = list(cands)
+    for rnd in range(cfg.rounds):
+        if rnd > 0:
+            cands = [polish_structure(obj, c, lim) for c in cands]
+        cands = nelder_mead_many(obj, cands, lim, cfg)
+    return cands
 
 
 def refine(obj: Objective, cand: Candidate, lim: Limits, cfg: PolishConfig) -> Candidate:
     """``cfg.rounds`` rounds of Nelder-Mead, each after the first preceded by a structure polish."""
-    for rnd in range(cfg.rounds):
-        if rnd > 0:
-            cand = polish_structure(obj, cand, lim)
-        cand = nelder_mead(obj, cand, lim, cfg)
-    return cand
+    return refine_many(obj, [cand], lim, cfg)[0]
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,9 @@ from diagnose.errors import DataError
 from diagnose.objective import Candidate, Objective, ProcessGrid, burn_in, score_weights
 from diagnose.search import (BandConfig, DenseConfig, GridConfig, ModelSpace, PolishConfig, ZoomConfig,
                              best_structure, coarse_structures, dense_grid, global_grid, linear_fit, nelder_mead,
-                             noise_model, polish_structure, profile_intervals, refine, resolve, shape_bands,
-                             shape_profile, simplex_minimize, start_state, zoom)
+                             nelder_mead_many, noise_model, polish_structure, profile_intervals, refine, refine_many,
+                             resolve, shape_bands, shape_profile, simplex_minimize, simplex_minimize_many,
+                             start_state, zoom)
 from diagnose.simulate import make_process, simc_pi, simulate_loop, steps, sticky_loop
 from diagnose.stiction_model import StictionValve, stiction_batch
 
@@ -246,6 +247,80 @@ def test_the_polish_scores_the_same_with_and_without_batched_points(clean, monke
         results.append(nelder_mead(obj, start, lim, PolishConfig(max_iter=80, tol=1e-6)))
     assert results[0] == results[1]
     assert results[0].sse < start.sse
+
+
+def test_simplexes_in_lockstep_each_take_the_steps_they_take_alone():
+    rng = np.random.default_rng(11)
+    problems = []
+    for k in range(4):
+        A = rng.normal(size=(3, 3))
+        target = rng.normal(size=3)
+        x0 = rng.normal(size=3)
+        problems.append((A, target, np.vstack([x0, x0 + np.diag([0.15, 0.25, 0.3])])))
+
+    def f(k, v):
+        A, target, _ = problems[k]
+        r = A @ (np.asarray(v) - target)
+        return float(r @ r + 0.3 * np.sum(np.abs(np.sin(5 * np.asarray(v)))) + np.floor(4 * abs(v[0])) / 10)
+
+    for max_iter, fatol in [(60, 1e-3), (200, 1e-9), (7, 0.0)]:
+        alone = [simplex_minimize(lambda v, k=k: f(k, v), problems[k][2], max_iter, fatol) for k in range(4)]
+        calls = {"n": 0}
+
+        def score(pts):
+            calls["n"] += 1
+            return [f(k, v) for k, v in pts]
+
+        fatols = [fatol, fatol * 10, fatol, fatol]      # each simplex stops on its own rule
+        together = simplex_minimize_many(score, [p[2] for p in problems], max_iter, fatols)
+        again = simplex_minimize(lambda v: f(1, v), problems[1][2], max_iter, fatol * 10)
+        for k, ((x, fx), (xa, fa)) in enumerate(zip(together, [alone[0], again, alone[2], alone[3]])):
+            assert np.array_equal(x, xa) and fx == fa, k
+        # one call per stage for all of them: fewer calls than one simplex alone makes points
+        assert calls["n"] <= 3 * max_iter + 1
+
+
+def test_the_kernel_scores_a_candidate_the_same_alone_or_in_a_batch(clean):
+    # the lockstep polishes rely on it: a candidate's cost does not depend on its batch
+    rec, obj, lim = clean
+    rng = np.random.default_rng(2)
+    k = 11
+    valves = np.full((5, 2 * k), np.nan)
+    structs = np.empty((4, 2 * k))
+    for i in range(k):
+        S, J = rng.uniform(0.5, 5.0), rng.uniform(0.0, 5.0)
+        tau = rng.uniform(5.0, 40.0)
+        row = lim.grid([("foptd" if i % 3 else "soptd", tau, tau / 4 if i % 3 == 0 else 0.0,
+                         int(rng.integers(0, 6)))]).table[:, 0]
+        valves[0, 2 * i: 2 * i + 2], valves[1, 2 * i: 2 * i + 2] = S, J
+        structs[:, 2 * i] = structs[:, 2 * i + 1] = row
+    valves[2, 0::2], valves[2, 1::2] = 1.0, -1.0
+    try:
+        for level in range(kernels.max_isa_level() + 1):     # every vector variant this CPU has
+            kernels.set_isa(level)
+            together, _ = obj.score_table(valves, structs, paired=True)
+            for i in range(k):
+                alone, _ = obj.score_table(np.ascontiguousarray(valves[:, 2 * i: 2 * i + 2]),
+                                           np.ascontiguousarray(structs[:, 2 * i: 2 * i + 2]), paired=True)
+                assert np.array_equal(alone, together[2 * i: 2 * i + 2]), (level, i)
+    finally:
+        kernels.set_isa(None)
+
+
+def test_polishes_in_lockstep_give_each_candidate_its_own_result(clean, monkeypatch):
+    rec, obj, lim = clean
+    starts = [Candidate(2.5, 1.4, 1.0, ("soptd", 15.0, 4.0, 3), 0.0),
+              Candidate(2.8, 1.2, 1.0, ("foptd", 17.0, 0.0, 3), 0.0),
+              Candidate(4.0, 0.0, -1.0, ("foptd", 30.0, 0.0, 2), 0.0)]
+    starts = [dataclasses.replace(c, sse=_cost(obj, c.S_pct, c.J_pct, c.f0, c.structure, lim)) for c in starts]
+    starts.append(dataclasses.replace(starts[1], sse=0.0))     # unbeatable: kept as it is
+    cfg = PolishConfig(max_iter=80, tol=1e-6)
+    for lanes in (8, 2):
+        monkeypatch.setattr(kernels, "lanes", lambda lanes=lanes: lanes)
+        together = nelder_mead_many(obj, starts, lim, cfg)
+        assert together == [nelder_mead(obj, c, lim, cfg) for c in starts]
+        assert together[3] is starts[3]
+        assert refine_many(obj, starts, lim, cfg) == [refine(obj, c, lim, cfg) for c in starts]
 
 
 def test_shape_bands_give_one_candidate_per_class_band(clean):
