@@ -525,12 +525,17 @@ def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
         return point, scale
 
     points = [pointer(c) for c in cands]
+    start_stem = NAN if obj.start_stem_pct is None else obj.start_stem_pct
+    start_stuck = NAN if obj.start_stuck_pct is None else obj.start_stuck_pct
 
     def costs(pts):
         # the kernel's tables built directly (this runs thousands of times per fit): each point's
-        # valve in both starting directions with that point's own structure, one paired call
+        # valve in both starting directions with that point's own structure, one paired call; the
+        # valve's start state is the objective's, as `Objective.score` sets it
         k = len(pts)
-        valves = np.full((5, 2 * k), NAN)
+        valves = np.empty((5, 2 * k))
+        valves[3] = start_stem
+        valves[4] = start_stuck
         structs = np.empty((4, 2 * k))
         for i, (j, v) in enumerate(pts):
             S, J, _, _, row = points[j][0](v)

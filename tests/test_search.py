@@ -323,6 +323,21 @@ def test_polishes_in_lockstep_give_each_candidate_its_own_result(clean, monkeypa
         assert refine_many(obj, starts, lim, cfg) == [refine(obj, c, lim, cfg) for c in starts]
 
 
+def test_the_polish_scores_with_the_objectives_valve_start(clean):
+    # the valve fit starts the valve stuck where the recorded stem was: the polish must score that
+    # start too, or it compares costs of two different objectives
+    rec, obj, lim = clean
+    key = ("foptd", 17.0, 0.0, 3)
+    moved = obj.with_start_stem(float(obj.x[0]) + 4.0)
+    start = Candidate(2.8, 1.2, 1.0, key, math.inf)
+    one = PolishConfig(max_iter=1, tol=0.0)       # the start simplex only: its best vertex
+    vertices = [(2.8, 1.2), (2.8 + 0.15 * 2.8, 1.2), (2.8, 1.2 + 0.15 * 2.8)]
+    for o in (obj, moved):
+        best = min(o.cost(Candidate(S, J, f0, key, 0.0)) for S, J in vertices for f0 in (1.0, -1.0))
+        assert nelder_mead(o, start, lim, one, lags=False).sse == pytest.approx(best, rel=1e-12)
+    assert moved.cost(start) != obj.cost(start)
+
+
 def test_shape_bands_give_one_candidate_per_class_band(clean):
     rec, obj, lim = clean
     top = Candidate(3.0, 1.0, 1.0, TRUTH, _cost(obj, 3.0, 1.0, 1.0, TRUTH, lim))
