@@ -102,8 +102,15 @@ def main(argv=None) -> int:
             variants[f"identify from {src}"] = ([sys.executable, "-c", main_code, *tail], env)
         floors = {"python -c pass": [sys.executable, "-c", "pass"],
                   "python -c 'import numpy'": [sys.executable, "-c", "import numpy"]}
-        # warm-up (writes caches), and the outputs of this tree's variants must agree
-        outs = {name: _run(cmd, env, tmp)[2] for name, (cmd, env) in variants.items()}
+        # warm-up (writes caches), and the outputs of this tree's variants must agree. The warm-up
+        # may write bytecode for every tree: with PYTHONDONTWRITEBYTECODE set, a baseline tree
+        # would otherwise compile all its modules (and any packages beside it) on every timed run,
+        # while this tree reads the bytecode its "bytecode cached" variant wrote
+        outs = {}
+        for name, (cmd, env) in variants.items():
+            warm_env = dict(env)
+            warm_env.pop("PYTHONDONTWRITEBYTECODE", None)
+            outs[name] = _run(cmd, warm_env, tmp)[2]
         same = len({v for k, v in outs.items() if not k.startswith("identify from")}) == 1
         load0 = os.getloadavg()
         times: dict[str, list[tuple[float, float]]] = {k: [] for k in [*variants, *floors]}

@@ -193,6 +193,7 @@ def test_refinements_keep_J_within_the_OP_range():
 
     class JHungry:
         ts_s = 1.0
+        start_stem_pct = start_stuck_pct = None     # the valve at rest at OP's first sample
 
         def score(self, S, J, F, grid):
             S, J = np.asarray(S, float), np.asarray(J, float)
