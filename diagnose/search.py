@@ -501,12 +501,16 @@ def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
     """`nelder_mead` of several candidates on one objective, their simplexes in lockstep
     (`simplex_minimize_many`): each candidate's result is the one it gets alone, and each stage of
     an iteration scores every candidate's points in one kernel call, filling the kernel's lanes."""
+    if not cands:
+        return []
     free_lags = lags and not lim.fixed
     S_cap = lim.S_cap
     ts = obj.ts_s
     tau_max = lim.tau_max_s
 
     def pointer(cand):
+        """The map from a simplex point of ``cand``'s polish to its valve and structure, and the
+        scale of S and J in the simplex."""
         kind, t1, t2, d = cand.structure
         tau0 = max(float(t1), 1e-6)
         ratio2 = float(t2) / tau0 if kind == "soptd" else 0.0
@@ -524,7 +528,7 @@ def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
             return S, J, t1_, t2_, (lag_coefficient(t1_, ts), a2, float(d), integ)
         return point, scale
 
-    points = [pointer(c) for c in cands]
+    point_of, scales = zip(*[pointer(c) for c in cands])
     start_stem = NAN if obj.start_stem_pct is None else obj.start_stem_pct
     start_stuck = NAN if obj.start_stuck_pct is None else obj.start_stuck_pct
 
@@ -538,7 +542,7 @@ def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
         valves[4] = start_stuck
         structs = np.empty((4, 2 * k))
         for i, (j, v) in enumerate(pts):
-            S, J, _, _, row = points[j][0](v)
+            S, J, _, _, row = point_of[j](v)
             valves[0, 2 * i: 2 * i + 2] = S
             valves[1, 2 * i: 2 * i + 2] = J
             structs[:, 2 * i] = structs[:, 2 * i + 1] = row
@@ -549,7 +553,7 @@ def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
 
     simplexes, fatols = [], []
     x0s = []
-    for c, (_, scale) in zip(cands, points):
+    for c, scale in zip(cands, scales):
         x0 = np.array([c.S_pct / scale, c.J_pct / scale, 0.0])
         steps = np.array([0.15, 0.15 + 0.1 * (c.J_pct < 1e-9), 0.3])
         if not free_lags:
@@ -568,7 +572,7 @@ def nelder_mead_many(obj: Objective, cands, lim: Limits, cfg: PolishConfig, *,
         sse = costs([(j, found[j][0]) for j in better])
         for j, row in zip(better, sse):
             kind, _, _, d = cands[j].structure
-            S, J, t1_, t2_, _ = points[j][0](found[j][0])
+            S, J, t1_, t2_, _ = point_of[j](found[j][0])
             k = int(np.argmin(row))
             out[j] = Candidate(S, J, (1.0, -1.0)[k], (kind, t1_, t2_, d), float(row[k]))
     return out
