@@ -26,8 +26,9 @@ def usable_cores() -> int:
 
 
 def thread_count(threads: int | None, cap: int | None = None) -> int:
-    """Threads to use: ``threads`` (at least 1), or the machine's cores (at most ``cap``) when None.
-    A caller that runs several computations in parallel itself passes 1."""
+    """Threads to use: ``threads`` (at least 1), or the cores this process may use (`usable_cores`,
+    at most ``cap``) when None. A caller that runs several computations in parallel itself passes
+    1."""
     if threads is not None:
         return max(1, int(threads))
     n = usable_cores()

@@ -405,8 +405,8 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
     use_fit_module : bool
         Fit a baseline not given with `diagnose.fit` (False: the built-in grid).
     threads : int, optional
-        Threads the independent searches run on (None: the machine's cores, at most 4; 1 when the
-        caller runs records in parallel itself). The result does not depend on it.
+        Threads the independent searches run on (None: the cores the process may use, at most 4; 1
+        when the caller runs records in parallel itself). The result does not depend on it.
 
     Returns
     -------

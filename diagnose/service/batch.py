@@ -78,8 +78,8 @@ class BatchConfig:
     db : str, optional
         History database, read by workers for each loop's earlier runs (degradation warning).
     threads : int, optional
-        Threads each loop's diagnosis may use (None: the machine's cores). `run_batch` gives each
-        worker its share of the cores; the results do not depend on it.
+        Threads each loop's diagnosis may use (None: the cores the process may use). `run_batch`
+        gives each worker its share of the cores; the results do not depend on it.
     """
 
     out_dir: str

@@ -486,9 +486,10 @@ def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = Tr
     identify_options : mapping, optional
         Passed to `diagnose.identification.identify`.
     threads : int, optional
-        Threads the identification and the missing-physics stage may use (None: the machine's
-        cores). A caller that diagnoses several loops at once passes its share of the cores, so
-        that loops x threads does not oversubscribe the machine; results do not depend on it.
+        Threads the identification and the missing-physics stage may use (None: the cores the
+        process may use). A caller that diagnoses several loops at once passes its share of the
+        cores, so that loops x threads does not oversubscribe the machine; results do not depend
+        on it.
 
     Raises
     ------
