@@ -1,25 +1,35 @@
 """The stiction verdict on short windows of level loops (integrating processes), OP and PV only.
 
-A historian window of a level loop is often short (two hours at 10 s is 751 samples), holds a few
-slow cycles at most, and its level is pushed about by inflow changes the loop has to reject. This
-script asks how often the verdict (`identify` on OP/PV, as ``stiction identify`` runs it) calls a
-sticky level valve in such windows, and how often it leaves a healthy one alone.
+A historian window of a level loop is often short (two hours at 10 s is 751 samples) and holds a
+few slow cycles at most. This script asks how often the verdict (`identify` on OP/PV, as
+``stiction identify`` runs it) calls a sticky level valve in such windows, and how often it leaves
+a healthy one alone.
 
 The records come from the project's own simulator (`diagnose.simulate.sticky_loop`, ``kind=
-"integrating"``): a two-parameter valve on an integrator with a lag and a dead time, under the PI
-that simulator tunes for an integrator, with white PV noise and a slow random-walk inflow load.
-Every record draws its own parameters from ``(seed, index)``: one record in three is healthy; the
-others draw S from 0.3, 0.5, 1 and 2 % of span and J from 0, S/2 and S. Per record: lag 10-60 s,
-dead time 10, 20 or 30 s, integrating rate 0.001-0.004 PV units per second per % of span, noise
-0.005-0.03, load step size 0, 0.02 or 0.05, and 751, 1500 or 3000 samples at 10 s. A sticky
-record whose stem moved fewer than 10 times after the simulator's warm-up is left out (nothing in
-it can show the valve: the same rule as the simulated benchmark's identifiable definition).
+"integrating"``): a two-parameter valve on an integrator with a lag and a dead time under a PI,
+with white PV noise, at 10 s. Every record draws its own parameters from ``(seed, family,
+index)``; one record in three is healthy; per record: lag 10-60 s, dead time 10, 20 or 30 s,
+integrating rate 0.001-0.004 PV units per second per % of span. Two families:
+
+- ``load``: the PI the simulator tunes for an integrator, a slow random-walk inflow load (step
+  size 0, 0.02 or 0.05) the loop has to reject; S from 0.3, 0.5, 1 and 2 % of span, J from 0, S/2
+  and S; noise 0.005-0.03; 751, 1500 or 3000 samples.
+- ``detuned``: the PI detuned as level loops often are for averaging control (gain x 0.3, 0.5 or
+  1, integral time x 1, 2 or 4) and a small random-walk inflow load (step size 0.002 or 0.005):
+  the sticky valve drives slow stick-slip cycles, a few per window; S from 0.2, 0.3, 0.4, 0.6 and
+  1 %, J from 0, S/2 and S; noise 0.003-0.02; 751 or 1500 samples.
+
+A sticky record whose stem moved fewer than 6 times after the simulator's warm-up (three cycles'
+slips) is left out: nothing in it can show the valve.
 
 Beside the verdict it prints the fit's likelihood ratio over a linear loop (``model_fit.lr``) on
 its own, as an AUC of sticky against healthy records: how far the fit alone separates them.
 
-Run:  python benchmarks/level_loops.py --seed 1 --seed 2 --seed 3 [--per-seed 60] [--workers 2]
-          [--json out.json]
+The combiner is trained on seeds 1 and 2 of both families (``benchmarks/train_verdict.py
+features --level-loops``); seed 3 is the held-out check.
+
+Run:  python benchmarks/level_loops.py --seed 3 [--seed ...] [--family load --family detuned]
+          [--per-seed 60] [--workers 2] [--json out.json]
 """
 
 from __future__ import annotations
@@ -43,9 +53,11 @@ from diagnose.record import LoopRecord  # noqa: E402
 from diagnose.simulate import sticky_loop  # noqa: E402
 
 #: A sticky record whose stem moved fewer times than this is left out (it cannot show the valve).
-MIN_MOVES = 10
+MIN_MOVES = 6
 #: The simulator's warm-up (samples simulated before the record starts).
 WARMUP = 500
+#: The record families (module docstring).
+FAMILIES = ("load", "detuned")
 
 
 def stem_moves(mv_pct: np.ndarray) -> int:
@@ -54,27 +66,50 @@ def stem_moves(mv_pct: np.ndarray) -> int:
     return int(moving.size and 1 + np.count_nonzero(np.diff(moving) > 1))
 
 
-def level_loop(seed: int, index: int) -> tuple[LoopRecord, dict]:
-    """Record ``index`` of ``seed``: the simulated loop (with its stem position) and its truth."""
-    rng = np.random.default_rng([seed, 7, index])
+def level_loop(seed: int, index: int, family: str = "load") -> tuple[LoopRecord, dict]:
+    """Record ``index`` of ``seed`` in ``family``: the simulated loop (with its stem position) and
+    its truth."""
+    if family not in FAMILIES:
+        raise ValueError(f"unknown level-loop family {family!r} (have {', '.join(FAMILIES)})")
     sticky = index % 3 != 0
-    S = float(rng.choice([0.3, 0.5, 1.0, 2.0])) if sticky else 0.0
-    J = float(rng.choice([0.0, S / 2, S])) if sticky else 0.0
-    tau = float(rng.uniform(10.0, 60.0))
-    delay = float(rng.choice([10.0, 20.0, 30.0]))
-    rate = float(rng.uniform(0.001, 0.004))
-    noise = float(rng.uniform(0.005, 0.03))
-    load = float(rng.choice([0.0, 0.02, 0.05]))
-    n = int(rng.choice([751, 1500, 3000]))
+    if family == "load":
+        rng = np.random.default_rng([seed, 7, index])
+        S = float(rng.choice([0.3, 0.5, 1.0, 2.0])) if sticky else 0.0
+        J = float(rng.choice([0.0, S / 2, S])) if sticky else 0.0
+        tau = float(rng.uniform(10.0, 60.0))
+        delay = float(rng.choice([10.0, 20.0, 30.0]))
+        rate = float(rng.uniform(0.001, 0.004))
+        noise = float(rng.uniform(0.005, 0.03))
+        load = float(rng.choice([0.0, 0.02, 0.05]))
+        n = int(rng.choice([751, 1500, 3000]))
+        kc_x = ti_x = 1.0
+        warmup = WARMUP
+    else:
+        rng = np.random.default_rng([seed, 11, index])
+        S = float(rng.choice([0.2, 0.3, 0.4, 0.6, 1.0])) if sticky else 0.0
+        J = float(rng.choice([0.0, S / 2, S])) if sticky else 0.0
+        tau = float(rng.uniform(10.0, 60.0))
+        delay = float(rng.choice([10.0, 20.0, 30.0]))
+        rate = float(rng.uniform(0.001, 0.004))
+        noise = float(rng.uniform(0.003, 0.02))
+        load = float(rng.choice([0.002, 0.005]))
+        n = int(rng.choice([751, 1500]))
+        kc_x = float(rng.choice([0.3, 0.5, 1.0]))
+        ti_x = float(rng.choice([1.0, 2.0, 4.0]))
+        # a detuned loop settles into its cycle slowly
+        warmup = 800
+    # the simulator's own PI for an integrator, scaled
+    theta = delay + tau + 10.0
     rec = sticky_loop(S, J, n=n, ts_s=10.0, kind="integrating", gain=rate, tau_s=tau, delay_s=delay,
-                      noise_std=noise, load_walk_std=load, seed=seed * 1000 + index, name="LIC1",
-                      warmup=WARMUP)
-    truth = {"seed": seed, "index": index, "sticky": sticky, "S_pct": S, "J_pct": J, "n": n,
-             "load_step": load, "noise": noise, "moves": stem_moves(rec.mv) if rec.mv is not None else 0}
+                      noise_std=noise, load_walk_std=load, seed=seed * 1000 + index + (0 if family == "load" else 500),
+                      name="LIC1", warmup=warmup, Kc=kc_x / (rate * 2 * theta), Ti_s=ti_x * 8 * theta)
+    truth = {"seed": seed, "index": index, "family": family, "sticky": sticky, "S_pct": S, "J_pct": J, "n": n,
+             "load_step": load, "noise": noise, "Kc_x": kc_x, "Ti_x": ti_x,
+             "moves": stem_moves(rec.mv) if rec.mv is not None else 0}
     return rec, truth
 
 
-def _job(args: tuple[int, int]) -> dict:
+def _job(args: tuple[int, int, str]) -> dict:
     rec, row = level_loop(*args)
     if row["sticky"] and row["moves"] < MIN_MOVES:
         return row
@@ -110,24 +145,29 @@ def summarise(rows: list[dict]) -> list[str]:
         groups: dict = defaultdict(list)
         for r in sticky:
             groups[r[key]].append(r["called"])
-        out.append(f"  called by {label}: " + ", ".join(f"{k:g}: {sum(v)}/{len(v)}" for k, v in sorted(groups.items())))
+        if len(groups) > 1:
+            out.append(f"  called by {label}: " + ", ".join(f"{k:g}: {sum(v)}/{len(v)}" for k, v in sorted(groups.items())))
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, action="append", required=True)
-    ap.add_argument("--per-seed", type=int, default=60)
+    ap.add_argument("--family", action="append", choices=FAMILIES, help="default: both")
+    ap.add_argument("--per-seed", type=int, default=60, help="records per seed and family")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json")
     a = ap.parse_args(argv)
-    jobs = [(s, i) for s in a.seed for i in range(a.per_seed)]
+    families = a.family or list(FAMILIES)
+    jobs = [(s, i, f) for f in families for s in a.seed for i in range(a.per_seed)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
         rows = list(pool.map(_job, jobs, chunksize=2))
-    lines = [f"level loops, own simulator, seeds {a.seed}, {a.per_seed} records each, "
+    lines = [f"level loops, own simulator, seeds {a.seed}, {a.per_seed} records per seed and family, "
              f"{time.perf_counter() - t0:.0f} s on {cpu_model()} ({a.workers} workers)"]
-    lines += summarise(rows)
+    for f in families:
+        lines.append(f"family {f}:")
+        lines += ["  " + line for line in summarise([r for r in rows if r["family"] == f])]
     print("\n".join(lines))
     if a.json:
         Path(a.json).write_text(json.dumps({"seeds": a.seed, "rows": rows}, indent=1))

@@ -4,7 +4,8 @@ Three steps, each cached so the expensive one runs once:
 
 1. ``features``: simulate a labelled corpus with the independent plant simulator
    (`benchmarks.plantsim`: three friction laws, healthy loops and the classic false alarms) and the
-   project's own benchmark loops (`benchmarks.validate_simulated`), run `diagnose.identification.identify`
+   project's own benchmark loops (`benchmarks.validate_simulated`) and short windows of level loops
+   (`benchmarks.level_loops`), run `diagnose.identification.identify`
    on each record as the command does (OP/PV; OP/PV/MV; OP alone) and store every evidence row's
    numbers in a JSON-lines file; the real recordings of ../shared/data the same way.
 2. ``fit``: a logistic regression per model kind (``full``, ``op_mv``, ``op_only``) on the corpus
@@ -127,6 +128,19 @@ def _sim_job(args: tuple[str, int, int, dict]) -> dict[str, Any]:
                "fast": bool(meta.get("historian_fast")),
                "law": meta.get("law"), "integrating": meta.get("integrating"), "n": loop.n,
                "ts_s": loop.ts_s, "S_true": meta.get("S_pct"), "J_true": meta.get("J_pct")}
+    elif source == "level":
+        from benchmarks.level_loops import MIN_MOVES, level_loop
+
+        rec, truth = level_loop(seed, index, opts["family"])
+        # a sticky valve that hardly moved cannot show itself: not a label any method could earn
+        sticky = truth["sticky"] if not truth["sticky"] or truth["moves"] >= MIN_MOVES else None
+        row = {"source": source, "seed": seed, "index": index, "family": opts["family"],
+               "kind": f"level_{opts['family']}_{'sticky' if truth['sticky'] else 'healthy'}",
+               "sticky": sticky, "law": "own_two_parameter" if truth["sticky"] else None, "integrating": True,
+               "n": rec.n, "ts_s": rec.ts_s, "S_true": truth["S_pct"], "J_true": truth["J_pct"],
+               "moves": truth["moves"]}
+        if sticky is None:
+            return row
     else:
         case = opts["case"]
         rec = case.record
@@ -181,6 +195,12 @@ def cmd_features(a: argparse.Namespace) -> int:
 
             for i, case in enumerate(cases(a.own_loops, seed, a.own_n, definition="identifiable")):
                 jobs.append(("own", seed, i, {"case": case}))
+        if a.level_loops:
+            from benchmarks.level_loops import FAMILIES
+
+            for family in FAMILIES:
+                for i in range(a.level_loops):
+                    jobs.append(("level", seed, i, {"family": family}))
     done = 0
     t0 = time.perf_counter()
     with open(a.out, "a", encoding="utf-8") as out, ProcessPoolExecutor(a.workers) as pool:
@@ -303,8 +323,14 @@ def predict(model: CombinerModel, rows: list[dict[str, Any]], kind: str) -> np.n
     return np.array([model.probability(r.get(kind) or {}) for r in rows])
 
 
+#: The simulated sources the models are trained on: the independent plant simulator, the project's
+#: own benchmark loops, and short windows of level loops (`benchmarks.level_loops`).
+TRAIN_SOURCES = ("plantsim", "own", "level")
+
+
 def _training_rows(rows, seeds) -> list[dict[str, Any]]:
-    return [r for r in rows if r.get("source") in ("plantsim", "own") and r.get("seed") in seeds]
+    return [r for r in rows if r.get("source") in TRAIN_SOURCES and r.get("seed") in seeds
+            and r.get("sticky") is not None]
 
 
 def cmd_fit(a: argparse.Namespace) -> int:
@@ -313,8 +339,9 @@ def cmd_fit(a: argparse.Namespace) -> int:
     models = {}
     for kind in KINDS:
         sub = [r for r in train if r.get(kind) is not None]
-        desc = (f"{len(sub)} simulated records (benchmarks.plantsim seeds {sorted(set(a.train_seed))}: "
-                f"{sum(r['sticky'] for r in sub)} sticky; plus the project's own benchmark loops)")
+        desc = (f"{len(sub)} simulated records of seeds {sorted(set(a.train_seed))}, "
+                f"{sum(r['sticky'] for r in sub)} sticky (benchmarks.plantsim, the project's own benchmark "
+                f"loops, level-loop windows)")
         models[kind] = fit_model(sub, kind, C=a.C, trained_on=desc)
         m = models[kind]
         print(f"{kind}: {len(m.features)} features, intercept {m.intercept:+.2f}")
@@ -393,6 +420,15 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
             print(f"  {key:22s} BA {s['balanced_accuracy']:.3f} sens {s['sensitivity']:.3f} "
                   f"spec {s['specificity']:.3f} n {s['n']}" +
                   (f"  own-kind accuracy {s['accuracy_own']:.3f}" if "accuracy_own" in s else ""))
+    level = [r for r in rows if r.get("source") == "level" and r.get("seed") in set(a.test_seed)
+             and r.get("sticky") is not None and r.get("full") is not None]
+    for family in sorted({r["family"] for r in level}):
+        sub = [r for r in level if r["family"] == family]
+        truth = np.array([r["sticky"] for r in sub])
+        s = scores(truth, decide(models["full"], sub, "full"))
+        report[f"level_{family}"] = s
+        print(f"\nlevel loops, family {family}, seeds {a.test_seed} (full): BA {s['balanced_accuracy']:.3f} "
+              f"sens {s['sensitivity']:.3f} spec {s['specificity']:.3f} n {s['n']}")
     # each test alone on the same records: a stiction call flags, anything else does not
     sub = [r for r in test if r.get("full_decisions")]
     if sub:
@@ -453,6 +489,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="plantsim's corpus definition (docs/plantsim.md)")
     f.add_argument("--own-loops", type=int, default=40, help="loops of the project's own benchmark per seed")
     f.add_argument("--own-n", type=int, default=3000)
+    f.add_argument("--level-loops", type=int, default=60,
+                   help="level-loop windows (benchmarks.level_loops) per seed and family")
     f.add_argument("--real", action="store_true", help="also the real recordings in --data")
     f.add_argument("--data", default=str(DEFAULT_DATA))
     f.add_argument("--workers", type=int, default=2)

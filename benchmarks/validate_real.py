@@ -133,7 +133,7 @@ def isdb(data: Path, verbose: bool) -> dict:
         rec = LoopRecord(name=lab["loop"], ts_s=float(lab["sampling_time_s"]), op=c["OP"], pv=c["PV"])
         d, dt = _run(rec)
         row = {"loop": lab["loop"], "label": lab["label"] or "(none)", "stiction": d.get("stiction"),
-               "class": d.get("class"), "S": d.get("S"), "J": d.get("J"), "confidence": d.get("confidence"),
+               "probability": d.get("stiction_probability"), "class": d.get("class"), "S": d.get("S"), "J": d.get("J"), "confidence": d.get("confidence"),
                "improvement": (d.get("detection") or {}).get("improvement"),
                "oscillation_period_s": (d.get("oscillation") or {}).get("period_s"),
                "warnings": [w["code"] for w in d.get("warnings", [])], "error": d.get("error"), "time_s": dt}

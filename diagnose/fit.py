@@ -40,7 +40,7 @@ from .parallel import thread_map
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
                      PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit,
-                     nelder_mead, noise_model, polish_structure, refine_many, resolve, search_windows,
+                     nelder_mead, noise_costs, noise_model, polish_structure, refine_many, resolve, search_windows,
                      shape_bands, shape_profile, start_state, widest_window, zoom)
 from .stiction_model import stiction_batch
 
@@ -130,6 +130,12 @@ class HammersteinFit:
         The stem position the valve was stuck at on the first sample (the valve fit reads it from
         the recorded stem position) and the input at which it stuck (None: where a moving valve
         stops); ``start_stem_pct`` None: at rest at its first input.
+    noise_costs : tuple of (float or None, float)
+        The fitted model's cost under each noise model the automatic choice tries: pairs of the
+        prefilter's time constant (seconds; None: plain output error) and the mean squared
+        prefiltered error per scored sample (PV units^2), at the fitted parameters. The smallest is
+        this model's own best noise model, which may differ from ``hp_tau_s`` (chosen for the
+        linear loop) when the valve explains slow error a linear loop leaves.
     """
 
     S_pct: float
@@ -153,6 +159,7 @@ class HammersteinFit:
     start_op_pct: float | None = None
     start_stem_pct: float | None = None
     start_stuck_pct: float | None = None
+    noise_costs: tuple = ()
 
     def heldout_cost(self, op_pct, pv, mask) -> float:
         """Mean squared (prefiltered) output error on the samples in ``mask``.
@@ -495,6 +502,7 @@ def finish(obj: Objective, best: Candidate, lim: Limits, off: float, *, surface:
     else:
         process = ProcessModel(kind=kind, gain=gain, tau_s=proto.tau_s, delay_s=proto.delay_s,
                                bias=const - gain * (u0 - off), tau2_s=proto.tau2_s)
+    hps = tuple(None if hp is None else hp * ts_s for hp in NOISE_CANDIDATES)
     ne = n_eff(res_f)
     nu = max(ne - 2.0, 1.0)
     ratio = 0.05 ** (-2.0 / nu)
@@ -534,7 +542,8 @@ def finish(obj: Objective, best: Candidate, lim: Limits, off: float, *, surface:
                           cost=float(res_f @ res_f) / n_sc, hp_tau_s=obj.hp_tau_s,
                           score_coef=np.asarray(score_coef, float), load_order=obj.load_order,
                           start_op_pct=start_op, start_stem_pct=obj.start_stem_pct,
-                          start_stuck_pct=obj.start_stuck_pct)
+                          start_stuck_pct=obj.start_stuck_pct,
+                          noise_costs=tuple(zip(hps, noise_costs(obj, best, lim, NOISE_CANDIDATES))))
 
 
 # --------------------------------------------------------------------------------------------------

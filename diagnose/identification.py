@@ -514,20 +514,24 @@ def _slips(mv_pct: np.ndarray) -> int:
 
 
 def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None, n_eff: float | None,
-                  backlash_lr: float | None, op_noise_pct: float, op_range_pct: float, slips: int,
-                  osc: Oscillation, method: str) -> tuple[Evidence, ...]:
+                  ins_own_noise: float | None, backlash_lr: float | None, op_noise_pct: float,
+                  op_range_pct: float, slips: int, osc: Oscillation, method: str) -> tuple[Evidence, ...]:
     """The Hammerstein (or OP/MV valve) fit's own evidence as rows of the evidence table.
 
     ``model_fit`` carries the improvement itself and, as ``lr``, the likelihood ratio
-    ``n_eff ln(c_linear / c_valve)``: the same improvement weighed by how many independent samples
-    back it (a 5 % gain over 10 000 samples is stronger evidence than over 500)."""
+    ``n_eff ln(c_linear / c_valve)``: an improvement weighed by how many independent samples back
+    it (a 5 % gain over 10 000 samples is stronger evidence than over 500). For ``lr`` each model
+    is scored under its own best noise model (``ins_own_noise``, from the fits' ``noise_costs``):
+    the shared noise model is the linear loop's choice, and where the valve explains slow error
+    the linear loop leaves, that choice filters out the very error the valve explains."""
     rows = []
     src = "the valve fitted on the stem position" if method == "op_mv" else "the valve + process model"
     if ins is not None:
         dec = "stiction" if ins > INSAMPLE_THRESHOLD else "no_stiction"
         extras = {}
         if n_eff is not None and math.isfinite(n_eff) and ins < 1.0:
-            extras["lr"] = min(n_eff * -math.log1p(-max(ins, 0.0)), 1e4)
+            gain = ins if ins_own_noise is None else min(ins_own_noise, 1.0 - 1e-12)
+            extras["lr"] = min(n_eff * -math.log1p(-max(gain, 0.0)), 1e4)
         rows.append(Evidence("model_fit", ins, INSAMPLE_THRESHOLD, dec,
                              f"{src} explains {100 * ins:.1f} % of the error a linear loop leaves "
                              f"(threshold {100 * INSAMPLE_THRESHOLD:.0f} %)", extras=extras))
@@ -554,10 +558,16 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
                              f"likelihood ratio {lr:.1f} of a deadband-shaped valve over a linear loop "
                              f"(threshold {BACKLASH_LR}: chi-square, 1 degree of freedom, 0.1 %)"))
     if osc.regularity > 0:
-        note = (f"PV oscillates regularly (regularity {osc.regularity:.2f}, period "
-                f"{osc.period_s:.0f} s); regularity alone does not say what causes it"
-                if osc.oscillating else
-                f"no regular oscillation (regularity {osc.regularity:.2f}, threshold 1)")
+        if osc.oscillating:
+            note = (f"PV oscillates regularly (regularity {osc.regularity:.2f}, period "
+                    f"{osc.period_s:.0f} s); regularity alone does not say what causes it")
+        elif osc.regularity > 1.0:
+            # a few long cycles can look regular by chance: the record is too short to say
+            note = (f"too few cycles to call the oscillation regular ({osc.cycles:.1f} periods of "
+                    f"{osc.period_s:.0f} s in the record, regularity {osc.regularity:.2f}; needs at "
+                    "least 2 periods and 4 half-periods in PV's autocorrelation)")
+        else:
+            note = f"no regular oscillation (regularity {osc.regularity:.2f}, threshold 1)"
         rows.append(Evidence("oscillation_regularity", min(osc.regularity, 20.0), 1.0, "undetermined", note))
     return tuple(rows)
 
@@ -729,7 +739,13 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     source = valve_fit.hammerstein if valve_fit is not None else fit
     slips = 0 if mv_still else _slips(source.simulate(op)[0])
     op_range = float(np.percentile(op, 99) - np.percentile(op, 1))
-    fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=source.n_eff, backlash_lr=backlash_lr,
+    ins_own = None
+    if valve_fit is None and not mv_still and fit.noise_costs and linear.noise_costs:
+        c_lin = min(c for _, c in linear.noise_costs)
+        if c_lin > 0:
+            ins_own = 1.0 - min(c for _, c in fit.noise_costs) / c_lin
+    fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=source.n_eff, ins_own_noise=ins_own,
+                             backlash_lr=backlash_lr,
                              op_noise_pct=op_noise, op_range_pct=op_range, slips=slips, osc=osc, method=method)
     tests = run_all(op, pv, ts, sp=record.sp, integrating=integrating)
     evidence = tuple(tests) + fit_rows

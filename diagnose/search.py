@@ -13,7 +13,7 @@ config, each returning scored `Candidate` objects and never changing the objecti
   over J/S, S and every dead time near the best lags, each refined with its own structure;
 * `zoom`: a shrinking local (S, J, f0) grid (the cost is piecewise constant in S and J: a grid cannot
   stall where a simplex can);
-* `noise_model`: the noise prefilter with the lowest prediction-error cost;
+* `noise_costs`, `noise_model`: a candidate's cost under each noise prefilter, and the cheapest;
 * `start_state`: the valve's unknown state at the record's start, as a nuisance parameter;
 * `widest_window`, `search_windows`: where in a record to search;
 * `class_test`: the special shapes J = 0 and J = S against the free fit, the start state free.
@@ -192,17 +192,25 @@ def linear_fit(obj: Objective, lim: Limits) -> Candidate:
     return polish_structure(obj, best_structure(obj, 0.0, 0.0, 1.0, lim.process), lim)
 
 
-def noise_model(obj: Objective, cand: Candidate, lim: Limits,
-                candidates_samples=NOISE_CANDIDATES) -> float | None:
-    """The noise prefilter (``hp_tau_s`` in seconds, None: plain output error) under which
-    ``cand`` has the lowest prediction-error cost (the filters are monic, so the costs of different
-    noise models compare directly)."""
+def noise_costs(obj: Objective, cand: Candidate, lim: Limits,
+                candidates_samples=NOISE_CANDIDATES) -> tuple[float, ...]:
+    """The prediction-error cost of ``cand`` (mean squared prefiltered error per scored sample, PV
+    units^2) under each noise prefilter of ``candidates_samples`` (samples; None: plain output
+    error). The filters are monic, so the costs of different noise models compare directly."""
     grid = cand.grid(obj.ts_s, lim.tau_max_s)
     costs = []
     for hp in candidates_samples:
         o = obj.with_noise(None if hp is None else hp * obj.ts_s)
         sse, _ = o.score([cand.S_pct], [cand.J_pct], [cand.f0], grid)
-        costs.append(float(sse[0, 0]) * o.y_std ** 2)
+        costs.append(float(sse[0, 0]) * o.y_std ** 2 / max(1, o.n_scored))
+    return tuple(costs)
+
+
+def noise_model(obj: Objective, cand: Candidate, lim: Limits,
+                candidates_samples=NOISE_CANDIDATES) -> float | None:
+    """The noise prefilter (``hp_tau_s`` in seconds, None: plain output error) under which
+    ``cand`` has the lowest prediction-error cost (`noise_costs`)."""
+    costs = noise_costs(obj, cand, lim, candidates_samples)
     best = candidates_samples[int(np.argmin(costs))]
     return None if best is None else best * obj.ts_s
 

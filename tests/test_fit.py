@@ -64,6 +64,17 @@ def test_recovers_S_J_and_the_process_of_a_sticky_loop(sticky):
     assert 1.0 <= fit.process.delay_s <= 6.0
 
 
+def test_noise_costs_hold_the_fits_own_cost_under_each_noise_model(sticky):
+    from diagnose.search import NOISE_CANDIDATES
+
+    _, fit = sticky
+    hps = [hp for hp, _ in fit.noise_costs]
+    assert hps == [None if c is None else c * fit.ts_s for c in NOISE_CANDIDATES]
+    own = dict(fit.noise_costs)[fit.hp_tau_s]
+    assert own == pytest.approx(fit.cost, rel=1e-6)
+    assert all(c > 0 for _, c in fit.noise_costs)
+
+
 def test_error_surface_has_its_minimum_near_the_fit(sticky):
     _, fit = sticky
     s = fit.surface

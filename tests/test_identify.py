@@ -146,7 +146,7 @@ def test_class_alternatives_name_the_shapes_the_data_cannot_separate(sticky_resu
     assert sticky_result.cls == "undershoot" and sticky_result.class_alternatives == ()
     assert sticky_result.to_dict()["class_alternatives"] == []
     # J = 1.2 S, just past the no-offset tolerance, in noise: both shapes stay plausible
-    rec = sticky_loop(3.0, 3.6, n=1500, noise_std=0.3, load_walk_std=0.05, tau_s=40.0, delay_s=4.0,
+    rec = sticky_loop(3.0, 3.6, n=1500, noise_std=0.2, load_walk_std=0.05, tau_s=40.0, delay_s=4.0,
                       seed=2)
     res = identify(_no_mv(rec))
     assert res.stiction

@@ -1,12 +1,15 @@
 """The level-loop check (benchmarks/level_loops.py): its records and its summary."""
 
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import level_loops as L  # noqa: E402
+from diagnose.identification import identify  # noqa: E402
 
 
 def test_records_are_seeded_and_sticky_ones_carry_their_truth():
@@ -46,3 +49,33 @@ def test_summary_counts_calls_by_class_and_leaves_out_stuck_valves():
 def test_auc_handles_ties_and_missing_values():
     assert L.auc([1.0, None], [1.0]) == 0.5
     assert np.isnan(L.auc([], [1.0]))
+
+
+def test_detuned_family_is_seeded_apart_from_the_load_family():
+    a, ta = L.level_loop(1, 7, "detuned")
+    b, _ = L.level_loop(1, 7, "detuned")
+    c, _ = L.level_loop(1, 7, "load")
+    assert np.array_equal(a.pv, b.pv) and not np.array_equal(a.pv[:100], c.pv[:100])
+    assert ta["family"] == "detuned" and ta["Kc_x"] in (0.3, 0.5, 1.0) and ta["Ti_x"] in (1.0, 2.0, 4.0)
+    with pytest.raises(ValueError, match="unknown level-loop family"):
+        L.level_loop(1, 7, "surge")
+
+
+def _lr_and_shared(rec):
+    res = identify(rec.replace(mv=None))
+    mf = next(ev for ev in res.evidence if ev.test == "model_fit")
+    # the likelihood ratio under the linear loop's noise model, from the shared improvement
+    return mf.extras["lr"], res.fit.n_eff * -math.log1p(-max(mf.value, 0.0))
+
+
+def test_likelihood_ratio_scores_each_model_under_its_own_noise_model():
+    # a detuned sticky level loop: slow stick-slip error the linear loop's noise model filters out
+    sticky, truth = L.level_loop(1, 7, "detuned")
+    assert truth["sticky"] and truth["moves"] >= L.MIN_MOVES
+    lr, shared = _lr_and_shared(sticky)
+    assert lr > 2.0 * shared > 0
+    # a healthy one: both models want the same noise model, and the ratio stays small
+    healthy, truth = L.level_loop(1, 3, "detuned")
+    assert not truth["sticky"]
+    lr, shared = _lr_and_shared(healthy)
+    assert lr == pytest.approx(shared, rel=1e-6) and lr < 10.0
