@@ -26,9 +26,10 @@ Beside the verdict it prints the fit's likelihood ratio over a linear loop (``mo
 its own, as an AUC of sticky against healthy records: how far the fit alone separates them.
 
 The combiner is trained on seeds 1 and 2 of both families (``benchmarks/train_verdict.py
-features --level-loops``); seed 3 is the held-out check.
+features --level-loops``); seed 3 is the test seed of that training, and seeds 4 and above were
+never used in it.
 
-Run:  python benchmarks/level_loops.py --seed 3 [--seed ...] [--family load --family detuned]
+Run:  python benchmarks/level_loops.py --seed 4 [--seed ...] [--family load --family detuned]
           [--per-seed 60] [--workers 2] [--json out.json]
 """
 
