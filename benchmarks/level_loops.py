@@ -29,14 +29,19 @@ The combiner is trained on seeds 1 and 2 of both families (``benchmarks/train_ve
 features --level-loops``); seed 3 is the test seed of that training, and seeds 4 and above were
 never used in it.
 
+With ``--visibility`` it also asks, per sticky record, how much better the true stem position
+explains PV than OP does (the deviance D of `benchmarks.visibility`): where D is small PV hides
+the valve, and no OP/PV verdict can call the record but by chance.
+
 Run:  python benchmarks/level_loops.py --seed 4 [--seed ...] [--family load --family detuned]
-          [--per-seed 60] [--workers 2] [--json out.json]
+          [--per-seed 60] [--workers 2] [--visibility] [--json out.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections import defaultdict
@@ -49,6 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.machine import cpu_model  # noqa: E402
+from benchmarks.visibility import stem_deviance  # noqa: E402
 from diagnose.identification import identify  # noqa: E402
 from diagnose.record import LoopRecord  # noqa: E402
 from diagnose.simulate import sticky_loop  # noqa: E402
@@ -110,10 +116,13 @@ def level_loop(seed: int, index: int, family: str = "load") -> tuple[LoopRecord,
     return rec, truth
 
 
-def _job(args: tuple[int, int, str]) -> dict:
-    rec, row = level_loop(*args)
+def _job(args: tuple[int, int, str, bool]) -> dict:
+    seed, index, family, visibility = args
+    rec, row = level_loop(seed, index, family)
     if row["sticky"] and row["moves"] < MIN_MOVES:
         return row
+    if visibility and row["sticky"]:
+        row["deviance"] = stem_deviance(rec.op, rec.mv, rec.pv, rec.ts_s)[0]
     res = identify(rec.replace(mv=None))
     lr = next((ev.extras.get("lr") for ev in res.evidence if ev.test == "model_fit"), None)
     row.update(called=bool(res.stiction), probability=res.stiction_probability, lr=lr,
@@ -142,6 +151,14 @@ def summarise(rows: list[dict]) -> list[str]:
            f"called sticky: {sens:.3f} of sticky records; left alone: {spec:.3f} of healthy records; "
            f"balanced accuracy {(sens + spec) / 2:.3f}",
            f"fit's likelihood ratio alone, AUC sticky vs healthy: {auc([r['lr'] for r in sticky], [r['lr'] for r in healthy]):.3f}"]
+    if any("deviance" in r for r in sticky):
+        # how much of the valve PV shows (benchmarks/visibility.py): the calls where it does
+        bands = [(-math.inf, 10.0, "D < 10"), (10.0, 50.0, "10 <= D < 50"), (50.0, math.inf, "D >= 50")]
+        parts = []
+        for lo, hi, label in bands:
+            g = [r["called"] for r in sticky if lo <= r.get("deviance", math.nan) < hi]
+            parts.append(f"{label}: {sum(g)}/{len(g)}")
+        out.append("  called by what PV shows of the stem (deviance D): " + ", ".join(parts))
     for key, label in (("S_pct", "S %"), ("load_step", "load step"), ("n", "samples")):
         groups: dict = defaultdict(list)
         for r in sticky:
@@ -157,10 +174,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--family", action="append", choices=FAMILIES, help="default: both")
     ap.add_argument("--per-seed", type=int, default=60, help="records per seed and family")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--visibility", action="store_true",
+                    help="also the deviance of the true stem over OP per sticky record (benchmarks/visibility.py)")
     ap.add_argument("--json")
     a = ap.parse_args(argv)
     families = a.family or list(FAMILIES)
-    jobs = [(s, i, f) for f in families for s in a.seed for i in range(a.per_seed)]
+    jobs = [(s, i, f, a.visibility) for f in families for s in a.seed for i in range(a.per_seed)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
         rows = list(pool.map(_job, jobs, chunksize=2))

@@ -108,7 +108,7 @@ def _row_features(rec: LoopRecord, *, integrating: bool | None = None) -> dict[s
         except Exception as exc:  # noqa: BLE001
             out["op_mv_error"] = f"{type(exc).__name__}: {exc}"
     flat = np.full(rec.n, float(np.median(rec.pv)))
-    op_only = run_all(rec.op, flat, rec.ts_s, sp=None, integrating=integrating)
+    op_only = run_all(rec.op, flat, rec.ts_s, sp=rec.sp, integrating=integrating)
     out["op_only"] = feature_values(op_only)
     out["op_only_decisions"] = {ev.test: ev.decision for ev in op_only}
     return out

@@ -3,8 +3,8 @@
 A stiction verdict from OP and PV can only see the valve through PV. For each sticky record of a
 `benchmarks.plantsim` corpus this script asks whether PV carries the valve's motion at all: it fits
 the best linear loop from OP to PV and the best linear loop from the *true stem position* to PV
-(the simulator's MV, which no OP/PV method has), on the same noise prefilter, and takes the
-deviance of the stem over OP,
+(the simulator's MV, which no OP/PV method has), each under its own best noise prefilter (as
+the verdict's likelihood ratio compares its fits), and takes the deviance of the stem over OP,
 
     D = n_eff * ln(cost_OP / cost_stem)
 
@@ -49,11 +49,14 @@ STICKY_KINDS = ("two_parameter", "kano", "force_balance")
 
 
 def stem_deviance(op, mv, pv, ts_s: float) -> tuple[float, float]:
-    """(D, n_eff): the deviance of the best linear stem -> PV loop over the best linear OP -> PV loop."""
+    """(D, n_eff): the deviance of the best linear stem -> PV loop over the best linear OP -> PV loop,
+    each under its own best noise model (as the verdict's likelihood ratio compares its fits)."""
     by_op = fit_hammerstein(op, pv, ts_s, stiction=False, surface=False)
-    by_stem = fit_hammerstein(mv, pv, ts_s, stiction=False, surface=False, hp_tau_s=by_op.hp_tau_s)
+    by_stem = fit_hammerstein(mv, pv, ts_s, stiction=False, surface=False)
     ne = by_op.n_eff
-    return ne * math.log(by_op.cost / by_stem.cost), ne
+    cost_op = min(c for _, c in by_op.noise_costs)
+    cost_stem = min(c for _, c in by_stem.noise_costs)
+    return ne * math.log(cost_op / cost_stem), ne
 
 
 def _job(args: tuple[str, int, int, str]) -> dict:

@@ -79,3 +79,11 @@ def test_likelihood_ratio_scores_each_model_under_its_own_noise_model():
     assert not truth["sticky"]
     lr, shared = _lr_and_shared(healthy)
     assert lr == pytest.approx(shared, rel=1e-6) and lr < 10.0
+
+
+def test_summary_splits_calls_by_what_pv_shows_of_the_stem():
+    rows = [{"sticky": True, "S_pct": 0.5, "load_step": 0.0, "n": 751, "called": c, "lr": 1.0, "deviance": d}
+            for d, c in [(2.0, False), (5.0, True), (20.0, True), (80.0, True), (60.0, False)]]
+    rows.append({"sticky": False, "S_pct": 0.0, "load_step": 0.0, "n": 751, "called": False, "lr": 0.0})
+    line = next(ln for ln in L.summarise(rows) if "deviance" in ln)
+    assert line.endswith("D < 10: 1/2, 10 <= D < 50: 1/1, D >= 50: 1/2")

@@ -13,15 +13,19 @@ whose inflow switches, or any integrating loop whose PI controller ramps OP betw
 reversals give triangles with a healthy valve. In an integrating loop a sticky valve gives OP
 parabolic arcs rather than straight ramps, which the fit reads as undetermined more often. Without
 PV the test cannot see the valve stand still, so its word is weaker evidence than the PV-based
-tests, and its note says so.
+tests, and its note says so. Setpoint steps make the control error square-like too, so the test
+does not judge a record whose setpoint steps (a continuously moving setpoint, a cascade master's
+output, is judged).
 """
 
 from __future__ import annotations
 
+import numpy as np
+
 from ._gates import record_gate
 from ._signals import Prepared
 from .curve_fit import HIGH, LOW, fit_shape
-from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, graded
+from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge, graded
 
 TEST = "op_shape"
 
@@ -37,16 +41,46 @@ def op_shape(op, pv=None, ts_s: float = 1.0, *, sp=None, integrating: bool | Non
         Not used (the test is for when PV is unusable); accepted for a uniform signature.
     ts_s : float
         Sample period, seconds.
-    sp, integrating
+    sp : array (n,), optional
+        Setpoint. When it moves in steps the test cannot judge: each step makes the control error
+        square for a while, and OP's shape then follows the steps, not the valve.
+    integrating
         Not used; accepted for a uniform signature.
     """
     return _op_shape(Prepared(op, pv, ts_s, sp))
+
+
+#: A setpoint that changes on at most this share of the samples moves in steps (an operator's or a
+#: sequence's), not continuously (a cascade master's output).
+SP_STEP_SHARE = 0.02
+
+
+def setpoint_steps(sp) -> int:
+    """How many times a stepping setpoint moves (0 when there is no setpoint, it never moves, or
+    it moves on more than `SP_STEP_SHARE` of the samples: continuously, not in steps)."""
+    if sp is None:
+        return 0
+    s = np.asarray(sp, dtype=float)
+    if s.ndim != 1 or s.shape[0] < 2 or not np.all(np.isfinite(s)):
+        return 0
+    d = np.abs(np.diff(s))
+    tol = 1e-6 * max(1.0, float(np.max(np.abs(s))))
+    k = int(np.count_nonzero(d > tol))
+    return k if 0 < k <= SP_STEP_SHARE * d.shape[0] else 0
 
 
 def _op_shape(p: Prepared) -> Evidence:
     gate = record_gate(TEST, p, needs_pv=False, threshold=HIGH)
     if gate is not None:
         return gate
+    steps = setpoint_steps(p.sp)
+    if steps:
+        # each step makes the control error square for a while: a healthy loop's OP then ramps
+        # between sharp turns too, and the shape no longer says anything of the valve
+        return cannot_judge(TEST, "setpoint_steps",
+                            f"The setpoint steps {steps} times in the record: OP's ramps and turns follow those "
+                            "steps, so its shape says nothing of the valve; judge a window without setpoint "
+                            "changes.", HIGH)
     res = fit_shape(p, "op", TEST, "OP")
     if isinstance(res, Evidence):
         return res
