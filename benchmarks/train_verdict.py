@@ -133,7 +133,7 @@ def _sim_job(args: tuple[str, int, int, dict]) -> dict[str, Any]:
 
         rec, truth = level_loop(seed, index, opts["family"])
         # a sticky valve that hardly moved cannot show itself: not a label any method could earn
-        sticky = truth["sticky"] if not truth["sticky"] or truth["moves"] >= MIN_MOVES else None
+        sticky = None if truth["sticky"] and truth["moves"] < MIN_MOVES else truth["sticky"]
         row = {"source": source, "seed": seed, "index": index, "family": opts["family"],
                "kind": f"level_{opts['family']}_{'sticky' if truth['sticky'] else 'healthy'}",
                "sticky": sticky, "law": "own_two_parameter" if truth["sticky"] else None, "integrating": True,

@@ -54,9 +54,7 @@ def stem_deviance(op, mv, pv, ts_s: float) -> tuple[float, float]:
     by_op = fit_hammerstein(op, pv, ts_s, stiction=False, surface=False)
     by_stem = fit_hammerstein(mv, pv, ts_s, stiction=False, surface=False)
     ne = by_op.n_eff
-    cost_op = min(c for _, c in by_op.noise_costs)
-    cost_stem = min(c for _, c in by_stem.noise_costs)
-    return ne * math.log(cost_op / cost_stem), ne
+    return ne * math.log(by_op.own_noise_cost / by_stem.own_noise_cost), ne
 
 
 def _job(args: tuple[str, int, int, str]) -> dict:

@@ -161,6 +161,12 @@ class HammersteinFit:
     start_stuck_pct: float | None = None
     noise_costs: tuple = ()
 
+    @property
+    def own_noise_cost(self) -> float:
+        """The smallest of `noise_costs`: this model's cost under its own best noise model (`cost`
+        when no noise model was tried)."""
+        return min((c for _, c in self.noise_costs), default=self.cost)
+
     def heldout_cost(self, op_pct, pv, mask) -> float:
         """Mean squared (prefiltered) output error on the samples in ``mask``.
 

@@ -740,10 +740,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     slips = 0 if mv_still else _slips(source.simulate(op)[0])
     op_range = float(np.percentile(op, 99) - np.percentile(op, 1))
     ins_own = None
-    if valve_fit is None and not mv_still and fit.noise_costs and linear.noise_costs:
-        c_lin = min(c for _, c in linear.noise_costs)
-        if c_lin > 0:
-            ins_own = 1.0 - min(c for _, c in fit.noise_costs) / c_lin
+    if valve_fit is None and not mv_still and linear.own_noise_cost > 0:
+        ins_own = 1.0 - fit.own_noise_cost / linear.own_noise_cost
     fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=source.n_eff, ins_own_noise=ins_own,
                              backlash_lr=backlash_lr,
                              op_noise_pct=op_noise, op_range_pct=op_range, slips=slips, osc=osc, method=method)

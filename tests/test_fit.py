@@ -73,6 +73,7 @@ def test_noise_costs_hold_the_fits_own_cost_under_each_noise_model(sticky):
     own = dict(fit.noise_costs)[fit.hp_tau_s]
     assert own == pytest.approx(fit.cost, rel=1e-6)
     assert all(c > 0 for _, c in fit.noise_costs)
+    assert fit.own_noise_cost == min(c for _, c in fit.noise_costs) <= fit.cost * (1 + 1e-6)
 
 
 def test_error_surface_has_its_minimum_near_the_fit(sticky):
