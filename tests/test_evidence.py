@@ -238,24 +238,33 @@ def test_op_only_judges_when_pv_is_dead(flow_runs):
     assert op_shape(r.op, None, r.ts_s).decision == "stiction"
 
 
-def test_op_only_cannot_judge_a_record_whose_setpoint_steps():
-    from diagnose.evidence.op_shape import setpoint_steps
-    from diagnose.simulate import LinearValve, make_process, simc_pi, simulate_loop
+def test_op_only_judges_only_the_longest_stretch_between_setpoint_steps():
+    from diagnose.evidence.op_shape import setpoint_steps, steady_stretch
+    from diagnose.simulate import LinearValve, StictionValve, make_process, simc_pi, simulate_loop
 
-    # a healthy valve under a square setpoint: OP ramps between sharp turns like a sticky valve's
+    def loop(valve, sp, seed):
+        return simulate_loop(n=sp.shape[0], ts_s=1.0, process=make_process("foptd", gain=1.0, tau_s=20.0,
+                                                                            delay_s=3.0),
+                             controller=simc_pi(1.0, 20.0, 3.0, 1.0), valve=valve, sp=sp, noise_std=0.02,
+                             seed=seed)
+
     n = 3000
-    sp = np.where((np.arange(n) // 250) % 2 == 0, 1.0, -1.0)
-    rec = simulate_loop(n=n, ts_s=1.0, process=make_process("foptd", gain=1.0, tau_s=20.0, delay_s=3.0),
-                        controller=simc_pi(1.0, 20.0, 3.0, 1.0), valve=LinearValve(), sp=sp,
-                        noise_std=0.02, seed=4)
-    assert setpoint_steps(rec.sp) == 11
+    # a healthy valve under a square setpoint: OP ramps between sharp turns like a sticky valve's
+    square = np.where((np.arange(n) // 250) % 2 == 0, 1.0, -1.0)
+    rec = loop(LinearValve(), square, 4)
+    assert np.array_equal(setpoint_steps(rec.sp), np.arange(250, n, 250))
     ev = op_shape(rec.op, None, rec.ts_s, sp=rec.sp)
-    assert ev.decision == "cannot_judge" and ev.reason == "setpoint_steps" and "11 times" in ev.note
+    assert ev.decision == "cannot_judge" and "the setpoint steps 11 times" in ev.note
     # without the setpoint the same OP reads as a sticky valve's saw-tooth
     assert op_shape(rec.op, None, rec.ts_s).decision == "stiction"
-    # a setpoint that moves on every sample (a cascade master's output) is not a stepping one
-    assert setpoint_steps(np.sin(np.arange(n) / 50.0)) == 0
-    assert setpoint_steps(np.full(n, 3.0)) == 0 and setpoint_steps(None) == 0
+    # a sticky valve whose loop had one setpoint step: its stick-slip cycle after the step is judged
+    step = np.where(np.arange(n) < 700, 0.0, 2.0)
+    assert steady_stretch(n, setpoint_steps(step)) == (700 + 230, n)
+    ev = op_shape(loop(StictionValve(3.0, 1.0, 1), step, 1).op, None, 1.0, sp=step)
+    assert ev.decision == "stiction" and "in samples 930-3000" in ev.note and "steps once" in ev.note
+    # a setpoint that moves on every sample (a cascade master's output) does not step
+    assert setpoint_steps(np.sin(np.arange(n) / 50.0)).shape[0] == 0
+    assert setpoint_steps(np.full(n, 3.0)).shape[0] == 0 and setpoint_steps(None).shape[0] == 0
 
 
 def test_op_only_says_no_for_a_smooth_op(sine_runs):
