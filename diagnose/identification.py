@@ -532,9 +532,13 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
         if n_eff is not None and math.isfinite(n_eff) and ins < 1.0:
             gain = ins if ins_own_noise is None else min(ins_own_noise, 1.0 - 1e-12)
             extras["lr"] = min(n_eff * -math.log1p(-max(gain, 0.0)), 1e4)
-        rows.append(Evidence("model_fit", ins, INSAMPLE_THRESHOLD, dec,
-                             f"{src} explains {100 * ins:.1f} % of the error a linear loop leaves "
-                             f"(threshold {100 * INSAMPLE_THRESHOLD:.0f} %)", extras=extras))
+        note = (f"{src} explains {100 * ins:.1f} % of the error a linear loop leaves "
+                f"(threshold {100 * INSAMPLE_THRESHOLD:.0f} %)")
+        if ins_own_noise is not None and ins_own_noise > ins + 0.01:
+            # the likelihood ratio reads this larger figure: say where it comes from
+            note += (f"; {100 * ins_own_noise:.1f} % with each model under its own noise model, as the "
+                     "likelihood ratio compares them")
+        rows.append(Evidence("model_fit", ins, INSAMPLE_THRESHOLD, dec, note, extras=extras))
     ratio = S_pct / op_noise_pct if op_noise_pct > 0 else (100.0 if S_pct > 0 else 0.0)
     ratio = min(ratio, 100.0)
     dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct >= S_MIN_PCT else "no_stiction"

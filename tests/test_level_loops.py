@@ -74,6 +74,8 @@ def test_likelihood_ratio_scores_each_model_under_its_own_noise_model():
     assert truth["sticky"] and truth["moves"] >= L.MIN_MOVES
     lr, shared = _lr_and_shared(sticky)
     assert lr > 2.0 * shared > 0
+    note = next(ev.note for ev in identify(sticky.replace(mv=None)).evidence if ev.test == "model_fit")
+    assert "with each model under its own noise model" in note
     # a healthy one: both models want the same noise model, and the ratio stays small
     healthy, truth = L.level_loop(1, 3, "detuned")
     assert not truth["sticky"]
