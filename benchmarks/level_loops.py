@@ -63,8 +63,17 @@ from diagnose.simulate import sticky_loop  # noqa: E402
 MIN_MOVES = 6
 #: The simulator's warm-up (samples simulated before the record starts).
 WARMUP = 500
-#: The record families (module docstring).
-FAMILIES = ("load", "detuned")
+#: The record families (module docstring): the choices each record draws from, its random stream,
+#: the offset of its simulation seed and the simulator's warm-up (a detuned loop settles into its
+#: cycle slowly).
+FAMILIES = {
+    "load": {"stream": 7, "seed_offset": 0, "warmup": WARMUP, "S": (0.3, 0.5, 1.0, 2.0),
+             "noise": (0.005, 0.03), "load": (0.0, 0.02, 0.05), "n": (751, 1500, 3000),
+             "Kc_x": (1.0,), "Ti_x": (1.0,)},
+    "detuned": {"stream": 11, "seed_offset": 500, "warmup": 800, "S": (0.2, 0.3, 0.4, 0.6, 1.0),
+                "noise": (0.003, 0.02), "load": (0.002, 0.005), "n": (751, 1500),
+                "Kc_x": (0.3, 0.5, 1.0), "Ti_x": (1.0, 2.0, 4.0)},
+}
 
 
 def stem_moves(mv_pct: np.ndarray) -> int:
@@ -78,38 +87,24 @@ def level_loop(seed: int, index: int, family: str = "load") -> tuple[LoopRecord,
     its truth."""
     if family not in FAMILIES:
         raise ValueError(f"unknown level-loop family {family!r} (have {', '.join(FAMILIES)})")
+    fam = FAMILIES[family]
+    rng = np.random.default_rng([seed, fam["stream"], index])
     sticky = index % 3 != 0
-    if family == "load":
-        rng = np.random.default_rng([seed, 7, index])
-        S = float(rng.choice([0.3, 0.5, 1.0, 2.0])) if sticky else 0.0
-        J = float(rng.choice([0.0, S / 2, S])) if sticky else 0.0
-        tau = float(rng.uniform(10.0, 60.0))
-        delay = float(rng.choice([10.0, 20.0, 30.0]))
-        rate = float(rng.uniform(0.001, 0.004))
-        noise = float(rng.uniform(0.005, 0.03))
-        load = float(rng.choice([0.0, 0.02, 0.05]))
-        n = int(rng.choice([751, 1500, 3000]))
-        kc_x = ti_x = 1.0
-        warmup = WARMUP
-    else:
-        rng = np.random.default_rng([seed, 11, index])
-        S = float(rng.choice([0.2, 0.3, 0.4, 0.6, 1.0])) if sticky else 0.0
-        J = float(rng.choice([0.0, S / 2, S])) if sticky else 0.0
-        tau = float(rng.uniform(10.0, 60.0))
-        delay = float(rng.choice([10.0, 20.0, 30.0]))
-        rate = float(rng.uniform(0.001, 0.004))
-        noise = float(rng.uniform(0.003, 0.02))
-        load = float(rng.choice([0.002, 0.005]))
-        n = int(rng.choice([751, 1500]))
-        kc_x = float(rng.choice([0.3, 0.5, 1.0]))
-        ti_x = float(rng.choice([1.0, 2.0, 4.0]))
-        # a detuned loop settles into its cycle slowly
-        warmup = 800
+    S = float(rng.choice(fam["S"])) if sticky else 0.0
+    J = float(rng.choice([0.0, S / 2, S])) if sticky else 0.0
+    tau = float(rng.uniform(10.0, 60.0))
+    delay = float(rng.choice([10.0, 20.0, 30.0]))
+    rate = float(rng.uniform(0.001, 0.004))
+    noise = float(rng.uniform(*fam["noise"]))
+    load = float(rng.choice(fam["load"]))
+    n = int(rng.choice(fam["n"]))
+    kc_x = float(rng.choice(fam["Kc_x"]))
+    ti_x = float(rng.choice(fam["Ti_x"]))
     # the simulator's own PI for an integrator, scaled
     theta = delay + tau + 10.0
     rec = sticky_loop(S, J, n=n, ts_s=10.0, kind="integrating", gain=rate, tau_s=tau, delay_s=delay,
-                      noise_std=noise, load_walk_std=load, seed=seed * 1000 + index + (0 if family == "load" else 500),
-                      name="LIC1", warmup=warmup, Kc=kc_x / (rate * 2 * theta), Ti_s=ti_x * 8 * theta)
+                      noise_std=noise, load_walk_std=load, seed=seed * 1000 + index + fam["seed_offset"],
+                      name="LIC1", warmup=fam["warmup"], Kc=kc_x / (rate * 2 * theta), Ti_s=ti_x * 8 * theta)
     truth = {"seed": seed, "index": index, "family": family, "sticky": sticky, "S_pct": S, "J_pct": J, "n": n,
              "load_step": load, "noise": noise, "Kc_x": kc_x, "Ti_x": ti_x,
              "moves": stem_moves(rec.mv) if rec.mv is not None else 0}

@@ -260,6 +260,8 @@ def test_op_only_judges_only_the_longest_stretch_between_setpoint_steps():
     # a sticky valve whose loop had one setpoint step: its stick-slip cycle after the step is judged
     step = np.where(np.arange(n) < 700, 0.0, 2.0)
     assert steady_stretch(n, setpoint_steps(step)) == (700 + 230, n)
+    # the record's own start is no step: nothing to settle from there
+    assert steady_stretch(n, np.array([2000])) == (0, 2000)
     ev = op_shape(loop(StictionValve(3.0, 1.0, 1), step, 1).op, None, 1.0, sp=step)
     assert ev.decision == "stiction" and "in samples 930-3000" in ev.note and "steps once" in ev.note
     # a setpoint that moves on every sample (a cascade master's output) does not step

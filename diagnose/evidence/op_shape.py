@@ -28,7 +28,7 @@ import numpy as np
 from ._gates import record_gate
 from ._signals import Prepared
 from .curve_fit import HIGH, LOW, fit_shape
-from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, cannot_judge, graded
+from .result import NO_STICTION, STICTION, UNDETERMINED, Evidence, graded
 
 TEST = "op_shape"
 
@@ -79,11 +79,11 @@ def setpoint_steps(sp) -> np.ndarray:
 
 def steady_stretch(n: int, steps: np.ndarray) -> tuple[int, int]:
     """The longest stretch ``[start, end)`` of ``n`` samples between setpoint steps, its start
-    moved on by `SETTLE_SHARE` of its length."""
+    moved on by `SETTLE_SHARE` of its length when a step begins it."""
     edges = np.concatenate([[0], steps, [n]])
     k = int(np.argmax(np.diff(edges)))
     start, end = int(edges[k]), int(edges[k + 1])
-    return start + int(SETTLE_SHARE * (end - start)), end
+    return (start + int(SETTLE_SHARE * (end - start)) if start > 0 else start), end
 
 
 def _op_shape(p: Prepared) -> Evidence:
