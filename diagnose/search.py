@@ -202,7 +202,7 @@ def noise_costs(obj: Objective, cand: Candidate, lim: Limits,
     for hp in candidates_samples:
         o = obj.with_noise(None if hp is None else hp * obj.ts_s)
         sse, _ = o.score([cand.S_pct], [cand.J_pct], [cand.f0], grid)
-        costs.append(float(sse[0, 0]) * o.y_std ** 2 / max(1, o.n_scored))
+        costs.append(float(o.mse(sse[0, 0])))
     return tuple(costs)
 
 
