@@ -69,8 +69,15 @@ def run_one(job: tuple) -> dict:
     t0 = time.perf_counter()
     kw = {} if threads is None else {"threads": threads}
     ex = explain(rec, target="auto" if with_mv else "pv", **kw)
-    return _row(effect, seed, index, with_mv, meta, ex.missing_physics, time.perf_counter() - t0,
-                [h.name for h in ex.hypotheses if h.accepted], ex.baseline_rmse, ex.improved_rmse)
+    row = _row(effect, seed, index, with_mv, meta, ex.missing_physics, time.perf_counter() - t0,
+               [h.name for h in ex.hypotheses if h.accepted], ex.baseline_rmse, ex.improved_rmse)
+    # each hypothesis's numbers as `validate_physics.py` keeps them (acceptance rules can be studied
+    # on the rows without running explain again), and why it was refused
+    row["delta_bic_heldout_train_reduction"] = {
+        h.name: [round(float(h.delta_bic), 2), round(float(h.train_delta_bic), 2), round(float(h.reduction), 3)]
+        for h in ex.hypotheses}
+    row["refused"] = {h.name: h.refused for h in ex.hypotheses if h.refused}
+    return row
 
 
 def _row(effect, seed, index, with_mv, meta, named, seconds, accepted, base, improved) -> dict:
