@@ -63,6 +63,7 @@ def record(effect: str, seed: int, index: int, n: int, with_mv: bool, restricted
 
 def run_one(job: tuple) -> dict:
     effect, seed, index, n, with_mv, restricted, mv_noise, threads = job
+    from benchmarks.validate_physics import hypothesis_numbers
     from diagnose.physics import explain
 
     rec, meta = record(effect, seed, index, n, with_mv, restricted, mv_noise)
@@ -73,9 +74,7 @@ def run_one(job: tuple) -> dict:
                [h.name for h in ex.hypotheses if h.accepted], ex.baseline_rmse, ex.improved_rmse)
     # each hypothesis's numbers as `validate_physics.py` keeps them (acceptance rules can be studied
     # on the rows without running explain again), and why it was refused
-    row["delta_bic_heldout_train_reduction"] = {
-        h.name: [round(float(h.delta_bic), 2), round(float(h.train_delta_bic), 2), round(float(h.reduction), 3)]
-        for h in ex.hypotheses}
+    row["delta_bic_heldout_train_reduction"] = hypothesis_numbers(ex)
     row["refused"] = {h.name: h.refused for h in ex.hypotheses if h.refused}
     return row
 
