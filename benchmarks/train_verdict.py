@@ -123,11 +123,12 @@ def _sim_job(args: tuple[str, int, int, dict]) -> dict[str, Any]:
         loop = make_loop(kind, seed, index // len(SCENARIOS), n=opts.get("n"), ts_s=opts.get("ts_s"),
                          definition=opts.get("definition", "identifiable"))
         rec = LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp, mv=loop.mv)
-        meta = {k: v for k, v in loop.meta.items() if isinstance(v, (int, float, str, bool)) or v is None}
-        # plantsim's integrating flag is a numpy bool, which the filter above leaves out
+        # plantsim keeps some flags as numpy scalars (its integrating flag is a numpy bool)
+        meta = {k: v.item() if isinstance(v, np.generic) else v for k, v in loop.meta.items()}
+        meta = {k: v for k, v in meta.items() if isinstance(v, (int, float, str, bool)) or v is None}
         row = {"source": source, "seed": seed, "index": index, "kind": loop.kind, "sticky": bool(loop.sticky),
                "fast": bool(meta.get("historian_fast")),
-               "law": meta.get("law"), "integrating": bool(loop.meta.get("integrating")), "n": loop.n,
+               "law": meta.get("law"), "integrating": meta.get("integrating"), "n": loop.n,
                "ts_s": loop.ts_s, "S_true": meta.get("S_pct"), "J_true": meta.get("J_pct")}
     elif source == "level":
         from benchmarks.level_loops import MIN_MOVES, level_loop
