@@ -723,6 +723,28 @@ def test_drift_from_op_pv_is_searched_with_the_dynamics():
     assert abs(h.params["dS_pct_per_h"] / truth["dS_pct_per_h"] - 1.0) < 0.2
 
 
+def test_a_drifting_deadband_is_found_from_op_pv():
+    # plantsim's concealed drift 42001 (OP/PV, 8000 samples): a deadband valve (J = 0) whose S
+    # rises 2.36-fold over the record. The drift search's J/S candidates must hold 0: its local
+    # polish scales J and cannot reach 0 from a J/S of 0.2, and from there it trained to a drift a
+    # third of the truth's, refused on the held-out part
+    root = str(Path(__file__).resolve().parents[1])
+    if root not in sys.path:
+        sys.path.insert(0, root)
+    from benchmarks.plantsim import concealed
+    from diagnose.record import LoopRecord
+
+    loop = concealed("time_varying_friction", 42001, n=8000)
+    assert loop.meta["J_pct"] == 0.0
+    true_rate = loop.meta["S_pct"] * loop.meta["tvf_change"] / (loop.n * loop.ts_s) * 3600.0
+    rec = LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp)
+    ex = explain(rec, target="pv", hypotheses=["time_varying_friction"])
+    assert ex.missing_physics == "time_varying_friction"
+    (h,) = ex.hypotheses
+    assert h.params["J_start_pct"] < 0.2
+    assert abs(h.params["dS_pct_per_h"] / true_rate - 1.0) < 0.25
+
+
 def test_asymmetry_from_op_pv_is_searched_on_a_global_grid():
     # concealed asymmetry 1002 (OP/PV; J/S 0.49 opening, 0.94 closing): from the coarse grid's
     # one J/S for both sides the search trained at SSE 185 and was refused; from the global

@@ -69,7 +69,8 @@ class TimeVaryingFriction(PhysicsHypothesis):
         m_start = np.exp(np.arange(math.log(0.55), math.log(1.35), 0.03))
         q_end = np.exp(np.concatenate([np.arange(-0.6, -0.035, 0.03), np.arange(0.04, 0.61, 0.03)]))
         r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
-        ratios = sorted({round(r0, 3), 0.3, 0.6, 0.9})
+        # J/S 0 (a deadband) among them: the polish rounds scale J and cannot reach 0 from a band
+        ratios = sorted({round(r0, 3), 0.0, 0.3, 0.6, 0.9})
         cands = [reference] + list(extra)
         y0s = y0_options(stage, reference)
         for Sc in centres:
