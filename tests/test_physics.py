@@ -704,6 +704,15 @@ def test_asymmetry_along_a_ridge_is_named_by_its_predictive_mean():
 
 # --- searched jointly with the process dynamics from OP/PV ---------------------------------------------
 
+def _repo_on_path() -> Path:
+    """The repository root, on sys.path so that `benchmarks` imports (the tests use its
+    independent simulator and scripts); returned for tests that need its files."""
+    root = Path(__file__).resolve().parents[1]
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    return root
+
+
 def _named_from_op_pv(effect, seed):
     """explain on one concealed OP/PV record with only the hidden effect's hypothesis: named, with
     the held-out error well below the plain reference's; returns (hypothesis result, truth)."""
@@ -728,9 +737,7 @@ def test_a_drifting_deadband_is_found_from_op_pv():
     # rises 2.36-fold over the record. The drift search's J/S candidates must hold 0: its local
     # polish scales J and cannot reach 0 from a J/S of 0.2, and from there it trained to a drift a
     # third of the truth's, refused on the held-out part
-    root = str(Path(__file__).resolve().parents[1])
-    if root not in sys.path:
-        sys.path.insert(0, root)
+    _repo_on_path()
     from benchmarks.plantsim import concealed
     from diagnose.record import LoopRecord
 
@@ -801,9 +808,7 @@ def test_physics_benchmark_scripts_print_their_help(script, capsys):
     # argparse formats help strings with %: a bare "%" in one made --help crash with a TypeError
     import importlib
 
-    root = str(Path(__file__).resolve().parents[1])
-    if root not in sys.path:
-        sys.path.insert(0, root)
+    _repo_on_path()
     mod = importlib.import_module(f"benchmarks.{script}")
     with pytest.raises(SystemExit) as exit_:
         mod.main(["--help"])
@@ -813,9 +818,7 @@ def test_physics_benchmark_scripts_print_their_help(script, capsys):
 
 def test_explain_benchmark_times_a_tree_without_the_independent_simulator(tmp_path):
     # a baseline tree may predate benchmarks/plantsim: the record is drawn by this checkout's
-    root = Path(__file__).resolve().parents[1]
-    if str(root) not in sys.path:
-        sys.path.insert(0, str(root))
+    root = _repo_on_path()
     from benchmarks.bench_explain import run_one
 
     (tmp_path / "diagnose").symlink_to(root / "diagnose")
