@@ -287,7 +287,8 @@ def _slug(label: str) -> str:
 def real_data(args) -> int:
     import connectors
 
-    from diagnose.physics.figures import plot_explanation
+    from connectors.historian import atomic_write
+    from diagnose.service.figures import explanation_png
 
     rows = ["| record | samples | target | baseline RMSE | plain refit RMSE | named | improved RMSE | "
             "fall vs baseline | fall vs refit | notes |", "|---|---|---|---|---|---|---|---|---|---|"]
@@ -313,7 +314,7 @@ def real_data(args) -> int:
         rows.append(f"| {label} | {rec.n} | {ex.target} | {ex.baseline_rmse:.4g} | {ref:.4g} | {named} | "
                     f"{ex.improved_rmse:.4g} | {100 * fall_b:.0f} % | {100 * fall_r:.0f} % | {params} {warn} |")
         fig = os.path.join(args.figdir, f"physics_real_{_slug(label)}_{ex.target}.png")
-        plot_explanation(ex, rec, fig)
+        atomic_write(fig, explanation_png(ex, rec.name, dpi=110))
         print(f"{label}: {named} ({dt:.1f} s) -> {fig}", file=sys.stderr)
         print(f"   {ex.explanation}", file=sys.stderr)
     print("\n".join(rows))
@@ -321,7 +322,8 @@ def real_data(args) -> int:
 
 
 def examples(args) -> int:
-    from diagnose.physics.figures import plot_explanation
+    from connectors.historian import atomic_write
+    from diagnose.service.figures import explanation_png
 
     for effect, mv in (("none", False), ("actuator_lag", True), ("asymmetric_stiction", False),
                        ("valve_characteristic", False), ("external_disturbance", False),
@@ -329,7 +331,7 @@ def examples(args) -> int:
         rec, truth = concealed_loop(effect, 100, n=args.n, with_mv=mv)
         ex = explain(rec, target="auto" if mv else "pv")
         fig = os.path.join(args.figdir, f"physics_concealed_{effect}.png")
-        plot_explanation(ex, rec, fig)
+        atomic_write(fig, explanation_png(ex, rec.name, dpi=110))
         print(f"{effect}: named {ex.missing_physics}, held-out {ex.baseline_rmse:.3g} -> "
               f"{ex.improved_rmse:.3g}; truth {truth} -> {fig}")
     return 0

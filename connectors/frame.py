@@ -18,10 +18,10 @@ from diagnose.errors import ConnectorError, DataError
 from diagnose.record import LoopRecord
 
 from .columns import role_of
-from .layouts import Series, Table, _is_time_header
+from .layouts import Series, Table, is_time_header
 from .records import build_records, specs_from_table
 from .textio import numbers
-from .timebase import _localise, _tzinfo, parse_times
+from .timebase import localise, zone_of, parse_times
 
 LABEL = "<DataFrame>"
 FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",
@@ -41,7 +41,7 @@ def _seconds(values: Any, tz: str | None, dst: str, column: str) -> tuple[np.nda
     us = np.array(idx.as_unit("us").asi8, dtype=np.int64)
     rows = np.flatnonzero(~idx.isna())
     out = np.full(len(idx), np.nan)
-    out[rows] = _localise(us, rows, _tzinfo(tz), dst, LABEL, column, lambda k: None)
+    out[rows] = localise(us, rows, zone_of(tz), dst, LABEL, column, lambda k: None)
     return out, True
 
 
@@ -67,7 +67,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         t, absolute = _seconds(df.index, tz, dst, str(df.index.name or "index"))
         tfmt = "index"
     elif not options.get("ts_s"):
-        time_col = next((j for j, n in enumerate(names) if role_of(n) == "time" or _is_time_header(n)
+        time_col = next((j for j, n in enumerate(names) if role_of(n) == "time" or is_time_header(n)
                          and role_of(n) is None), None)
     if time_col is not None:
         col = df.iloc[:, time_col]

@@ -85,7 +85,7 @@ def _date_time_pair(lower: list[str]) -> list[int]:
     return [d, c] if d is not None and c is not None else []
 
 
-def _is_time_header(h: str) -> bool:
+def is_time_header(h: str) -> bool:
     s = h.strip().lower()
     return (s in TIME_HEADERS or s.endswith((" time", " timestamp", "_timestamp", ".timestamp",
                                                " zeit")) or s.startswith("timestamp"))
@@ -121,7 +121,7 @@ def detect_layout(src: Source) -> str:
 
 def _pairs(header: list[str]) -> bool:
     """Two or more time columns, each followed by a value column: (time, value) pairs."""
-    is_t = [_is_time_header(h) for h in header]
+    is_t = [is_time_header(h) for h in header]
     idx = [j for j, v in enumerate(is_t) if v]
     if len(idx) < 2:
         return False
@@ -236,7 +236,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
     elif _date_time_pair(lower):
         time_idx = _date_time_pair(lower)
     else:
-        named = [j for j, h in enumerate(header) if _is_time_header(h) and role_of(h) is None
+        named = [j for j, h in enumerate(header) if is_time_header(h) and role_of(h) is None
                  or h.lower() in TIME_NAMES]
         if named:
             rel = {"t", "ts", "t_s", "time_s"}
@@ -308,7 +308,7 @@ def parse_long(src: Source, options: dict) -> Table:
     elif _date_time_pair(lower):
         time_j = _date_time_pair(lower)
     else:
-        time_j = [j for j, h in enumerate(header) if _is_time_header(h) and j not in (tag_j, val_j)][:1]
+        time_j = [j for j, h in enumerate(header) if is_time_header(h) and j not in (tag_j, val_j)][:1]
     q_j = next((j for j, h in enumerate(lower) if h in QUALITY_HEADERS), None)
     flags = [j for j, h in enumerate(lower) if h in PI_FLAG_HEADERS]
     dec = _decimal_comma(head.rows, [val_j], head.delimiter) if val_j is not None else False
@@ -399,14 +399,14 @@ def parse_ragged(src: Source, options: dict) -> Table:
     tfmt = None
     j = 0
     while j < len(header):
-        if not _is_time_header(header[j]) or j + 1 >= len(header):
+        if not is_time_header(header[j]) or j + 1 >= len(header):
             j += 1
             continue
         if two_rows:
             name = h0[j] or (h0[j + 1] if j + 1 < len(h0) else "")
         else:
             name = header[j + 1]
-            if _is_time_header(name):
+            if is_time_header(name):
                 j += 1
                 continue
         name = name.strip() or f"column{j + 2}"

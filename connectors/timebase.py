@@ -111,7 +111,7 @@ def _choose_format(samples: list[str]) -> str:
     raise ValueError(first)
 
 
-def _tzinfo(tz: str | None):
+def zone_of(tz: str | None):
     if tz is None or tz.upper() in ("UTC", "Z"):
         return timezone.utc
     m = re.fullmatch(r"(?:UTC)?([+-])(\d{1,2}):?(\d{2})?", tz.strip())
@@ -192,7 +192,7 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
         k = next((k for k, c in zip(sample_idx, samples) if c == str(exc)), sample_idx[0])
         raise _fail(f"cannot read timestamp {cells[k].strip()[:40]!r}: not ISO 8601 or a known vendor format; "
                     "give the time as ISO 8601 (2024-11-27 23:59:00)", label, line_of(k), column) from None
-    zone = _tzinfo(tz)
+    zone = zone_of(tz)
     sub = norm[nonblank]
     us = np.full(len(norm), _NAT, dtype=np.int64)        # UTC (aware) or wall-clock (naive) µs
     aware = np.zeros(len(norm), bool)
@@ -224,7 +224,7 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
     if aware[nonblank[0]]:
         out[nonblank] = us[nonblank] / 1e6
         return ParsedTimes(out, True, fmt, "offset")
-    out[nonblank] = _localise(us, nonblank, zone, dst, label, column, line_of)
+    out[nonblank] = localise(us, nonblank, zone, dst, label, column, line_of)
     return ParsedTimes(out, True, fmt, tz or "UTC")
 
 
@@ -265,7 +265,7 @@ def _numeric(num: np.ndarray, tz, dst, label, column, lines) -> ParsedTimes:
         wall[ok] = _EXCEL_EPOCH_US + np.round(num[ok] * 86_400e6).astype(np.int64) // 1000 * 1000
         out = np.full(num.size, np.nan)
         line_of = (lambda k: int(lines[k])) if lines is not None else (lambda k: None)
-        out[ok] = _localise(wall, ok, _tzinfo(tz), dst, label, column, line_of)
+        out[ok] = localise(wall, ok, zone_of(tz), dst, label, column, line_of)
         return ParsedTimes(out, True, "excel_serial", tz or "UTC")
     return ParsedTimes(num, False, "seconds", None)
 
@@ -310,7 +310,7 @@ def _python_fallback(norm, bad, us, aware, fmt, cells, label, column, line_of) -
     return np.array(blank, dtype=np.int64)
 
 
-def _localise(wall_us: np.ndarray, rows: np.ndarray, zone, dst: str, label, column, line_of) -> np.ndarray:
+def localise(wall_us: np.ndarray, rows: np.ndarray, zone, dst: str, label, column, line_of) -> np.ndarray:
     """UTC seconds of naive local times ``wall_us[rows]`` in ``zone`` under the DST policy."""
     wall = wall_us[rows]
     if isinstance(zone, timezone):

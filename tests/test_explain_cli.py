@@ -1,6 +1,7 @@
 """`stiction explain`: one JSON object on stdout, a figure, a human summary, one-line errors."""
 
 import json
+import os
 
 import pytest
 
@@ -34,6 +35,10 @@ def test_json_is_one_object_and_the_figure_is_written(csv_with_mv, tmp_path, cap
     assert {"actuator_lag", "asymmetric_stiction", "valve_characteristic", "external_disturbance",
             "time_varying_friction"} <= names
     assert png.exists() and png.stat().st_size > 10_000
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert png.stat().st_mode & 0o777 == 0o666 & ~umask   # as open() would: not the temporary file's 0600
 
 
 def test_human_summary_with_a_subset_of_hypotheses(csv_with_mv, capsys):

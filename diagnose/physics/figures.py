@@ -1,13 +1,13 @@
 """Figures of an `Explanation`: the fits, the residual with the located windows, and the
 conditioned residuals. matplotlib is imported only here and only when a figure is drawn (Agg).
 
-The computation lives in `Explanation.figure_data`; this module only draws it.
+The computation lives in `Explanation.figure_data`; this module only draws it and returns the
+matplotlib figure (writing it anywhere is the caller's: `fig.savefig(...)`, or the service's
+`diagnose.service.figures.explanation_png`).
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
 from typing import Any
 
 import numpy as np
@@ -124,24 +124,3 @@ def draw_explanation(fig_data: dict[str, Any], *, title: str = "", figsize=(11.0
     ax.set_ylabel("residual power")
     ax.set_title("residual spectrum\n(red: limit cycle, harmonics)", fontsize=9)
     return fig
-
-
-def plot_explanation(explanation, record=None, path_png: str | os.PathLike = "explain.png", *,
-                     dpi: int = 110) -> str:
-    """Draw an explanation to a PNG file (written atomically) and return the path."""
-    title = ""
-    if record is not None:
-        title = f"{record.name}: missing physics: {explanation.missing_physics or 'none named'}"
-    fig = draw_explanation(explanation.figure_data(), title=title)
-    path = os.fspath(path_png)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=folder)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        _mpl().close(fig)
-    return path

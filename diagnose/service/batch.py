@@ -426,7 +426,7 @@ def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
 
 def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
     """One task: read a file, diagnose every loop in it. Returns ``{"path", "digest", "rows"}``."""
-    _worker_setup()
+    worker_setup()
     p = Path(path)
     try:
         digest = _file_digest(p)
@@ -456,7 +456,7 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
 _SETUP_DONE = False
 
 
-def _worker_setup(parent_pid: int | None = None) -> None:
+def worker_setup(parent_pid: int | None = None) -> None:
     """Once per process: one thread per worker for BLAS/OpenMP/torch (the pool gives parallelism);
     in a worker process of a pool (``parent_pid`` given), die with the process that started it."""
     global _SETUP_DONE
@@ -654,7 +654,7 @@ class _Pool:
 
         # forkserver: workers start from a clean process, safe when the parent has threads (torch).
         ctx = mp.get_context("forkserver")
-        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_setup,
+        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_setup,
                                       initargs=(os.getpid(),))
 
     def submit(self, fn: Callable, *args: Any) -> Future:
@@ -685,7 +685,7 @@ class _Dask:
                 self.client = Client(scheduler, timeout="20s")
             except OSError as exc:
                 raise StictionError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
-        self.client.run(_worker_setup)
+        self.client.run(worker_setup)
 
     def submit(self, fn: Callable, *args: Any) -> Any:
         return self.client.submit(fn, *args, pure=False)

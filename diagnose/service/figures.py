@@ -89,19 +89,22 @@ def spectrum(diag: Diagnosis) -> bytes:
 
 
 def explanation(diag: Diagnosis) -> bytes | None:
-    """The missing-physics figure, drawn by `diagnose.physics.figures`."""
+    """The missing-physics figure of a diagnosis (None when it has no explanation)."""
     if diag.explanation is None:
         return None
-    try:
-        from ..physics import figures as pfig
-    except ImportError:
-        return None
-    expl = diag.explanation
-    title = f"{diag.record.name}: missing physics: {expl.missing_physics or 'none named'}"
-    fig = pfig.draw_explanation(expl.figure_data(), title=title, figsize=(8.0, 6.5))
+    return explanation_png(diag.explanation, diag.record.name)
+
+
+def explanation_png(explanation: Any, loop: str = "", *, dpi: float = DPI) -> bytes:
+    """The missing-physics figure of an `Explanation` (drawn by `diagnose.physics.figures`) as PNG
+    bytes; ``loop`` names the loop in the title."""
+    from ..physics.figures import draw_explanation
+
+    title = f"{loop + ': ' if loop else ''}missing physics: {explanation.missing_physics or 'none named'}"
+    fig = draw_explanation(explanation.figure_data(), title=title, figsize=(8.0, 6.5))
     try:
         buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=DPI)
+        fig.savefig(buf, format="png", dpi=dpi)
         return buf.getvalue()
     finally:
         import matplotlib.pyplot as plt

@@ -96,11 +96,11 @@ def diagnose_window(record: LoopRecord, out_dir: str, explain: bool | str = Fals
     the worker's share of the cores, see `diagnose.service.pipeline.diagnose`)."""
     from connectors.historian import atomic_write
 
-    from .batch import _worker_setup, safe_name
+    from .batch import worker_setup, safe_name
     from .pipeline import diagnose
     from .report import loop_blocks, to_markdown
 
-    _worker_setup()
+    worker_setup()
     loop = safe_name(record.name)
     wid = window_id(record)
     diag = replace(diagnose(record, explain=explain, threads=threads), loop_id=loop, window=wid,
@@ -126,9 +126,9 @@ def diagnose_window(record: LoopRecord, out_dir: str, explain: bool | str = Fals
 def _monitor_worker_init(parent_pid: int | None = None) -> None:
     """Diagnosis workers yield the CPU to the polling process (which must never miss a tick) and
     die with it."""
-    from .batch import _worker_setup
+    from .batch import worker_setup
 
-    _worker_setup(parent_pid)
+    worker_setup(parent_pid)
     try:
         os.nice(10)
     except OSError:  # pragma: no cover - not permitted
@@ -137,9 +137,9 @@ def _monitor_worker_init(parent_pid: int | None = None) -> None:
 
 def _warm_up() -> bool:
     """Import the diagnosis stack in a fresh worker before the first window arrives."""
-    from .batch import _worker_setup
+    from .batch import worker_setup
 
-    _worker_setup()
+    worker_setup()
     from . import pipeline, report  # noqa: F401
     from .. import identification  # noqa: F401
 

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
+import io
 import sys
-import tempfile
 from pathlib import Path
 
 from ...errors import DataError
@@ -47,14 +46,11 @@ def _parse_cases(text):
 
 def _atomic_torch_save(obj, path: Path) -> None:
     import torch
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    from connectors.historian import atomic_write
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write(path, buf.getvalue())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -114,7 +110,7 @@ def _map_figure(bank, path) -> None:
     import numpy as np
 
     from ...narx.bank import MAP_J, MAP_S
-    from .reproduce import _savefig
+    from .reproduce import savefig
     thr = bank.manifest["robust_threshold_pct"]
     S, J = np.asarray(MAP_S), np.asarray(MAP_J)
     fig, axes = plt.subplots(1, 4, figsize=(15, 3.9), sharey=True)
@@ -132,5 +128,5 @@ def _map_figure(bank, path) -> None:
     axes[0].set_ylabel("plant J, % of span")
     fig.colorbar(im, ax=axes, label="free-run RMSE, % of span (white: robust limit)")
     fig.suptitle("Robustness maps of bank models (red star: training case)")
-    _savefig(fig, path)
+    savefig(fig, path)
     plt.close(fig)

@@ -78,8 +78,10 @@ def run(args: argparse.Namespace) -> int:
     result = result.with_warnings(tuple(ExplainWarning(w["code"], w["message"]) for w in notes))
     d = result.to_dict()
     if args.figure:
-        from ...physics.figures import plot_explanation
-        plot_explanation(result, rec, args.figure)
+        from connectors.historian import atomic_write
+
+        from ..figures import explanation_png
+        atomic_write(args.figure, explanation_png(result, rec.name, dpi=110))
         print(f"wrote {args.figure}", file=sys.stderr)
     emit(d, as_json=args.json, summary=summary)
     return 0

@@ -7,10 +7,10 @@ Prints each table beside the paper's values (or one JSON object with --json) and
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import sys
-import tempfile
 
 from ...errors import DataError
 
@@ -75,18 +75,13 @@ def format_model_mode(r) -> str:
             f"{1000 * r['free_run_s']:.2f} ms, training {r['train_s']:.1f} s")
 
 
-def _savefig(fig, path):
-    path = os.fspath(path)
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path) or ".",
-                               prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110, format="png")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+def savefig(fig, path) -> None:
+    """Write a matplotlib figure to ``path`` as PNG, atomically."""
+    from connectors.historian import atomic_write
+
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    atomic_write(path, buf.getvalue())
 
 
 def figures_table1(rows, out) -> list[str]:
@@ -110,7 +105,7 @@ def figures_table1(rows, out) -> list[str]:
     ax.legend(fontsize=8, ncol=3)
     fig.tight_layout()
     p = os.path.join(out, "narx_table1.png")
-    _savefig(fig, p)
+    savefig(fig, p)
     plt.close(fig)
     written.append(p)
     # Figs 8-13 analogue: undershoot, each network's free run
@@ -127,7 +122,7 @@ def figures_table1(rows, out) -> list[str]:
     fig.suptitle(f"{sel[0]['case']}: model-mode outputs vs the stiction model (test signal)")
     fig.tight_layout()
     p = os.path.join(out, "narx_table1_series.png")
-    _savefig(fig, p)
+    savefig(fig, p)
     plt.close(fig)
     written.append(p)
     return written
@@ -153,7 +148,7 @@ def figures_robustness(rows, out, name) -> list[str]:
     ax.set_title(f"{name}: free-run RMSE of base models (stars); green = robust")
     fig.tight_layout()
     p = os.path.join(out, f"narx_{name}.png")
-    _savefig(fig, p)
+    savefig(fig, p)
     plt.close(fig)
     return [p]
 
@@ -178,7 +173,7 @@ def figures_model_mode(r, out) -> list[str]:
     fig.suptitle(f"Model mode, S={r['S']:g} J={r['J']:g}: free-run RMSE {r['rmse_free_run']:.2g} %")
     fig.tight_layout()
     p = os.path.join(out, "narx_model_mode.png")
-    _savefig(fig, p)
+    savefig(fig, p)
     plt.close(fig)
     return [p]
 
