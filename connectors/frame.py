@@ -21,7 +21,7 @@ from .columns import role_of
 from .layouts import Series, Table, is_time_header
 from .records import build_records, specs_from_table
 from .textio import numbers
-from .timebase import localise, zone_of, parse_times
+from .timebase import localise, parse_times, zone_of
 
 LABEL = "<DataFrame>"
 FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",

@@ -86,6 +86,7 @@ def _date_time_pair(lower: list[str]) -> list[int]:
 
 
 def is_time_header(h: str) -> bool:
+    """Does a column header name a timestamp (``Time``, ``TimeStamp``, ``FIC101 Time``, ...)?"""
     s = h.strip().lower()
     return (s in TIME_HEADERS or s.endswith((" time", " timestamp", "_timestamp", ".timestamp",
                                                " zeit")) or s.startswith("timestamp"))

@@ -112,6 +112,8 @@ def _choose_format(samples: list[str]) -> str:
 
 
 def zone_of(tz: str | None):
+    """The time zone a ``--tz`` option names: None or UTC, a fixed offset (``+01:00``) or an IANA
+    name; an unknown name is a `ConnectorError` that says what to write instead."""
     if tz is None or tz.upper() in ("UTC", "Z"):
         return timezone.utc
     m = re.fullmatch(r"(?:UTC)?([+-])(\d{1,2}):?(\d{2})?", tz.strip())
