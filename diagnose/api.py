@@ -21,10 +21,12 @@ Options mean the same everywhere (docs/api.md has the table):
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 import os
-from typing import IO, TYPE_CHECKING, Any, Sequence
+from typing import IO, TYPE_CHECKING, Any, Mapping, Sequence
 
-from .errors import DataError
+from .errors import DataError, StictionError
 from .notes import Note
 from .record import LoopRecord
 
@@ -46,6 +48,55 @@ def _is_frame(data: Any) -> bool:
     import pandas as pd
 
     return isinstance(data, pd.DataFrame)
+
+
+def _check_data(data: Any) -> None:
+    if isinstance(data, (str, os.PathLike, LoopRecord)) or _is_frame(data) or callable(getattr(data, "read", None)):
+        return
+    # an array's repr runs to many lines; its type says enough
+    shown = repr(data) if data is None or isinstance(data, numbers.Number) else \
+        f"<{type(data).__module__}.{type(data).__qualname__}>"
+    raise DataError(f"data={shown}: give a path (file or folder), a file object, a pandas DataFrame or a "
+                    "LoopRecord")
+
+
+def check_read_options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The reading options with their values checked (``ts_s`` as a float, ``max_samples`` as an
+    int); a bad one raises a one-line `DataError` naming the keyword and its command-line flag.
+
+    The one check for every entry point: `read_loops` (so `identify` and `explain`), the file
+    commands and `diagnose.service.batch.run_batch`.
+    """
+    from connectors.timebase import DST_POLICIES, zone_of
+
+    opts = dict(options)
+    ts_s = opts.get("ts_s")
+    if ts_s is not None:
+        # 0 or NaN would otherwise read as "not given" further down and a period be guessed
+        if isinstance(ts_s, bool) or not isinstance(ts_s, numbers.Real) or not (math.isfinite(ts_s) and ts_s > 0):
+            raise DataError(f"ts_s={ts_s!r} (--ts-s): the sample period must be a positive number of seconds")
+        opts["ts_s"] = float(ts_s)
+    n = opts.get("max_samples")
+    if n is not None:
+        if isinstance(n, bool) or not isinstance(n, numbers.Real) or not float(n).is_integer() or n < 0:
+            raise DataError(f"max_samples={n!r} (--max-samples): give a whole number of samples, 0 or more "
+                            "(0 keeps all)")
+        opts["max_samples"] = int(n)
+    dst = opts.get("dst")
+    if dst is not None and dst not in DST_POLICIES:
+        raise DataError(f"dst={dst!r} (--dst): use one of {', '.join(DST_POLICIES)}")
+    tz = opts.get("tz")
+    if tz is not None:
+        known = isinstance(tz, str)
+        if known:
+            try:
+                zone_of(tz)
+            except (ValueError, StictionError):  # an offset of a day or more is datetime's ValueError
+                known = False
+        if not known:
+            raise DataError(f"tz={tz!r} (--tz): unknown time zone; use an IANA name such as 'Europe/Berlin' "
+                            "or an offset such as '+01:00'")
+    return opts
 
 
 def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *, op: str | None = None,
@@ -97,9 +148,10 @@ def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *,
     DataError
         One line naming the file (line, column) or frame column and what is wrong.
     """
+    _check_data(data)
     given = dict(op=op, pv=pv, sp=sp, mv=mv, time=time, ts_s=ts_s, tz=tz, dst=dst, loop=loop,
                  max_samples=max_samples, max_gap_s=max_gap_s, min_samples=min_samples)
-    opts: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
+    opts: dict[str, Any] = check_read_options({k: v for k, v in given.items() if v is not None})
     if isinstance(data, LoopRecord):
         given = sorted(k for k, v in dict(opts, tags=tags, format=format).items() if v is not None)
         if given:

@@ -250,3 +250,39 @@ def test_explain_is_the_command_on_the_same_data(loop, capsys):
     assert [h["name"] for h in cli["hypotheses"]] == ["actuator_lag"]
     with pytest.raises(diagnose.DataError, match="train_fraction"):
         diagnose.explain(short, train_fraction=0.95)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda df: diagnose.identify(df, ts_s=0), r"^ts_s=0 \(--ts-s\): the sample period must be a positive"),
+    (lambda df: diagnose.identify(df, ts_s=-1), r"^ts_s=-1 "),
+    (lambda df: diagnose.identify(df, ts_s=float("nan")), r"^ts_s=nan "),
+    (lambda df: diagnose.identify(df, ts_s="abc"), r"^ts_s='abc' "),
+    (lambda df: diagnose.identify(df, max_samples="x"), r"^max_samples='x' \(--max-samples\): give a whole number"),
+    (lambda df: diagnose.identify(df, max_samples=-1), r"^max_samples=-1 "),
+    (lambda df: diagnose.read_loops(df.tz_localize(None), tz="Europe/Berlin", dst="bogus"),
+     r"^dst='bogus' \(--dst\): use one of infer, earliest, latest, raise$"),
+    (lambda df: diagnose.identify(df.tz_localize(None), tz="+25:00"), r"^tz='\+25:00' \(--tz\): unknown time zone"),
+    (lambda df: diagnose.identify(df.tz_localize(None), tz=5), r"^tz=5 "),
+    (lambda df: diagnose.identify(123), r"^data=123: give a path \(file or folder\), a file object, a pandas "
+                                        r"DataFrame or a LoopRecord$"),
+    (lambda df: diagnose.identify(None), r"^data=None: "),
+    (lambda df: diagnose.identify(np.zeros((100, 2))), r"^data=<numpy.ndarray>: "),
+    (lambda df: diagnose.read_loops(123), r"^data=123: "),
+    (lambda df: diagnose.explain(123), r"^data=123: "),
+])
+def test_bad_arguments_are_one_line_data_errors_naming_the_keyword(loop, call, match):
+    _, _, df, _ = loop
+    with pytest.raises(diagnose.DataError, match=match) as err:
+        call(df)
+    assert "\n" not in str(err.value)
+
+
+def test_the_commands_and_the_batch_check_options_the_same_way(loop, tmp_path, capsys):
+    from diagnose.service.batch import run_batch
+
+    _, path, _, _ = loop
+    assert main(["identify", str(path), "--ts-s", "0"]) != 0
+    assert "ts_s=0.0 (--ts-s): the sample period must be a positive number of seconds" in capsys.readouterr().err
+    with pytest.raises(diagnose.DataError, match=r"^max_samples=-5 "):
+        run_batch([path], tmp_path / "out", workers=1, read_options={"max_samples": -5}, history=False,
+                  progress=False)

@@ -817,7 +817,9 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
 
         load_tagmap(tags)  # a broken map is reported once, up front, not once per file
     db_path = Path(db) if db is not None else default_db_path()
-    cfg = BatchConfig(out_dir=str(out), read_options=dict(read_options or {}), tags=tags, explain=explain,
+    from ..api import check_read_options
+
+    cfg = BatchConfig(out_dir=str(out), read_options=check_read_options(read_options or {}), tags=tags, explain=explain,
                       narx=narx, pdf=pdf, db=str(db_path) if history else None)
     skipped_files: list[dict[str, Any]] = []
     files, missing = discover(inputs, exclude=[out], skipped=skipped_files)

@@ -6,11 +6,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from typing import Any, Callable
 
-from ...errors import DataError
 
 #: The layouts ``--format`` takes (`connectors.layouts`).
 FORMATS = ("auto", "wide", "long", "ragged", "influx", "dcs")
@@ -78,10 +76,10 @@ def read_options(args: argparse.Namespace) -> dict[str, Any]:
         except ValueError:
             opts.setdefault("time", legacy)
     if ts_s is not None:
-        if not (math.isfinite(ts_s) and ts_s > 0):
-            raise DataError(f"--ts-s {ts_s:g}: the sample period must be a positive number of seconds")
-        opts["ts_s"] = float(ts_s)
-    return opts
+        opts["ts_s"] = ts_s
+    from ...api import check_read_options
+
+    return check_read_options(opts)
 
 
 def select_record(records: list, loop: str | None, source: str, verb: str = "identified"):
