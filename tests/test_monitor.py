@@ -223,3 +223,53 @@ def test_a_late_poll_is_not_an_outage_but_silence_or_an_error_is(tmp_path):
     mon._on_sample(loop, t + 2.0, good)
     assert mon.stats.outages == 1 and mon.stats.reconnects == 1
     assert "outage" in log.getvalue() and "reconnected after 2.0 s" in log.getvalue()
+
+
+def _polls(mport: int, loop: str) -> float:
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{mport}/metrics", timeout=2) as r:
+            text = r.read().decode()
+    except OSError:
+        return 0.0
+    lines = [ln for ln in text.splitlines() if ln.startswith(f'stiction_polls_total{{loop="{loop}"}}')]
+    return float(lines[0].split()[-1]) if lines else 0.0
+
+
+@pytest.mark.parametrize("sig, code", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_a_signal_stops_the_monitor_cleanly(tmp_path, sig, code):
+    import os
+    import signal
+
+    port, mport = free_port(), free_port()
+    cfg = tmp_path / "plant.toml"
+    # 400-sample windows (16 s): the run is stopped inside the first, each loop's partial window is
+    # past the 200 samples diagnosed
+    cfg.write_text(default_config_text(port, 2, period_s=0.04, window_samples=400))
+    sim = _start_sim(port)
+    # its own process group: the signal goes to the group, as Ctrl-C in a terminal and systemd's
+    # stop (to the whole cgroup) reach the diagnosis workers too
+    mon = subprocess.Popen([sys.executable, "-m", "diagnose.service.cli", "monitor", str(cfg), "--out",
+                            str(tmp_path / "out"), "--db", str(tmp_path / "h.sqlite"), "--metrics-port", str(mport)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while _polls(mport, "SIM001") < 250 and time.monotonic() < deadline and mon.poll() is None:
+            time.sleep(0.2)
+        os.killpg(mon.pid, getattr(signal, sig))
+        out, err = mon.communicate(timeout=90)
+    finally:
+        if mon.poll() is None:
+            mon.kill()
+            mon.communicate()
+        _stop(sim)
+    assert mon.returncode == code, err
+    assert f"2 windows diagnosed, 0 failed, 0 too short;" in out and f"stopped by {sig}" in out, (out, err)
+    for bad in ("CancelledError", "Traceback", "leaked", "not diagnosed"):
+        assert bad not in err, err
+    assert f"{sig}: stopping" in err
+    for loop in ("SIM000", "SIM001"):
+        files = sorted((tmp_path / "out" / loop).glob("2*.json"))
+        assert len(files) == 1 and json.loads(files[0].read_text())["record"]["n"] >= 200, files
+        assert not list((tmp_path / "out" / loop).glob("*.tmp*"))
+    with History(tmp_path / "h.sqlite") as h:
+        assert len(h.runs("SIM000")) == 1 and len(h.runs("SIM001")) == 1

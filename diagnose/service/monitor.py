@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import signal
 import sys
 import time
 from concurrent.futures import Future
@@ -68,6 +69,7 @@ class MonitorStats:
     diagnosed: int = 0
     failed: int = 0
     skipped_short: int = 0
+    dropped: int = 0            # windows whose diagnosis had not begun when the monitor stopped
     errors: list[str] = field(default_factory=list)
     polls: int = 0
     polls_failed: int = 0
@@ -78,6 +80,7 @@ class MonitorStats:
     outages: int = 0
     reconnects: int = 0
     never_answered: list[str] = field(default_factory=list)
+    signal: int | None = None   # the SIGINT or SIGTERM that stopped the run, None when it ran its course
 
 
 def window_id(record: Any) -> str:
@@ -129,6 +132,10 @@ def _monitor_worker_init(parent_pid: int | None = None) -> None:
     from .batch import worker_setup
 
     worker_setup(parent_pid)
+    # Ctrl-C reaches the whole process group and systemd signals the whole cgroup: the monitor
+    # decides what becomes of a window in flight, so a worker must not die under it
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
     try:
         os.nice(10)
     except OSError:  # pragma: no cover - not permitted
@@ -214,6 +221,7 @@ class Monitor:
         self._pool: Any = None
         self._pending: set[Any] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._poll_task: asyncio.Future | None = None
 
     # ------------------------------------------------------------------------------ links
     def _on_sample(self, loop: str, t_s: float, values: dict) -> None:
@@ -271,7 +279,9 @@ class Monitor:
                 import multiprocessing as mp
                 from concurrent.futures import ProcessPoolExecutor
 
-                self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("forkserver"),
+                ctx = mp.get_context("forkserver")
+                ctx.set_forkserver_preload(["__main__", f"{__package__}._keep_forkserver"])
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx,
                                                  initializer=_monitor_worker_init, initargs=(os.getpid(),))
                 for _ in range(self.workers):
                     self._pool.submit(_warm_up)
@@ -285,7 +295,11 @@ class Monitor:
         if record.n < self.min_samples:
             self.stats.skipped_short += 1
             return
-        fut = self._submit(record)
+        try:
+            fut = self._submit(record)
+        except Exception as exc:  # a broken pool: this window is lost, polling goes on
+            self._failed(record.name, exc)
+            return
         self._pending.add(fut)
         loop = self._loop
         fut.add_done_callback(lambda f: loop.call_soon_threadsafe(self._done, record.name, f)
@@ -293,15 +307,15 @@ class Monitor:
 
     def _done(self, name: str, fut: Future) -> None:
         self._pending.discard(fut)
+        if fut.cancelled():
+            self.stats.dropped += 1
+            print(f"{name}: window not diagnosed: the monitor stopped before its diagnosis began",
+                  file=self.log, flush=True)
+            return
         try:
             res = fut.result()
         except Exception as exc:
-            self.stats.failed += 1
-            msg = f"{name}: window not diagnosed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-            self.stats.errors.append(msg)
-            print(msg, file=self.log, flush=True)
-            if self.metrics is not None:
-                self.metrics.failed(name)
+            self._failed(name, exc)
             return
         self.stats.diagnosed += 1
         loop = res.loop_id or name
@@ -313,18 +327,60 @@ class Monitor:
         if self.on_result is not None:
             self.on_result(res)
 
+    def _failed(self, name: str, exc: Exception) -> None:
+        self.stats.failed += 1
+        msg = f"{name}: window not diagnosed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+        self.stats.errors.append(msg)
+        print(msg, file=self.log, flush=True)
+        if self.metrics is not None:
+            self.metrics.failed(name)
+
     # ------------------------------------------------------------------------------ running
+    def _on_signal(self, signum: int) -> None:
+        """First SIGINT/SIGTERM: stop polling and end as a ``--duration`` run ends (the partial
+        windows long enough are diagnosed). A second: drop the windows whose diagnosis has not begun."""
+        name = signal.Signals(signum).name
+        if self.stats.signal is None:
+            self.stats.signal = signum
+            print(f"{_utc(time.time())} {name}: stopping; the partial windows of {self.min_samples} samples or "
+                  f"more are diagnosed first ({name} again drops those not yet begun)", file=self.log, flush=True)
+            if self._poll_task is not None:
+                self._poll_task.cancel()
+            return
+        print(f"{_utc(time.time())} {name} again: dropping the windows not yet begun", file=self.log, flush=True)
+        for fut in list(self._pending):
+            fut.cancel()
+
+    def _catch_signals(self) -> list[int]:
+        caught = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._loop.add_signal_handler(sig, self._on_signal, sig)  # type: ignore[union-attr]
+            except (NotImplementedError, RuntimeError, ValueError):  # not the main thread, or Windows
+                continue
+            caught.append(sig)
+        return caught
+
     async def run(self, duration_s: float | None = None, *, drain_s: float = 120.0) -> MonitorStats:
-        """Poll for ``duration_s`` seconds (forever when None), then finish pending diagnoses."""
+        """Poll for ``duration_s`` seconds (forever when None) or until SIGINT or SIGTERM, then
+        finish pending diagnoses (``stats.signal`` says which signal stopped the run)."""
         self._loop = asyncio.get_running_loop()
         t0 = time.monotonic()
+        self._poll_task = asyncio.ensure_future(self.poller.run(duration_s))
+        caught = self._catch_signals()
         self._ensure_pool()
         try:
-            await self.poller.run(duration_s)
+            try:
+                await self._poll_task
+            except asyncio.CancelledError:
+                if self.stats.signal is None:  # cancelled by the caller, not stopped by a signal
+                    raise
             deadline = time.monotonic() + drain_s
             while self._pending and time.monotonic() < deadline:
                 await asyncio.sleep(0.05)
         finally:
+            for sig in caught:
+                self._loop.remove_signal_handler(sig)
             self.stats.wall_s = time.monotonic() - t0
             for st in self.poller.stats.values():
                 self.stats.polls += st.polls
@@ -357,7 +413,7 @@ class Monitor:
 
 def run_monitor(config: Any, out_dir: str | os.PathLike, *, duration_s: float | None = None,
                 **kw: Any) -> MonitorStats:
-    """Run a `Monitor` to completion (Ctrl-C stops it cleanly)."""
+    """Run a `Monitor` to completion (SIGINT or SIGTERM stops it cleanly, see `Monitor.run`)."""
     mon = Monitor(config, out_dir, **kw)
     try:
         return asyncio.run(mon.run(duration_s))

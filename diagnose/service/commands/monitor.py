@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 
@@ -35,10 +36,14 @@ def run(args: argparse.Namespace) -> int:
     stats = run_monitor(args.config, args.out, duration_s=args.duration, db=args.db, history=not args.no_history,
                         metrics_port=args.metrics_port, window_samples=args.window, workers=args.workers,
                         explain=explain_mode(args.explain), figures=args.figures)
-    print(f"{stats.diagnosed} windows diagnosed, {stats.failed} failed, {stats.skipped_short} too short; "
+    dropped = f", {stats.dropped} dropped at the stop" if stats.dropped else ""
+    stopped = f", stopped by {signal.Signals(stats.signal).name}" if stats.signal is not None else ""
+    print(f"{stats.diagnosed} windows diagnosed, {stats.failed} failed, {stats.skipped_short} too short{dropped}; "
           f"{stats.polls} polls ({stats.polls_failed} failed, {stats.polls_missed} missed) in {duration(stats.wall_s)}, "
           f"{stats.outages} outage(s), {stats.reconnects} reconnection(s), "
-          f"poller CPU {stats.poll_cpu_s:.1f} s; results in {args.out}", file=sys.stdout)
+          f"poller CPU {stats.poll_cpu_s:.1f} s{stopped}; results in {args.out}", file=sys.stdout)
+    if stats.signal is not None:
+        return 128 + stats.signal  # the shell's code for a signal: 130 for SIGINT, 143 for SIGTERM
     if stats.polls_good == 0:
         from ..monitor import nothing_read_error
 
