@@ -20,7 +20,9 @@ Configuration (TOML, `load_modbus_config`)::
 
 Types: ``float32`` (two registers; ``order`` ABCD, CDAB, BADC or DCBA), ``int32``/``uint32`` (two
 registers, ``order`` ABCD or CDAB...), ``int16``, ``uint16``. ``scale``/``offset`` turn the raw
-number into engineering units; ``range = [lo, hi]`` then scales OP/MV to % of span.
+number into engineering units; ``range = [lo, hi]`` then scales OP/MV to % of span. A ``port``
+outside 1..65535, or two roles of one loop on the same registers (same table and unit id), is a
+one-line error naming the file, the loop and the key when the file is read.
 
 `ModbusPoller` keeps one `pymodbus.client.AsyncModbusTcpClient` per device, shared by that
 device's loops, and reads each device's registers in as few requests as possible (contiguous
@@ -183,6 +185,8 @@ def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusCon
                                          float(d["timeout_s"]) if "timeout_s" in d else None)
         except (TypeError, ValueError) as exc:
             raise _err(f"devices.{name}: {exc}", path) from None
+        if not 1 <= devices[name].port <= 65535:
+            raise _err(f"devices.{name}.port {devices[name].port} is outside 1..65535", path)
     loops = {}
     for name, spec in loops_raw.items():
         if not isinstance(spec, dict):
@@ -225,7 +229,9 @@ def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusCon
         for need in ("op", "pv"):
             if need not in regs:
                 raise _err(f"loops.{name} needs an {need} register", path)
-        loops[name] = LoopConfig(name, dev, regs, int(spec["device_id"]) if "device_id" in spec else None)
+        loop_id = int(spec["device_id"]) if "device_id" in spec else None
+        _check_overlaps(name, regs, loop_id if loop_id is not None else devices[dev].device_id, path)
+        loops[name] = LoopConfig(name, dev, regs, loop_id)
     period_s = float(data.get("period_s", 1.0))
     if not (math.isfinite(period_s) and period_s > 0):
         raise _err("period_s must be > 0", path)
@@ -235,6 +241,23 @@ def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusCon
         raise _err("window_samples must be at least 2", path)
     return ModbusConfig(devices, loops, period_s, timeout_s, int(data.get("window_samples", 600)),
                         float(data.get("reconnect_min_s", 0.5)), float(data.get("reconnect_max_s", 5.0)), path)
+
+
+def _check_overlaps(loop: str, regs: Mapping[str, RegisterMap], device_id: int, path: str | None) -> None:
+    """Two roles of one loop reading the same registers is a typo in the map; polled, it would give
+    one signal twice (an OP equal to PV identifies nothing) or fail only at run time."""
+    seen: list[tuple[str, RegisterMap]] = []
+    for role, rm in regs.items():
+        last = rm.address + rm.count - 1
+        if last > 65535:
+            raise _err(f"loops.{loop}.{role}.address {rm.address}: its {rm.count} registers run past 65535", path)
+        for other, om in seen:
+            if (om.table == rm.table and (om.device_id or device_id) == (rm.device_id or device_id)
+                    and rm.address <= om.address + om.count - 1 and om.address <= last):
+                raise _err(f"loops.{loop}.{role}.address {rm.address}: {rm.table} registers {rm.address}..{last} "
+                           f"overlap loops.{loop}.{other} ({om.address}..{om.address + om.count - 1}); give each "
+                           "role its own registers", path)
+        seen.append((role, rm))
 
 
 def load_modbus_config(path: str | os.PathLike) -> ModbusConfig:

@@ -132,6 +132,24 @@ def test_bad_config_is_a_one_line_error(tmp_path, capsys):
     assert err.startswith("error: ") and "Traceback" not in err
 
 
+@pytest.mark.parametrize("edit, message", [
+    (("port = ", "port = 70000\n#"), "devices.sim.port 70000 is outside 1..65535"),
+    (("pv = { address = 2,", "pv = { address = 0, table = 'holding',"),
+     "loops.SIM000.pv.address 0: holding registers 0..1 overlap loops.SIM000.op (0..1); give each role its own "
+     "registers"),
+    (("pv = { address = 2,", "pv = { address = 1, table = 'holding',"), "loops.SIM000.pv.address 1: holding"),
+])
+def test_a_port_out_of_range_or_roles_on_the_same_registers_are_config_errors(tmp_path, capsys, edit, message):
+    cfg = tmp_path / "plant.toml"
+    text = default_config_text(free_port(), 1, period_s=0.2, window_samples=150)
+    old, new = edit
+    assert old in text, text
+    cfg.write_text(text.replace(old, new, 1))
+    assert main(["monitor", str(cfg), "--duration", "5", "--out", str(tmp_path / "o"), "--no-history"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {cfg}: {message}") and len(err.strip().splitlines()) == 1, err
+
+
 def _silent_device():
     """A TCP listener that accepts connections and never answers (a hung gateway)."""
     import socket
