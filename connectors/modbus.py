@@ -309,7 +309,7 @@ class LoopStats:
     missed: int = 0        # ticks skipped because the device task fell behind
     failed: int = 0        # polls whose read failed (timeout, connection, exception response)
     windows: int = 0
-    last_error: str | None = None
+    last_error: str | None = None   # of the latest failed poll; None after a good one
 
 
 class _Buffer:
@@ -504,6 +504,10 @@ class ModbusPoller:
                 st.missed += 1
             elif ok:
                 st.good += 1
+                # an error is the current one until a good read: the monitor takes a poll that
+                # comes back empty with an error for an outage, and a stale error made the ticks
+                # missed just after a reconnection a second outage
+                st.last_error = None
             else:
                 st.failed += 1
             buf = self._buffers[lc.name]

@@ -291,3 +291,30 @@ def test_a_signal_stops_the_monitor_cleanly(tmp_path, sig, code):
         assert not list((tmp_path / "out" / loop).glob("*.tmp*"))
     with History(tmp_path / "h.sqlite") as h:
         assert len(h.runs("SIM000")) == 1 and len(h.runs("SIM001")) == 1
+
+
+def test_ticks_missed_just_after_a_reconnection_are_not_a_second_outage(tmp_path):
+    import io
+
+    from diagnose.service.monitor import Monitor
+
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(free_port(), 2, period_s=0.1, window_samples=150))
+    log = io.StringIO()
+    mon = Monitor(cfg, tmp_path / "out", history=False, log=log, workers=0)
+    poller, loops = mon.poller, list(mon.config.loops.values())
+    good = {lc.name: {"op": 50.0, "pv": 1.0} for lc in loops}
+    t = 1000.0
+    poller._record_all(loops, t, good, missed=False)
+    for lc in loops:   # the device goes away: the poller's connection attempt fails
+        poller.stats[lc.name].last_error = "cannot connect to 127.0.0.1:1"
+    for k in range(1, 30):
+        poller._record_all(loops, t + 0.1 * k, {}, missed=False)
+    poller._record_all(loops, t + 3.0, good, missed=False)           # back
+    # the reconnection took longer than a period: the poller records the ticks it skipped as missed
+    poller._record_all(loops, t + 3.1, {}, missed=True)
+    poller._record_all(loops, t + 3.2, {}, missed=True)
+    poller._record_all(loops, t + 3.3, good, missed=False)
+    text = log.getvalue()
+    assert mon.stats.outages == 1 and mon.stats.reconnects == 1, text
+    assert text.count("outage") == 1 and text.count("reconnected") == 1, text
