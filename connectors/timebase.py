@@ -114,11 +114,20 @@ def _choose_format(samples: list[str]) -> str:
 def zone_of(tz: str | None):
     """The time zone a ``--tz`` option names: None or UTC, a fixed offset (``+01:00``) or an IANA
     name; an unknown name is a `ConnectorError` that says what to write instead."""
-    if tz is None or tz.upper() in ("UTC", "Z"):
+    if tz is None:
+        return timezone.utc
+    if not isinstance(tz, str):
+        raise ConnectorError(f"time zone {tz!r} is not a zone name or an offset string; use an IANA name "
+                             "such as 'Europe/Berlin' or an offset such as '+01:00'")
+    if tz.strip().upper() in ("UTC", "Z"):
         return timezone.utc
     m = re.fullmatch(r"(?:UTC)?([+-])(\d{1,2}):?(\d{2})?", tz.strip())
     if m:
-        off = timedelta(hours=int(m.group(2)), minutes=int(m.group(3) or 0))
+        hours, minutes = int(m.group(2)), int(m.group(3) or 0)
+        if hours > 23 or minutes > 59:
+            raise ConnectorError(f"time zone offset {tz!r} is out of range; offsets run from -23:59 to "
+                                 "+23:59 with minutes below 60")
+        off = timedelta(hours=hours, minutes=minutes)
         return timezone(off if m.group(1) == "+" else -off)
     from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 

@@ -672,3 +672,28 @@ def test_frame_errors_are_data_errors():
         LoopRecord.from_frame({"OP": [1, 2]})
     with pytest.raises(DataError, match="tags= applies to files"):
         diagnose.read_loops(two, ts_s=1.0, tags={"loops": {}})
+
+
+# ---------------------------------------------------------------------------------- time zone options
+
+@pytest.mark.parametrize("tz", ["+24:00", "+25:00", "+30", "-24", "+14:61"])
+def test_time_zone_offset_out_of_range_is_a_one_line_error(tmp_path, capsys, tz):
+    from diagnose.service.cli import main
+
+    f = tmp_path / "loop.csv"
+    f.write_text(wide_text(60, header=("time", "FIC1.OP", "FIC1.PV")).replace("Z", ""))
+    with pytest.raises(ConnectorError, match=r"offset .* out of range; offsets run from -23:59 to \+23:59"):
+        read_records(f, tz=tz)
+    assert main(["identify", str(f), "--tz", tz]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_time_zone_that_is_not_a_string_is_a_data_error():
+    import diagnose
+    from diagnose.errors import DataError
+
+    with pytest.raises(DataError, match="time zone 5 is not a zone name or an offset string"):
+        diagnose.read_loops(frame_loop().reset_index().astype({"time": str}), tz=5)
+    (rec,) = read_records(io.StringIO(wide_text(60).replace("Z", "")), tz="+23:59")
+    assert rec.start == "2024-04-30T00:01:00Z"
