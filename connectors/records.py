@@ -253,6 +253,10 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         raise ConnectorError("cannot tell the sample period (fewer than two distinct times); give --ts-s SECONDS",
                              path=label)
     max_gap_s = float(options.get("max_gap_s") or DEFAULT_MAX_GAP_SAMPLES * ts_s)
+    # a max_gap_s given is the limit for every tag; a mode is a state, not a line between archive points
+    densest = min(_spacing(cleaned["op"]), _spacing(cleaned["pv"]))
+    gap_of = {r: max_gap_s if options.get("max_gap_s") or r == "mode" else _archive_gap(c, densest, max_gap_s)
+              for r, c in cleaned.items()}
     starts = [c.t[np.isfinite(c.x)][0] for r, c in cleaned.items() if r in ("op", "pv")]
     ends = [c.t[np.isfinite(c.x)][-1] for r, c in cleaned.items() if r in ("op", "pv")]
     t0, t1 = max(starts), min(ends)
@@ -261,7 +265,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     n_grid = int(np.floor((t1 - t0) / ts_s + 1e-6)) + 1
     # The grid is uniform from t0 at ts_s, but only its points near OP or PV samples are built:
     # a stray row far from the rest costs a point, not the span between.
-    spans = _grid_spans(cleaned["op"], cleaned["pv"], t0, ts_s, n_grid, max_gap_s)
+    spans = _grid_spans(cleaned["op"], cleaned["pv"], t0, ts_s, n_grid, gap_of["op"], gap_of["pv"])
     n_points = int((spans[:, 1] - spans[:, 0] + 1).sum())
     if n_points > MAX_GRID_SAMPLES:
         raise ConnectorError(f"{n_points} samples at {ts_s:g} s is too many (the limit is {MAX_GRID_SAMPLES}); "
@@ -277,7 +281,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     gridded: dict[str, np.ndarray] = {}
     filled_total = 0
     for role, c in cleaned.items():
-        g, filled = to_grid(c.t, c.x, grid, max_gap_s, step=step)
+        g, filled = to_grid(c.t, c.x, grid, gap_of[role], step=step, bad_gap_s=max_gap_s)
         gridded[role] = g
         own = estimate_period([c.t])
         if role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
@@ -383,19 +387,20 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     return records
 
 
-def _grid_spans(op: Cleaned, pv: Cleaned, t0: float, ts_s: float, n_grid: int, max_gap_s: float) -> np.ndarray:
+def _grid_spans(op: Cleaned, pv: Cleaned, t0: float, ts_s: float, n_grid: int, op_gap_s: float,
+                pv_gap_s: float) -> np.ndarray:
     """``[lo, hi]`` ranges of grid indices ``k`` (points ``t0 + k ts_s``) within reach of OP or PV
     data, shape (m, 2), sorted and disjoint.
 
     A point is within reach of a signal where `to_grid` can give it a value: inside a stretch of
-    samples without a gap longer than ``max_gap_s``, or within the on-sample tolerance of a sample
+    samples without a gap longer than that signal's gap limit, or within the on-sample tolerance of a sample
     (spare points on each side cover it). Elsewhere both would be NaN, so those points are not
     built; points that only one signal reaches are, so that its interpolated samples are counted.
     """
     tol = 1e-9 + 1e-6 * max(1.0, (abs(t0) + n_grid * ts_s) * 1e-6)
     margin = 1 + int(np.ceil(tol / ts_s))
 
-    def spans(c: Cleaned) -> tuple[np.ndarray, np.ndarray]:
+    def spans(c: Cleaned, max_gap_s: float) -> tuple[np.ndarray, np.ndarray]:
         t = c.t[np.isfinite(c.x)]
         brk = np.flatnonzero(np.diff(t) > max_gap_s * (1 + 1e-9))
         first = np.concatenate(([0], brk + 1))
@@ -404,10 +409,30 @@ def _grid_spans(op: Cleaned, pv: Cleaned, t0: float, ts_s: float, n_grid: int, m
         hi = np.clip(np.ceil((t[last] - t0) / ts_s) + margin, 0, n_grid - 1).astype(np.int64)
         return lo, hi
 
-    (lo_a, hi_a), (lo_b, hi_b) = spans(op), spans(pv)
+    (lo_a, hi_a), (lo_b, hi_b) = spans(op, op_gap_s), spans(pv, pv_gap_s)
     lo, hi = np.concatenate((lo_a, lo_b)), np.concatenate((hi_a, hi_b))
     order = np.argsort(lo, kind="stable")
     return _merge(lo[order], hi[order])
+
+
+def _spacing(c: Cleaned) -> float:
+    """Median spacing of a tag's archive points (its values, bad ones left out)."""
+    return estimate_period([c.t[np.isfinite(c.x)]])
+
+
+def _archive_gap(c: Cleaned, densest_s: float, max_gap_s: float) -> float:
+    """The longest gap interpolated in one tag.
+
+    A tag archived more sparsely than the denser of OP and PV (at a slower rate, or by exception
+    as historians compress: irregular points, far apart where the value ran straight) is a line
+    between its archive points. Its limit is `DEFAULT_MAX_GAP_SAMPLES` of its own mean archive
+    spacing, so that only a silence far longer than usual for that tag is a gap; when OP and PV
+    are both silent, the denser one's gap splits the record anyway.
+    """
+    t = c.t[np.isfinite(c.x)]
+    if t.size < 2 or not _spacing(c) > 1.5 * densest_s:
+        return max_gap_s
+    return max(max_gap_s, DEFAULT_MAX_GAP_SAMPLES * float(t[-1] - t[0]) / (t.size - 1))
 
 
 def _grid_index(spans: np.ndarray) -> np.ndarray:

@@ -428,12 +428,14 @@ def irregularity(t: np.ndarray, ts_s: float, max_gap_s: float) -> float:
 
 
 def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
-            step: float | None = None) -> tuple[np.ndarray, int]:
+            step: float | None = None, bad_gap_s: float | None = None) -> tuple[np.ndarray, int]:
     """Values of a sorted series on ``grid``: linear inside gaps up to ``max_gap_s``, NaN beyond.
 
     ``grid`` is increasing in steps of ``step`` (default ``grid[1] - grid[0]``); it may skip
-    stretches where there is no data. Returns the gridded values and how many grid points were filled by interpolation
-    across a missing or bad sample.
+    stretches where there is no data. ``bad_gap_s`` (default ``max_gap_s``) limits the gaps that
+    hold a bad sample: a tag archived by exception gets a long ``max_gap_s``, but a bad value
+    between its archive points marks an outage, not a stretch without change. Returns the gridded
+    values and how many grid points were filled by interpolation across a missing or bad sample.
     """
     ok = np.isfinite(x)
     tv, xv = (t, x) if ok.all() else (t[ok], x[ok])
@@ -455,7 +457,11 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
     exact_end = np.abs(grid - tv[-1]) <= 1e-9 + tol
     w = np.where(span > 0, (grid - t0) / np.where(span > 0, span, 1.0), 0.0)
     vals = xv[jj - 1] + w * (xv[jj] - xv[jj - 1])
-    good = inside & (span <= max_gap_s * (1 + 1e-9))
+    limit: float | np.ndarray = max_gap_s
+    if bad_gap_s is not None and not ok.all():
+        n_bad = np.cumsum(~ok)[ok]                   # bad samples before each good one
+        limit = np.where(n_bad[jj] > n_bad[jj - 1], bad_gap_s, max_gap_s)
+    good = inside & (span <= limit * (1 + 1e-9))
     out[good] = vals[good]
     out[exact_end] = xv[-1]
     if step is None:

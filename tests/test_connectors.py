@@ -697,3 +697,44 @@ def test_time_zone_that_is_not_a_string_is_a_data_error():
         diagnose.read_loops(frame_loop().reset_index().astype({"time": str}), tz=5)
     (rec,) = read_records(io.StringIO(wide_text(60).replace("Z", "")), tz="+23:59")
     assert rec.start == "2024-04-30T00:01:00Z"
+
+
+# ------------------------------------------------------------------------ compressed (exception) archives
+
+def _compressed_long(path, *, silent=None, op_silent=None, op_bad_at=None):
+    """A PI recorded-values export: PV every 10 s, OP only at its swinging-door archive points."""
+    from diagnose.quality import swinging_door
+
+    rng = np.random.default_rng(7)
+    t = np.arange(3000) * 10.0
+    op = 50 + 5 * np.sin(t / 900) + rng.normal(0, 0.02, t.size)
+    pv = 20 + np.cos(t / 900) + rng.normal(0, 0.02, t.size)
+    rows = [(t[k], "FIC1.OP", f"{op[k]:.4f}") for k in swinging_door(t, op, 0.1)]
+    rows += [(t[k], "FIC1.PV", f"{pv[k]:.4f}") for k in range(t.size)]
+    if op_bad_at is not None:
+        rows.append((op_bad_at, "FIC1.OP", "I/O Timeout"))
+    lo, hi = silent or (-1, -1)
+    op_lo, op_hi = op_silent or (-1, -1)
+    rows = [r for r in rows if not lo <= r[0] < hi and not (r[1] == "FIC1.OP" and op_lo <= r[0] < op_hi)]
+    rows.sort()
+    path.write_text("tag,timestamp,value\n" + "".join(
+        f"{tag},{np.datetime64('2024-05-01T00:00:00') + np.timedelta64(int(s), 's')},{v}\n" for s, tag, v in rows))
+    return path
+
+
+def test_compressed_tag_is_interpolated_between_its_archive_points(tmp_path):
+    (rec,) = read_records(_compressed_long(tmp_path / "sdt.csv"))
+    assert rec.ts_s == 10.0 and rec.n == 3000
+    assert "compression" in codes(rec) and "gap" not in codes(rec) and "segment" not in codes(rec)
+
+
+def test_outages_of_a_compressed_tag_are_still_gaps(tmp_path):
+    # OP and PV both silent for an hour
+    recs = read_records(_compressed_long(tmp_path / "both.csv", silent=(12000, 15600)))
+    assert len(recs) == 2 and "segment" in codes(recs[0])
+    # OP alone silent far longer than its usual archive spacing (a mean of about 9 min)
+    recs = read_records(_compressed_long(tmp_path / "op.csv", op_silent=(12000, 24000)))
+    assert len(recs) == 2 and recs[0].meta["n_segments"] == 2
+    # a bad value between two OP archive points marks an outage, not a straight run
+    recs = read_records(_compressed_long(tmp_path / "bad.csv", op_bad_at=15005.0))
+    assert len(recs) == 2 and "bad_values" in codes(recs[0])
