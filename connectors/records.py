@@ -17,7 +17,8 @@ from diagnose.record import Finding, LoopRecord
 from .columns import role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
-from .timebase import Cleaned, clean_series, estimate_period, irregularity, iso_utc, runs, to_grid
+from .timebase import (END_TOLERANCE, Cleaned, clean_series, estimate_period, irregularity, iso_utc, runs,
+                       to_grid)
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
 DEFAULT_MIN_SAMPLES = 20
@@ -262,7 +263,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     t0, t1 = max(starts), min(ends)
     if t1 < t0:
         raise ConnectorError("OP and PV do not overlap in time", path=label)
-    n_grid = int(np.floor((t1 - t0) / ts_s + 1e-6)) + 1
+    n_grid = int(np.floor((t1 - t0) / ts_s + END_TOLERANCE)) + 1
     # The grid is uniform from t0 at ts_s, but only its points near OP or PV samples are built:
     # a stray row far from the rest costs a point, not the span between.
     spans = _grid_spans(cleaned["op"], cleaned["pv"], t0, ts_s, n_grid, gap_of["op"], gap_of["pv"])

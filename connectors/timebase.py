@@ -35,6 +35,8 @@ import pandas as pd
 from diagnose.errors import ConnectorError
 
 DST_POLICIES = ("infer", "earliest", "latest", "raise")
+#: A series' last sample this fraction of a grid step off the last grid point still lands on it.
+END_TOLERANCE = 1e-3
 _SECONDS_NAMES = {"t", "ts", "t_s", "time_s", "seconds", "sec", "s", "elapsed", "elapsed_s"}
 _EPOCH = datetime(1970, 1, 1)
 _EXCEL_EPOCH_US = int((datetime(1899, 12, 30) - _EPOCH) / timedelta(microseconds=1))
@@ -273,7 +275,7 @@ def _numeric(num: np.ndarray, tz, dst, label, column, lines) -> ParsedTimes:
         # Excel serial days (1899-12-30 epoch), naive local time, to the millisecond
         ok = np.flatnonzero(np.isfinite(num))
         wall = np.full(num.size, _NAT, dtype=np.int64)
-        wall[ok] = _EXCEL_EPOCH_US + np.round(num[ok] * 86_400e6).astype(np.int64) // 1000 * 1000
+        wall[ok] = _EXCEL_EPOCH_US + np.round(num[ok] * 86_400e3).astype(np.int64) * 1000
         out = np.full(num.size, np.nan)
         line_of = (lambda k: int(lines[k])) if lines is not None else (lambda k: None)
         out[ok] = localise(wall, ok, zone_of(tz), dst, label, column, line_of)
@@ -409,13 +411,21 @@ def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
 
 
 def estimate_period(times: Sequence[np.ndarray]) -> float:
-    """Median positive spacing over several sorted time vectors (seconds)."""
+    """Median positive spacing over several sorted time vectors (seconds), as the roundest number
+    within the float resolution of the times (epoch seconds carry about 0.2 µs of noise: 100 ms
+    data would otherwise give 0.09999990463256836 s)."""
     d = [np.diff(t) for t in times if t.size > 1]
     d = [v[v > 0] for v in d]
     allv = np.concatenate(d) if d else np.empty(0)
     if allv.size == 0:
         return float("nan")
-    return float(np.median(allv))
+    median = float(np.median(allv))
+    tol = 4 * max(float(np.spacing(np.max(np.abs(t[[0, -1]])))) for t in times if t.size > 1)
+    for digits in range(1, 17):
+        rounded = float(f"{median:.{digits}g}")
+        if abs(rounded - median) <= tol:
+            return rounded
+    return median
 
 
 def irregularity(t: np.ndarray, ts_s: float, max_gap_s: float) -> float:
@@ -453,7 +463,10 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
     jj = np.clip(j, 1, tv.size - 1)
     t0, t1 = tv[jj - 1], tv[jj]
     span = t1 - t0
-    tol = 1e-6 * max(1.0, float(np.nanmax(np.abs(grid))) * 1e-6)
+    if step is None:
+        step = float(grid[1] - grid[0]) if grid.size > 1 else max_gap_s
+    # a last sample a hair off the grid (times rounded to the millisecond) still ends the series
+    tol = max(1e-6 * max(1.0, float(np.nanmax(np.abs(grid))) * 1e-6), END_TOLERANCE * step)
     exact_end = np.abs(grid - tv[-1]) <= 1e-9 + tol
     w = np.where(span > 0, (grid - t0) / np.where(span > 0, span, 1.0), 0.0)
     vals = xv[jj - 1] + w * (xv[jj] - xv[jj - 1])
@@ -464,8 +477,6 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
     good = inside & (span <= limit * (1 + 1e-9))
     out[good] = vals[good]
     out[exact_end] = xv[-1]
-    if step is None:
-        step = float(grid[1] - grid[0]) if grid.size > 1 else max_gap_s
     on_sample = (j > 0) & (np.abs(grid - t0) <= 1e-6 * step)
     out[on_sample] = xv[jj - 1][on_sample]   # a grid point on a sample keeps it, even beside a long gap
     # interpolation across a missing/bad sample: interval longer than 1.5 grid steps

@@ -738,3 +738,24 @@ def test_outages_of_a_compressed_tag_are_still_gaps(tmp_path):
     # a bad value between two OP archive points marks an outage, not a straight run
     recs = read_records(_compressed_long(tmp_path / "bad.csv", op_bad_at=15005.0))
     assert len(recs) == 2 and "bad_values" in codes(recs[0])
+
+
+# ------------------------------------------------------------------------------- inferred periods
+
+def test_inferred_period_is_free_of_float_noise_and_keeps_the_last_sample(tmp_path):
+    rng = np.random.default_rng(11)
+    op, pv = 50 + rng.normal(0, 1, 800), 20 + rng.normal(0, 1, 800)
+    start = np.datetime64("2026-01-01T00:00:00.000")
+    iso = tmp_path / "ms100.csv"          # epoch seconds near 1.8e9 hold 100 ms only to about 0.2 µs
+    iso.write_text("time,FIC1.OP,FIC1.PV\n" + "".join(
+        f"{start + np.timedelta64(100 * k, 'ms')}Z,{op[k]:.4f},{pv[k]:.4f}\n" for k in range(800)))
+    serial = tmp_path / "serial.csv"      # 8 decimals of a day: 0.9 ms, the last time 0.2 ms short
+    serial.write_text("Date,FIC1.OP,FIC1.PV\n" + "".join(
+        f"{46023 + 10 * k / 86400:.8f},{op[k]:.4f},{pv[k]:.4f}\n" for k in range(800)))
+    short = tmp_path / "short.csv"        # plain seconds, the last one 0.2 ms short of the grid
+    short.write_text("time_s,OP,PV\n" + "".join(
+        f"{10 * k - (0.0002 if k == 799 else 0):.4f},{op[k]:.4f},{pv[k]:.4f}\n" for k in range(800)))
+    for f, ts in ((iso, 0.1), (serial, 10.0), (short, 10.0)):
+        (rec,) = read_records(f)
+        assert rec.ts_s == ts and rec.n == 800, f.name
+        np.testing.assert_allclose(rec.op[[0, -1]], op[[0, -1]], atol=1e-4)
