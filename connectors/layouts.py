@@ -22,8 +22,8 @@ import pandas as pd
 from diagnose.errors import ConnectorError
 
 from .columns import TIME_NAMES, role_of
-from .textio import (Source, commonest, delimiter_name, detect_decimal_comma, numbers, quality_good, read_frame,
-                     split_line)
+from .textio import (Source, comma_times, commonest, delimiter_name, detect_decimal_comma, numbers, quality_good,
+                     read_frame, split_line)
 from .timebase import parse_times
 
 LAYOUTS = ("wide", "long", "ragged", "influx", "dcs")
@@ -182,7 +182,10 @@ def _decimal_comma(rows: list[list[str]], cols: list[int], delimiter: str) -> bo
     return any("," in c for c in cells) and detect_decimal_comma(cells)
 
 
-def _times(cells: Any, lines: np.ndarray, label: str, column: str, options: dict) -> tuple[np.ndarray, bool, str]:
+def _times(cells: Any, lines: np.ndarray, label: str, column: str, options: dict,
+           decimal_comma: bool = False) -> tuple[np.ndarray, bool, str]:
+    if decimal_comma:   # the file's decimal comma holds for a time column of numbers too
+        cells = comma_times(_text(cells)) or cells
     pt = parse_times(cells, tz=options.get("tz"), dst=options.get("dst", "infer"), label=label,
                      column=column, lines=lines)
     return pt.seconds, pt.absolute, pt.fmt
@@ -270,7 +273,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
         else:
             cells = cols[time_idx[0]]
             tname = header[time_idx[0]]
-        t, absolute, tfmt = _times(cells, lines, label, tname, options)
+        t, absolute, tfmt = _times(cells, lines, label, tname, options, dec)
     series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
     meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt,
@@ -330,7 +333,7 @@ def parse_long(src: Source, options: dict) -> Table:
         tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(_text(cols[time_j[0]]), _text(cols[time_j[1]]))]
     else:
         tcells = cols[time_j[0]]
-    t, absolute, tfmt = _times(tcells, lines, label, header[time_j[0]], options)
+    t, absolute, tfmt = _times(tcells, lines, label, header[time_j[0]], options, dec)
     num = numbers(cols[val_j], dec)
     finite = np.isfinite(num.values)
     bad_q = np.zeros(len(frame), bool)
@@ -415,9 +418,9 @@ def parse_ragged(src: Source, options: dict) -> Table:
         keep = np.array([k for k, c in enumerate(tcells) if c.strip()], dtype=np.int64)
         if keep.size:
             tl = lines[keep]
-            tt, absolute, tfmt = _times([tcells[k] for k in keep], tl, label, header[j], options)
             vcells = np.array(_text(cols[j + 1]), dtype=object)[keep]
             dec = _decimal_comma([[c] for c in vcells[:: max(1, keep.size // 100)][:100]], [0], head.delimiter)
+            tt, absolute, tfmt = _times([tcells[k] for k in keep], tl, label, header[j], options, dec)
             num = numbers(vcells, dec)
             series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                                  n_blank=num.n_blank, examples=num.examples, first_line=int(tl[0]),

@@ -636,6 +636,16 @@ def _is_number(cell: Any) -> bool:
         return False
 
 
+def comma_times(cells: list[str]) -> list[str] | None:
+    """Time cells written as numbers with a decimal comma (Excel serial days ``46023,5``) with a
+    decimal point, or None when the first of them is not such a number (calendar times such as
+    ``27.11.2024 23:59:00,000`` keep their comma for the time parser)."""
+    first = next((c for c in cells if c.strip()), "")
+    if not _DEC_COMMA.match(first):
+        return None
+    return [_decimal(c) for c in cells]
+
+
 def _decimal(cell: str) -> str:
     """``1.234,5`` -> ``1234.5``; a cell without a comma is left as it is."""
     return cell.replace(".", "").replace(",", ".") if "," in cell else cell

@@ -759,3 +759,26 @@ def test_inferred_period_is_free_of_float_noise_and_keeps_the_last_sample(tmp_pa
         (rec,) = read_records(f)
         assert rec.ts_s == ts and rec.n == 800, f.name
         np.testing.assert_allclose(rec.op[[0, -1]], op[[0, -1]], atol=1e-4)
+# ------------------------------------------------------------------------------- Excel serial days
+
+def _serial_rows(n=120, step_s=10.0, seed=5):
+    """Excel serial days from 2026-01-01 (46023) with OP and PV values."""
+    rng = np.random.default_rng(seed)
+    days = 46023 + np.arange(n) * step_s / 86400
+    return days, 50 + rng.normal(0, 1, n), 20 + rng.normal(0, 1, n)
+
+
+def test_excel_serial_days_with_a_decimal_comma(tmp_path):
+    days, op, pv = _serial_rows()
+    comma = lambda v, d: f"{v:.{d}f}".replace(".", ",")      # noqa: E731
+    wide = tmp_path / "wide.csv"
+    wide.write_text("time;FIC1.OP;FIC1.PV\n" + "".join(
+        f"{comma(d, 10)};{comma(a, 4)};{comma(b, 4)}\n" for d, a, b in zip(days, op, pv)))
+    long = tmp_path / "long.csv"
+    long.write_text("tag;timestamp;value\n" + "".join(
+        f"FIC1.{r};{comma(d, 10)};{comma(v, 4)}\n" for d, a, b in zip(days, op, pv) for r, v in (("OP", a), ("PV", b))))
+    for f in (wide, long):
+        (rec,) = read_records(f)
+        assert rec.n == 120 and rec.ts_s == pytest.approx(10.0) and rec.start == "2026-01-01T00:00:00Z"
+        assert rec.meta["time_format"] == "excel_serial"
+        np.testing.assert_allclose(rec.op, op, atol=1e-4)
