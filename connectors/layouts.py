@@ -28,7 +28,8 @@ from .timebase import parse_times
 
 LAYOUTS = ("wide", "long", "ragged", "influx", "dcs")
 TIME_HEADERS = TIME_NAMES | {"date", "t_stamp", "time_stamp", "sampletime", "sample_time", "date/time",
-                             "timestamp_utc", "time_utc", "zeit", "datum/zeit", "zeitstempel"}
+                             "timestamp_utc", "time_utc", "zeit", "datum/zeit", "zeitstempel",
+                             "datum", "fecha"}
 TAG_HEADERS = {"tag", "tagname", "tag_name", "name", "point", "pointname", "point_name", "series",
                "signal", "item", "itemid", "item_id", "variable", "sensor", "tagpath", "tag_path"}
 VALUE_HEADERS = {"value", "val", "_value", "reading", "wert", "valeur"}

@@ -782,3 +782,20 @@ def test_excel_serial_days_with_a_decimal_comma(tmp_path):
         assert rec.n == 120 and rec.ts_s == pytest.approx(10.0) and rec.start == "2026-01-01T00:00:00Z"
         assert rec.meta["time_format"] == "excel_serial"
         np.testing.assert_allclose(rec.op, op, atol=1e-4)
+
+
+@pytest.mark.parametrize("header", ["Datum", "Fecha", "Date"])
+def test_date_named_time_column_holds_serial_days_or_text(tmp_path, header):
+    days, op, pv = _serial_rows(seed=6)
+    serial = tmp_path / "serial.csv"
+    serial.write_text(f"{header},FIC1.OP,FIC1.PV\n" + "".join(
+        f"{d:.10f},{a:.4f},{b:.4f}\n" for d, a, b in zip(days, op, pv)))
+    text = tmp_path / "text.csv"          # the time column need not come first
+    text.write_text(f"FIC1.OP;{header};FIC1.PV\n" + "".join(
+        f"{a:.4f};{np.datetime64('2026-01-01T00:00:00') + np.timedelta64(10 * k, 's')};{b:.4f}\n"
+        for k, (a, b) in enumerate(zip(op, pv))))
+    for f in (serial, text):
+        (rec,) = read_records(f)
+        assert rec.n == 120 and rec.ts_s == 10.0 and rec.start == "2026-01-01T00:00:00Z"
+        assert rec.meta["time_columns"] == [header]
+        np.testing.assert_allclose(rec.pv, pv, atol=1e-4)
