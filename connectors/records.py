@@ -214,6 +214,11 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     table = spec.table
     label = table.label if table else None
     min_samples = int(options.get("min_samples") or DEFAULT_MIN_SAMPLES)
+    max_samples = int(options.get("max_samples", DEFAULT_MAX_SAMPLES) or 0)
+    if 0 < max_samples < min_samples:
+        raise ConnectorError(f"max_samples (--max-samples) is {max_samples}, below the shortest record of "
+                             f"{min_samples} samples; give {min_samples} or more, or 0 to keep every sample",
+                             path=label)
     findings: list[Finding] = []
     cleaned = {}
     ts_opt = options.get("ts_s")
@@ -329,7 +334,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(Finding("op_range", f"OP ranges from {np.min(op_all):.4g} to {np.max(op_all):.4g}, "
                                 "outside 0-100 %; if it is in engineering units give its range in a tag map",
                                 "warning", {"min": float(np.min(op_all)), "max": float(np.max(op_all))}))
-    window = _window(usable, int(options.get("max_samples", DEFAULT_MAX_SAMPLES) or 0), min_samples, ts_s)
+    window = _window(usable, max_samples, min_samples, ts_s)
     progress = options.get("_progress")
     if progress:
         total = sum(b - a for a, b in usable)

@@ -799,3 +799,18 @@ def test_date_named_time_column_holds_serial_days_or_text(tmp_path, header):
         assert rec.n == 120 and rec.ts_s == 10.0 and rec.start == "2026-01-01T00:00:00Z"
         assert rec.meta["time_columns"] == [header]
         np.testing.assert_allclose(rec.pv, pv, atol=1e-4)
+
+
+def test_max_samples_below_the_shortest_record_is_a_one_line_error(tmp_path, capsys):
+    from diagnose.service.cli import main
+
+    f = tmp_path / "loop.csv"
+    f.write_text(wide_text(200, seed=4))
+    with pytest.raises(ConnectorError, match=r"max_samples \(--max-samples\) is 10, below the shortest record "
+                                             r"of 20 samples"):
+        read_records(f, max_samples=10)
+    assert main(["identify", str(f), "--max-samples", "10"]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "--max-samples" in err and "no loop found" not in err
+    (rec,) = read_records(f, max_samples=20)
+    assert rec.n == 20
