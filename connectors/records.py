@@ -285,13 +285,13 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                                 f"{ts_s:g} s by more than 10 %; resampled to a uniform {ts_s:g} s grid",
                                 "info" if irr < 0.3 else "warning", {"frac": round(irr, 4), "ts_s": ts_s}))
     gridded: dict[str, np.ndarray] = {}
-    filled_total = 0
+    filled = np.zeros(grid.shape, bool)
     for role, c in cleaned.items():
-        g, filled = to_grid(c.t, c.x, grid, gap_of[role], step=step, bad_gap_s=max_gap_s)
+        g, filled_here = to_grid(c.t, c.x, grid, gap_of[role], step=step, bad_gap_s=max_gap_s)
         gridded[role] = g
         own = estimate_period([c.t])
         if role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
-            filled_total = max(filled_total, filled)
+            filled |= filled_here
         s = spec.roles[role]
         if role != "mode" and not (role == "pv" and pv_dead is not None):
             f = _bad_finding(role, s, s.x.size)
@@ -306,9 +306,10 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     first_ok = gk.size > 0 and gk[0] == 0 and ok[0]
     last_ok = gk.size > 0 and gk[-1] == n_grid - 1 and ok[-1]
     long_gaps = max(0, len(segs) - 1) + int(not first_ok) + int(not last_ok) if segs else 0
+    filled_total = int(np.count_nonzero(filled & ok))   # points left in a long gap are in no record
     if filled_total:
-        findings.append(Finding("gap", f"{filled_total} missing or bad samples inside gaps up to "
-                                f"{max_gap_s:g} s were filled by linear interpolation",
+        findings.append(Finding("gap", f"{filled_total} samples where OP or PV was missing or bad (in gaps up "
+                                f"to {max_gap_s:g} s) were filled by linear interpolation",
                                 "info" if filled_total < 0.01 * n_grid else "warning",
                                 {"filled": filled_total, "max_gap_s": max_gap_s}))
     usable = [(a, b) for a, b in segs if b - a >= min_samples]

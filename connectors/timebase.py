@@ -438,26 +438,26 @@ def irregularity(t: np.ndarray, ts_s: float, max_gap_s: float) -> float:
 
 
 def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
-            step: float | None = None, bad_gap_s: float | None = None) -> tuple[np.ndarray, int]:
+            step: float | None = None, bad_gap_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Values of a sorted series on ``grid``: linear inside gaps up to ``max_gap_s``, NaN beyond.
 
     ``grid`` is increasing in steps of ``step`` (default ``grid[1] - grid[0]``); it may skip
     stretches where there is no data. ``bad_gap_s`` (default ``max_gap_s``) limits the gaps that
     hold a bad sample: a tag archived by exception gets a long ``max_gap_s``, but a bad value
     between its archive points marks an outage, not a stretch without change. Returns the gridded
-    values and how many grid points were filled by interpolation across a missing or bad sample.
+    values and a mask of the grid points filled by interpolation across a missing or bad sample.
     """
     ok = np.isfinite(x)
     tv, xv = (t, x) if ok.all() else (t[ok], x[ok])
     if tv.size == grid.size and tv.size > 1 and np.array_equal(tv, grid):
-        return xv.copy(), 0                      # every grid point is a sample: nothing to interpolate
+        return xv.copy(), np.zeros(grid.shape, bool)     # every grid point is a sample: nothing to interpolate
     out = np.full(grid.shape, np.nan)
     if tv.size == 0:
-        return out, 0
+        return out, np.zeros(grid.shape, bool)
     if tv.size == 1:
         hit = np.abs(grid - tv[0]) < 1e-6 * max(1.0, abs(tv[0])) + 1e-9
         out[hit] = xv[0]
-        return out, 0
+        return out, np.zeros(grid.shape, bool)
     j = np.searchsorted(tv, grid, side="right")
     inside = (j > 0) & (j < tv.size)
     jj = np.clip(j, 1, tv.size - 1)
@@ -480,8 +480,7 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
     on_sample = (j > 0) & (np.abs(grid - t0) <= 1e-6 * step)
     out[on_sample] = xv[jj - 1][on_sample]   # a grid point on a sample keeps it, even beside a long gap
     # interpolation across a missing/bad sample: interval longer than 1.5 grid steps
-    filled = int(np.count_nonzero(good & (span > 1.5 * step) & ~on_sample))
-    return out, filled
+    return out, good & (span > 1.5 * step) & ~on_sample
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -417,7 +417,7 @@ def test_to_grid_interpolates_short_gaps_only():
     g, filled = to_grid(t, x, np.arange(22.0), max_gap_s=3.0)
     np.testing.assert_allclose(g[:7], np.arange(7.0))           # 3 s gap filled
     assert np.all(np.isnan(g[7:20])) and g[20] == 20 and g[21] == 21
-    assert filled == 2
+    assert filled.sum() == 2
 
 
 def test_first_row_wider_than_the_header_is_an_error_not_dropped_data():
@@ -814,3 +814,18 @@ def test_max_samples_below_the_shortest_record_is_a_one_line_error(tmp_path, cap
     assert err.startswith("error: ") and "--max-samples" in err and "no loop found" not in err
     (rec,) = read_records(f, max_samples=20)
     assert rec.n == 20
+
+
+def test_gap_finding_counts_each_filled_sample_once(tmp_path):
+    rng = np.random.default_rng(8)
+    op, pv = 50 + rng.normal(0, 1, 300), 20 + rng.normal(0, 1, 300)
+    rows = []
+    for k in range(300):
+        a = "" if 100 <= k <= 102 else f"{op[k]:.4f}"        # OP missing at 100-102
+        b = "" if 101 <= k <= 104 else f"{pv[k]:.4f}"        # PV missing at 101-104
+        rows.append(f"{k},{a},{b}\n")
+    f = tmp_path / "holes.csv"
+    f.write_text("time_s,OP,PV\n" + "".join(rows))
+    (rec,) = read_records(f)
+    gap = next(x for x in rec.findings if x.code == "gap")
+    assert gap.data["filled"] == 5 and gap.message.startswith("5 samples where OP or PV was missing or bad")
