@@ -71,7 +71,7 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
                 s = by_lower.get(rm.tag.lower())
                 if s is None:
                     continue
-                sp.roles[role] = s
+                _claim(sp.roles, role, s, table.label)
                 if rm.range is not None:
                     sp.ranges[role] = rm.range
                 if rm.units:
@@ -88,7 +88,7 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
             if s is None:
                 raise ConnectorError(f"no column named {col!r} for {role.upper()} (columns: {_columns_hint(table)})",
                                      path=table.label)
-            roles[role] = s
+            _claim(roles, role, s, table.label)
         for role in ("op", "pv"):
             if role not in roles:
                 # take the naming rule's column for the missing role, from the same tag if possible
@@ -141,6 +141,15 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
     if len(specs) == 1 and options.get("name"):
         specs[0].name = str(options["name"])
     return specs
+
+
+def _claim(roles: dict[str, Series], role: str, s: Series, label: str | None) -> None:
+    """Give column ``s`` the role; one column for two roles would diagnose a signal against itself."""
+    other = next((r for r, taken in roles.items() if taken is s), None)
+    if other is not None:
+        raise ConnectorError(f"column {s.name!r} is given for both {other.upper()} and {role.upper()}; "
+                             "each role needs its own column", path=label)
+    roles[role] = s
 
 
 _ISA = re.compile(r"^([A-Za-z])([VTvt])[-_]?(\w+)$")

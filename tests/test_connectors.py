@@ -829,3 +829,19 @@ def test_gap_finding_counts_each_filled_sample_once(tmp_path):
     (rec,) = read_records(f)
     gap = next(x for x in rec.findings if x.code == "gap")
     assert gap.data["filled"] == 5 and gap.message.startswith("5 samples where OP or PV was missing or bad")
+
+
+def test_one_column_for_two_roles_is_a_one_line_error(tmp_path, capsys):
+    from diagnose.service.cli import main
+
+    f = tmp_path / "loop.csv"
+    f.write_text(wide_text(100, seed=9))
+    with pytest.raises(ConnectorError, match=r"column 'FIC1.PV' is given for both OP and PV"):
+        read_records(f, op="FIC1.PV", pv="FIC1.PV")
+    with pytest.raises(ConnectorError, match=r"column 'FIC1.OP' is given for both OP and SP"):
+        read_records(f, op="FIC1.OP", pv="FIC1.PV", sp="fic1.op")
+    with pytest.raises(ConnectorError, match=r"column 'FIC1.PV' is given for both OP and PV"):
+        read_records(f, tags={"loops": {"L1": {"op": "FIC1.PV", "pv": "FIC1.PV"}}})
+    assert main(["identify", str(f), "--op", "FIC1.PV", "--pv", "FIC1.PV"]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "both OP and PV" in err
