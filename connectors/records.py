@@ -288,7 +288,9 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     gk = _grid_index(spans)
     grid = t0 + gk * ts_s
     step = float((t0 + ts_s) - t0) if n_grid > 1 else max_gap_s
-    irr = irregularity(cleaned["op"].t, ts_s, max_gap_s)
+    # a compressed OP is irregular by design (the compression finding says so): PV tells the sampling
+    sampled = "pv" if _spacing(cleaned["op"]) > 1.5 * densest else "op"
+    irr = irregularity(cleaned[sampled].t, ts_s, max_gap_s)
     if irr > 0.05:
         findings.append(Finding("irregular_sampling", f"{100 * irr:.0f} % of sample intervals differ from "
                                 f"{ts_s:g} s by more than 10 %; resampled to a uniform {ts_s:g} s grid",

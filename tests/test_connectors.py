@@ -845,3 +845,19 @@ def test_one_column_for_two_roles_is_a_one_line_error(tmp_path, capsys):
     assert main(["identify", str(f), "--op", "FIC1.PV", "--pv", "FIC1.PV"]) != 0
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "both OP and PV" in err
+
+
+def test_compressed_op_is_not_reported_as_irregular_sampling(tmp_path):
+    from diagnose.quality import swinging_door
+
+    rng = np.random.default_rng(12)
+    t = np.arange(800) * 10.0
+    op = 50 + 3 * np.sin(t / 100) + rng.normal(0, 0.05, t.size)     # archive points 20-100 s apart
+    pv = 20 + np.cos(t / 100) + rng.normal(0, 0.02, t.size)
+    keep = swinging_door(t, op, 0.1)
+    assert np.mean(np.diff(t[keep]) <= 100) > 0.5
+    rows = sorted([(t[k], "FIC1.OP", op[k]) for k in keep] + [(t[k], "FIC1.PV", pv[k]) for k in range(t.size)])
+    f = tmp_path / "sdt.csv"
+    f.write_text("tag,timestamp,value\n" + "".join(f"{tag},{s:.0f},{v:.4f}\n" for s, tag, v in rows))
+    (rec,) = read_records(f)
+    assert rec.n == 800 and "compression" in codes(rec) and "irregular_sampling" not in codes(rec)
