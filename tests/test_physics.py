@@ -824,3 +824,43 @@ def test_explain_benchmark_times_a_tree_without_the_independent_simulator(tmp_pa
     (tmp_path / "diagnose").symlink_to(root / "diagnose")
     r = run_one(tmp_path, "none", 24000, False, 400, "1")
     assert set(r) == {"named", "wall_s", "cpu_s"} and r["cpu_s"] > 0
+
+
+def test_the_fitting_stages_baseline_is_simulated_like_every_other_model():
+    # the sample overshoot loop: on this training span the fitting stage picks an integrating
+    # process with a slow polynomial load, which carried on past the training part misses the
+    # held-out PV by many times its spread
+    from diagnose import read_loops
+    from diagnose.physics.baseline import make_baseline
+
+    rec = read_loops(Path(__file__).resolve().parents[1] / "sample_logs" / "TIC105.csv")[0]
+    n = len(rec.op)
+    train = np.zeros(n, bool)
+    train[322:int(round(0.65 * n))] = True
+    stage = Stage(name="loop", x=np.asarray(rec.op, float), y=np.asarray(rec.pv, float), ts_s=rec.ts_s,
+                  train=train, gain_sign=1)
+    base = make_baseline(stage)
+    assert base.source == "fit_hammerstein"
+    y_hat, stem, _ = predict(stage, base.structure)
+    assert np.allclose(base.y_hat, y_hat) and np.allclose(base.stem_hat, stem)
+    ho = stage.heldout
+    assert np.sqrt(np.mean((stage.y - base.y_hat)[ho] ** 2)) < 3.0 * np.std(stage.y[ho])
+
+
+def test_the_text_picks_the_best_refused_hypothesis_by_its_relative_change_not_across_units():
+    # the valve stage's RMSEs are in % of span, the loop stage's in PV units: a tiny MV RMSE is
+    # not a better hypothesis than a PV one
+    from types import SimpleNamespace
+
+    from diagnose.physics import HypothesisResult
+    from diagnose.physics.explain import _text
+
+    def run(stage, rmse, red):
+        h = HypothesisResult(name=f"h_{stage}", params={}, heldout_rmse=rmse, accepted=False, stage=stage,
+                             train_rmse=rmse, reduction=red, delta_bic=1.0, n_extra=2, refused="some rule")
+        return SimpleNamespace(baseline=SimpleNamespace(source="fit_hammerstein"), ref_rmse=1.0,
+                               mismatch=SimpleNamespace(hints=()), fitted=[(None, None, h)])
+
+    runs = {"loop": run("loop", 0.5, 0.30), "valve": run("valve", 1e-5, 0.02)}
+    text = _text(SimpleNamespace(name="X"), None, runs, "loop", 1.0, 1.0)
+    assert "(h_loop) changes the held-out RMSE of PV by -30 %" in text and "h_valve" not in text

@@ -308,6 +308,20 @@ def test_explanation_section_slots_in_when_present():
     assert diag.to_dict()["explanation"]["missing_physics"] == "actuator_lag"
 
 
+def test_explanation_table_gives_each_hypothesis_its_own_stages_unit():
+    from diagnose.physics import HypothesisResult
+
+    hyps = (HypothesisResult(name="asymmetric_stiction", params={}, heldout_rmse=1.7e-5, accepted=False,
+                             stage="valve", train_rmse=1e-5, reduction=0.39, delta_bic=-3.0, n_extra=2),
+            HypothesisResult(name="external_disturbance", params={}, heldout_rmse=0.1067, accepted=False,
+                             stage="loop", train_rmse=0.1, reduction=0.0, delta_bic=3.0, n_extra=3))
+    diag = _diag(explanation=replace(_real_explanation(), missing_physics=None, hypotheses=hyps))
+    table = next(b for b in report.loop_blocks(diag) if b[0] == "table" and b[1][0] == "Hypothesis")
+    rows = {r[0]: r for r in table[2]}
+    assert rows["asymmetric_stiction"][2] == "MV" and rows["asymmetric_stiction"][3].endswith("% of span")
+    assert rows["external_disturbance"][2] == "PV" and rows["external_disturbance"][3].endswith("PV units")
+
+
 def test_pdf_from_blocks_without_figures_and_with_odd_characters(tmp_path):
     blocks = report.loop_blocks(_diag(loop="T\u00f6st \u2265 1 \u03c4"))
     data = to_pdf(blocks)
@@ -424,6 +438,20 @@ def test_explain_summary_prints_a_fall_as_negative():
     text = summary(d)
     assert "change -5 %" in text and "+5 %" not in text and "tau_s 58 min" in text
     assert "e+0" not in text and "4 days to 4.57 days" in text
+
+
+def test_explain_summary_gives_each_hypothesis_its_own_stages_unit():
+    from diagnose.service.commands.explain import summary
+
+    d = {"loop": "X", "missing_physics": None, "baseline_rmse": 0.95, "improved_rmse": 0.95, "target": "pv",
+         "hypotheses": [{"name": "asymmetric_stiction", "params": {}, "accepted": False, "heldout_rmse": 1.7e-5,
+                         "heldout_reduction": 0.39, "target": "mv"},
+                        {"name": "external_disturbance", "params": {}, "accepted": False, "heldout_rmse": 0.1067,
+                         "heldout_reduction": 0.0, "target": "pv"}],
+         "mismatch": {}, "explanation": "", "warnings": []}
+    rows = {ln.split()[0]: ln for ln in summary(d).splitlines()[2:4]}
+    assert "% of span" in rows["asymmetric_stiction"] and "PV units" not in rows["asymmetric_stiction"]
+    assert "PV units" in rows["external_disturbance"] and "% of span" not in rows["external_disturbance"]
 
 
 def test_missing_physics_figure_titles_do_not_overlap_and_ticks_are_distinct():

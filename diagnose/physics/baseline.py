@@ -90,9 +90,11 @@ def _from_fit_module(stage: Stage) -> Baseline | None:
         if stage.name == "loop":
             res = fit_hammerstein(stage.x, stage.y, stage.ts_s, train=stage.train,
                                   gain_sign=stage.gain_sign or None, surface=False)
-            struct = Structure.plain(float(res.S_pct), float(res.J_pct), int(res.f0), res.process)
-            stem_hat, y_hat = res.simulate(stage.x)
-            return Baseline(struct, np.asarray(y_hat, float), np.asarray(stem_hat, float), "fit_hammerstein")
+            # simulated like every other model here (gain, offset and an integrating process's
+            # balance refit on the training part), not with the fit's own slow load: that load is a
+            # polynomial over the training part, and carried on into the held-out part it can miss
+            # by many times PV's spread
+            return _of(stage, from_hammerstein(res), "fit_hammerstein")
         # the plain valve: fit_valve's (S, J, f0); its own actuator lag and dead time, when it fits
         # them, are left out here (they are what the actuator_lag hypothesis tests)
         res = fit_valve(stage.x, stage.y, stage.ts_s, train=stage.train, surface=False)

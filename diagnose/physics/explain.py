@@ -580,13 +580,14 @@ def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: 
                      f"With it the held-out RMSE falls to {improved_rmse:.4g} "
                      f"({-100 * (1 - improved_rmse / base_rmse) if base_rmse > 0 else 0:+.0f} % against the baseline).")
     else:
-        best = min((t[2] for r in runs.values() for t in r.fitted), key=lambda h: h.heldout_rmse,
+        # by the relative change: the stages' RMSEs are in different units (PV units, % of span)
+        best = max((t[2] for r in runs.values() for t in r.fitted), key=lambda h: h.reduction,
                    default=None)
         if best is not None:
-            parts.append(f"No missing physics named: the best hypothesis ({best.name}, "
-                         f"{best.target.upper()}) changes the held-out RMSE by "
-                         f"{-100 * best.reduction:+.0f} % against the refit plain model"
-                         + (f"; refused: {best.refused}." if best.refused else "."))
+            on = "MV" if best.target == "mv" else "PV"
+            parts.append(f"No missing physics named: the best hypothesis ({best.name}) changes the held-out "
+                         f"RMSE of {on} by {-100 * best.reduction:+.0f} % against the plain model refit on "
+                         f"{on}" + (f"; refused: {best.refused}." if best.refused else "."))
         else:
             parts.append("No hypothesis was tested.")
     return " ".join(parts)

@@ -331,8 +331,11 @@ def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
                              ["Held-out RMSE with the missing physics", f"{number(expl.improved_rmse)} {unit}"]])]
     if expl.hypotheses:
         # the change is signed, negative for a fall, as in the explanation's own text
-        blocks.append(("table", ["Hypothesis", "Named", "Held-out RMSE", "Change", "Parameters"],
-                       [[h.name, "yes" if h.accepted else "no", number(h.heldout_rmse, 4),
+        # hypotheses of the valve stage are judged on MV (% of span), the others on PV: each row
+        # carries its own unit
+        blocks.append(("table", ["Hypothesis", "Named", "Judged on", "Held-out RMSE", "Change", "Parameters"],
+                       [[h.name, "yes" if h.accepted else "no", h.target.upper(),
+                         f"{number(h.heldout_rmse, 4)} {'% of span' if h.target == 'mv' else 'PV units'}",
                          percent_change(-h.reduction), _params_text(h.params)] for h in expl.hypotheses]))
     if "explanation" in figs:
         blocks.append(("figure", "explanation", FIGURE_CAPTIONS["explanation"]))
