@@ -461,6 +461,11 @@ def worker_setup(parent_pid: int | None = None) -> None:
     in a worker process of a pool (``parent_pid`` given), die with the process that started it."""
     global _SETUP_DONE
     if parent_pid is not None:
+        import signal
+
+        # Ctrl-C reaches the whole process group; the batch answers it by stopping its workers
+        # (`_Pool.abort`), and a worker interrupted on its own would abandon the task queue mid-read
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         die_with_parent(parent_pid)
     if _SETUP_DONE:
         return
@@ -667,6 +672,31 @@ class _Pool:
 
     def close(self) -> None:
         self.ex.shutdown(wait=True, cancel_futures=True)
+
+    def abort(self) -> None:
+        """Stop at once (Ctrl-C): cancel what has not started and kill the workers.
+
+        Waiting for the workers instead is what hangs: files already handed to them would run to
+        the end, and a worker signalled while reading its next task can leave the task queue half
+        read, so the pool waits forever. What a worker finished is on disk (``LOOP.json`` is
+        written last), so a re-run resumes it; what it had half written is left as temporary files
+        that the next run clears.
+        """
+        import signal
+
+        procs = list((getattr(self.ex, "_processes", None) or {}).values())  # shutdown() forgets them
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut this short
+        try:
+            self.ex.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                p.terminate()
+            for p in procs:
+                p.join(2.0)
+                if p.is_alive():
+                    p.kill()
+                    p.join(2.0)
+        finally:
+            signal.signal(signal.SIGINT, old)
 
 
 class _Dask:
@@ -877,7 +907,10 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
                         outcome = {"path": f, "digest": None,
                                    "rows": [failure_row(safe_name(Path(f).stem), f, _one_line(exc))]}
                     collect(outcome)
-            finally:
+            except BaseException:  # Ctrl-C above all: stop now, do not wait for the workers
+                getattr(ex, "abort", ex.close)()
+                raise
+            else:
                 ex.close()
     finally:
         if hist is not None:
