@@ -60,6 +60,16 @@ def test_bad_input_is_one_line_and_exit_1(csv_with_mv, capsys, argv, msg):
     assert err.startswith("error: ") and msg in err and "Traceback" not in err
 
 
+def test_a_too_short_record_names_the_file(tmp_path, capsys):
+    rec, _ = concealed_loop("none", 2, n=200)
+    path = tmp_path / "s200.csv"
+    write_wide(rec, path)
+    assert main(["explain", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {path}: ") and "explain needs at least" in err[0]
+    assert err[0].count(str(path)) == 1
+
+
 def test_target_mv_needs_the_stem_position(tmp_path, capsys):
     rec, _ = concealed_loop("none", 2, n=600)
     path = tmp_path / "nomv.csv"

@@ -58,7 +58,17 @@ def test_constant_op_is_a_one_line_error(tmp_path, capsys):
     assert cap.out == ""
     err = cap.err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and "OP is constant" in err[0]
+    assert err[0].startswith(f"error: {path}: ")   # the file given, not only the loop in it
     assert "Traceback" not in cap.err
+
+
+def test_a_too_short_record_names_the_file(tmp_path, capsys):
+    rec = sticky_loop(4.0, 1.5, n=20, seed=1, name="FIC9")
+    path = tmp_path / "short20.csv"
+    write_wide(rec, path)
+    assert main(["identify", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {path}: loop 'FIC9' has 20 samples")
 
 
 def test_missing_file_is_a_one_line_error(tmp_path, capsys):

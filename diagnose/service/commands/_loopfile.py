@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
-from typing import Any, Callable
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
 
+from ...errors import StictionError
 
 #: The layouts ``--format`` takes (`connectors.layouts`).
 FORMATS = ("auto", "wide", "long", "ragged", "influx", "dcs")
@@ -80,6 +83,20 @@ def read_options(args: argparse.Namespace) -> dict[str, Any]:
     from ...api import check_read_options
 
     return check_read_options(opts)
+
+
+@contextmanager
+def naming_file(path: str | os.PathLike) -> Iterator[None]:
+    """Make every error raised inside name FILE first, as the reader's errors do: identification
+    and explain work on a record and know its loop, not the file the user gave."""
+    label = os.fspath(path)
+    try:
+        yield
+    except StictionError as exc:
+        text = str(exc)
+        if not text.startswith((f"{label}:", f"{label} ")):
+            exc.args = (f"{label}: {text}",)
+        raise
 
 
 def select_record(records: list, loop: str | None, source: str, verb: str = "identified"):

@@ -11,7 +11,7 @@ import json
 import sys
 from typing import TYPE_CHECKING
 
-from ._loopfile import add_file_arguments, read_options
+from ._loopfile import add_file_arguments, naming_file, read_options
 
 if TYPE_CHECKING:
     from ...identification import Identification
@@ -74,7 +74,9 @@ def summary(ident: Identification) -> str:
 def run(args: argparse.Namespace) -> int:
     from ...api import identify
 
-    ident = identify(args.file, **read_options(args))
+    opts = read_options(args)
+    with naming_file(args.file):
+        ident = identify(args.file, **opts)
     if args.json:
         d = ident.to_dict()
         sys.stdout.write(json.dumps(d, allow_nan=False) + "\n")
