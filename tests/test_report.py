@@ -7,6 +7,7 @@ import functools
 import shutil
 import subprocess
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from diagnose.oscillation import Oscillation
 from diagnose.process_model import ProcessModel
 from diagnose.record import LoopRecord
 from diagnose.service import figures, pipeline, report
-from diagnose.service.batch import BatchConfig, write_loop_outputs
+from diagnose.service.batch import BatchConfig, rank, write_loop_outputs
 from diagnose.service.pdf import latin1, to_pdf
 from diagnose.simulate import sticky_loop
 from diagnose.verdict import Verdict
@@ -270,6 +271,28 @@ def test_severity_ranks_by_the_probability_of_stiction_then_its_size():
     assert dq == pytest.approx(small + 5.0)
     # without a probability (an older result) a sticky verdict's confidence stands in for it
     assert _diag(S_pct=5.0, confidence=0.9).severity.score == pytest.approx(big)
+
+
+def test_severity_is_the_documented_sum_and_the_model_bank_adds_nothing():
+    d = _diag(S_pct=2.0, p=0.87, oscillation=(True, 100.0, 1.5), warnings=[Note("data_quality.gap", "g")])
+    # docs/service.md, "Ranking": stiction + oscillation + data quality, to 0.1
+    want = 50 * 0.87 * (0.75 + 0.25 * 2.0 / 5.0) + 25 * min(max(1.5 / 2, 0.5), 1) + 5
+    assert d.severity.score == round(want, 1) == 60.7
+    # a NARX-SP model outside its robustness margin is a gap in the tool's bank, not a worse valve
+    outside = SimpleNamespace(robust=False, model="narx", to_dict=lambda: {"robust": False})
+    far = _diag(S_pct=2.0, p=0.87, oscillation=(True, 100.0, 1.5), warnings=[Note("data_quality.gap", "g")],
+                narx=outside)
+    assert far.severity == d.severity and set(far.severity.to_dict()) == {"score", "size", "oscillation",
+                                                                          "data_quality"}
+
+
+def test_the_summary_shows_severity_to_the_precision_it_ranks_by():
+    rows = rank([{"status": "ok", "loop": "TIC105", "severity": 75.3, "S_pct": 2.0},
+                   {"status": "ok", "loop": "FIC103", "severity": 74.9, "S_pct": 5.0},
+                   {"status": "ok", "loop": "FIC102", "severity": 74.9, "S_pct": 4.0}])
+    assert [r["loop"] for r in rows] == ["TIC105", "FIC103", "FIC102"]   # equal severities: larger S first
+    md = report.to_markdown(report.summary_blocks(rows))
+    assert "| TIC105 | 75.3 |" in md and "| FIC103 | 74.9 |" in md and "| FIC102 | 74.9 |" in md
 
 
 def test_plain_words_follow_the_evidence():

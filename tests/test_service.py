@@ -60,10 +60,9 @@ def test_narx_stage_uses_the_identified_s_and_j(rec, monkeypatch):
     want = float(np.sqrt(np.mean((d.narx_mv_hat_pct - rec.mv) ** 2)))
     assert d.narx_run.rmse_record == pytest.approx(want) and d.narx_run.against == "mv"
     assert "robustness.outside_region" in [w.code for w in d.warnings]
-    assert d.severity.robustness == 10.0
     res = d.to_dict()
     assert res["narx"]["model"] == "narx_S3_J1" and res["narx"]["free_run_rmse_record"] == pytest.approx(want)
-    assert res["severity"]["robustness"] == 10.0 and "robustness.outside_region" in [w["code"] for w in res["warnings"]]
+    assert "robustness.outside_region" in [w["code"] for w in res["warnings"]]
     assert figures.narx(d) is not None
 
 

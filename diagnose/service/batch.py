@@ -768,7 +768,7 @@ class BatchResult:
 
 
 def rank(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Ok loops by severity (then S) descending with ranks 1..n, then failures by name."""
+    """Ok loops by severity (then S, then name) descending with ranks 1..n, then failures by name."""
     rows = list(rows)
     ok = sorted((r for r in rows if r["status"] == "ok"),
                 key=lambda r: (-(r.get("severity") or 0.0), -(r.get("S_pct") or 0.0), str(r["loop"])))

@@ -106,11 +106,10 @@ class Severity:
     size: float
     oscillation: float
     data_quality: float
-    robustness: float
 
     def to_dict(self) -> dict[str, float]:
         return {"score": self.score, "size": self.size, "oscillation": self.oscillation,
-                "data_quality": self.data_quality, "robustness": self.robustness}
+                "data_quality": self.data_quality}
 
 
 @dataclass(frozen=True, eq=False)
@@ -261,7 +260,8 @@ def sj_unit(ident: Identification) -> str:
 
 
 def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
-    """Rank score 0-100 from the probability of stiction, its size, oscillation and data quality.
+    """Rank score on a 0-100 scale (the parts add up to at most 90) from the probability of
+    stiction, its size, oscillation and data quality.
 
     * stiction: up to 50 points, ``50 p (0.75 + 0.25 min(S / 5 %, 1))`` with ``p`` the combined
       verdict's probability of stiction (the confidence of a sticky verdict where no probability
@@ -270,8 +270,10 @@ def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
     * oscillation: up to 25 points when the loop oscillates (a slow cycle does not count),
       ``25 * clip(r / 2, 0.5, 1)`` with r Thornhill's regularity (a regular oscillation has r > 1);
     * data quality: 5 points per data-quality warning, at most 15 (a loop whose data cannot be
-      trusted needs someone to look at it too);
-    * robustness: 10 points when the selected NARX-SP model is not robust at this (S, J).
+      trusted needs someone to look at it too).
+
+    Whether the selected NARX-SP model is robust at this (S, J) adds nothing: it says how well the
+    tool's model bank covers the valve, not how bad the valve is.
     """
     sticky = ident.stiction
     S = (ident.S_pct or 0.0) if sticky else 0.0
@@ -285,9 +287,9 @@ def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
         osc_pts = 0.0
     dq = sum(1 for w in warnings if w.code.startswith("data_quality."))
     dq_pts = min(5.0 * dq, 15.0)
-    rob_pts = 10.0 if ident.narx is not None and not ident.narx.robust else 0.0
-    score = size + osc_pts + dq_pts + rob_pts
-    return Severity(round(score, 2), round(size, 2), round(osc_pts, 2), round(dq_pts, 2), round(rob_pts, 2))
+    score = size + osc_pts + dq_pts
+    # to the 0.1 every report shows: loops that look tied are tied, and the ranking orders them by S
+    return Severity(round(score, 1), round(size, 1), round(osc_pts, 1), round(dq_pts, 1))
 
 
 def verdict_text(ident: Identification, warnings: Sequence[Note] = ()) -> str:

@@ -283,8 +283,8 @@ def _detail_rows(diag: Diagnosis) -> list[list[str]]:
             ["Controller (from OP/PV/SP)", _controller_text(ident.controller)],
             ["Fit of the model (free-run simulation)", fit],
             ["Oscillation", _oscillation_text(ident)],
-            ["Severity (0-100)", f"{sev.score:.0f}: stiction {sev.size:.0f}, oscillation {sev.oscillation:.0f}, "
-                                 f"data quality {sev.data_quality:.0f}, NARX-SP robustness {sev.robustness:.0f}"]]
+            ["Severity (0-100)", f"{sev.score:.1f}: stiction {sev.size:.1f}, oscillation {sev.oscillation:.1f}, "
+                                 f"data quality {sev.data_quality:.0f}"]]
 
 
 def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block]:
@@ -445,9 +445,9 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         line += "."
     blocks.append(("p", line))
     blocks.append(("p", "Severity (0-100) adds the probability of stiction weighted by its size (up to "
-                        "50), oscillation (25), data-quality warnings (15) and NARX-SP robustness (10), "
-                        "so likely sticky valves rank first. Slow cycles (periods of hours: daily or "
-                        "shift patterns of the plant) are not loop oscillations and add nothing."))
+                        "50), oscillation (25) and data-quality warnings (15), so likely sticky valves "
+                        "rank first; equal severities are ordered by S. Slow cycles (periods of hours: "
+                        "daily or shift patterns of the plant) are not loop oscillations and add nothing."))
     blocks.append(("h2", "Loops ranked by severity"))
     table = []
     for r in ok:
@@ -458,7 +458,7 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         osc = duration(r.get("oscillation_period_s"))
         if r.get("slow_cycle_period_s"):
             osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
-        table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".0f"), fmt(r.get("class")),
+        table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".1f"), fmt(r.get("class")),
                       fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units,
                       fmt(r.get("stiction_probability"), ".0%"), fmt(r.get("confidence"), ".0%"),
                       osc,
