@@ -296,6 +296,21 @@ def test_prn_exports_are_read_and_other_files_are_listed_as_left_alone(tmp_path,
     assert "Files left alone" in (tmp_path / "out" / "summary.md").read_text()
 
 
+def test_files_left_alone_are_reported_with_their_own_reason(plant, tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("FIC1.csv", "FIC2.csv", "FIC3.csv"):
+        (logs / name).write_bytes((plant / "logs" / name).read_bytes())
+    (logs / "notes.md").write_text("notes")
+    rc = main(["batch", str(logs), "--out", str(tmp_path / "out"), "--loop", "FIC2", "--workers", "1", "--no-narx",
+               "--no-pdf", "--no-history", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    left = [ln for ln in out.splitlines() if ln.startswith("left alone:")]
+    assert left == ["left alone: 1 file(s), not a historian text export: notes.md; listed in the summary",
+                    "left alone: 2 file(s), no loop named 'FIC2': FIC1.csv, FIC3.csv; listed in the summary"]
+
+
 def test_no_pdf_announces_no_pdf(plant, tmp_path, capsys):
     logs = tmp_path / "logs"
     logs.mkdir()

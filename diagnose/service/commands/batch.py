@@ -63,11 +63,16 @@ def report(res, stream=None) -> None:
     print(f"summary: {res.out_dir / 'summary.md'} (also {'.pdf, ' if pdf else ''}.csv, .json)", file=stream)
     print(f"per-loop reports: {res.out_dir / 'loops'}/LOOP/LOOP.md ({'.pdf, ' if pdf else ''}.json, figures)",
           file=stream)
-    skipped = getattr(res, "skipped_files", None) or []
-    if skipped:
-        names = ", ".join(Path(f["path"]).name for f in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
-        print(f"left alone: {len(skipped)} file(s) that are not historian text exports ({names}); "
-              "listed in the summary", file=stream)
+    groups: dict[str, list[str]] = {}
+    for f in getattr(res, "skipped_files", None) or []:
+        # files are left alone for different reasons (not an export, no loop of that --loop); the
+        # tail in brackets is per file (a file's loops) and stays in the summary
+        why = str(f.get("reason") or "left alone").split(" (")[0]
+        groups.setdefault(why, []).append(Path(f["path"]).name)
+    for why, names in groups.items():
+        names.sort()  # workers report in the order they finish
+        shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+        print(f"left alone: {len(names)} file(s), {why}: {shown}; listed in the summary", file=stream)
     for r in res.rows:
         if r["status"] != "ok":
             print(f"failed: {r['loop']} ({r.get('source')}): {r.get('error')}", file=sys.stderr)
