@@ -1,7 +1,10 @@
 """The `stiction` shell: help, simulate, error handling, and every command documented."""
 
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +58,24 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     assert "error: --S and --J must be >= 0" in err
     assert "Traceback" not in err
     assert main(["no-such-command"]) == 2
+
+
+def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path):
+    # `stiction history | head -1`: stdout's reader is gone; no "error: [Errno 32] Broken pipe"
+    from diagnose.service.history import History
+
+    loop = tmp_path / "loop.csv"
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", "600", "--out", str(loop)]) == 0
+    History(tmp_path / "h.sqlite").close()
+    r, w = os.pipe()
+    os.close(r)   # the reader has read what it wanted and left
+    try:
+        for argv in (["history", "--db", str(tmp_path / "h.sqlite")], ["identify", str(loop)]):
+            proc = subprocess.run([sys.executable, "-m", "diagnose.service.cli", *argv], stdout=w,
+                                  stderr=subprocess.PIPE, text=True, timeout=120)
+            assert (proc.returncode, proc.stderr) == (141, ""), argv   # 128 + SIGPIPE, as a Unix tool
+    finally:
+        os.close(w)
 
 
 def test_an_export_whose_pv_is_all_bad_is_judged_from_op_alone(tmp_path, capsys):

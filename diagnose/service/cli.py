@@ -3,13 +3,17 @@
 Each command lives in its own module under ``diagnose.service.commands`` with two functions,
 ``add_arguments(parser)`` and ``run(args) -> int``. Modules are imported only when their command
 runs, so ``stiction identify`` never pays for torch. Domain errors print ``error: ...`` on stderr
-and exit 1; usage errors exit 2; Ctrl-C exits 130; ``--traceback`` shows the Python traceback.
+and exit 1; usage errors exit 2; Ctrl-C exits 130; a reader that stops reading stdout
+(``| head``) ends the command quietly with 141, as SIGPIPE ends a Unix tool; ``--traceback``
+shows the Python traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 from typing import Sequence
 
@@ -48,6 +52,29 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _stdout_gone() -> bool:
+    """Whether stdout is a pipe whose reader has closed it (``| head`` read what it wanted), as
+    opposed to some other connection breaking."""
+    try:
+        import select
+
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & select.POLLERR for _, ev in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll, or stdout is not a file
+        return False
+
+
+def _quiet_exit() -> int:
+    # what is still buffered would fail again when Python flushes stdout at exit
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (AttributeError, OSError, ValueError):
+        pass
+    return 128 + int(signal.SIGPIPE)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
@@ -64,11 +91,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     module = importlib.import_module(f"diagnose.service.commands.{COMMANDS[args.command][0]}")
     try:
-        return int(module.run(args) or 0)
+        rc = int(module.run(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not in Python's flush at exit
+        return rc
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
     except (StictionError, OSError) as exc:
+        if isinstance(exc, BrokenPipeError) and _stdout_gone():
+            return _quiet_exit()
         if args.traceback:
             raise
         print(f"error: {exc}", file=sys.stderr)
