@@ -208,6 +208,8 @@ def open_source(source: Any, progress: Any = None) -> Source:
                 head = fh.read(HEAD_BYTES)
             complete = len(head) < HEAD_BYTES
             enc, bom = _codec(head, (lambda: [head]) if complete else (lambda: _chunks(path)), label)
+        except ConnectorError:  # _codec's own verdict on the content, which names the file already
+            raise
         except OSError as exc:
             raise ConnectorError(f"cannot read: {exc.strerror or exc}", path=label) from None
         text = codecs.getincrementaldecoder(enc)().decode(head, final=complete)

@@ -297,6 +297,7 @@ def test_bad_input_one_line_errors(tmp_path, content, pattern):
         read_records(f)
     msg = str(ei.value)
     assert msg.startswith(str(f)) and "\n" not in msg
+    assert msg.count(str(f)) == 1   # named once, not "FILE: cannot read: FILE: ..."
 
 
 def test_missing_file_and_empty_folder(tmp_path):
