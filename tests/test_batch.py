@@ -311,6 +311,18 @@ def test_files_left_alone_are_reported_with_their_own_reason(plant, tmp_path, ca
                     "left alone: 2 file(s), no loop named 'FIC2': FIC1.csv, FIC3.csv; listed in the summary"]
 
 
+def test_out_must_be_a_folder(plant, tmp_path):
+    taken = tmp_path / "loop.csv"
+    taken.write_text("a file, not a folder")
+    for out, says in ((taken, "--out must be a folder"), (taken / "sub", "cannot create the output folder")):
+        proc = subprocess.run([sys.executable, "-m", "diagnose.service.cli", "batch", str(plant / "logs" / "FIC1.csv"),
+                               "--out", str(out), "--no-history", "--quiet"], capture_output=True, text=True,
+                              timeout=120)
+        err = proc.stderr.strip().splitlines()
+        assert proc.returncode == 1 and len(err) == 1 and err[0].startswith(f"error: {out}: "), proc.stderr
+        assert says in err[0] and "Errno" not in err[0]
+
+
 def test_no_pdf_announces_no_pdf(plant, tmp_path, capsys):
     logs = tmp_path / "logs"
     logs.mkdir()

@@ -839,7 +839,12 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
 
     t0 = time.monotonic()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise DataError(f"{out}: is a file; --out must be a folder (the reports and the summary go into it)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{out}: cannot create the output folder: {exc.strerror or exc}") from None
     if tags is not None:
         if not Path(tags).is_file():
             raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
