@@ -57,6 +57,12 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "error: --S and --J must be >= 0" in err
     assert "Traceback" not in err
+    for flag in ("--S", "--J"):   # S and J are % of span: 150 % is a typo, not a valve
+        argv = {"--S": "3", "--J": "1", flag: "150"}
+        assert main(["simulate", *[a for kv in argv.items() for a in kv], "--out", str(tmp_path / "y.csv")]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"error: {flag} 150: ") and "at most 50" in err[0]
+    assert not (tmp_path / "y.csv").exists()
     assert main(["no-such-command"]) == 2
 
 

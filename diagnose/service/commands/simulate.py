@@ -7,10 +7,14 @@ import sys
 
 from ...errors import DataError
 
+#: Largest S and J, % of valve span: the simulated loop runs at mid-span, and a wider band than
+#: half the span drives OP into its limits (the loop then says nothing about stiction).
+MAX_SJ_PCT = 50.0
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--S", type=float, required=True, help="deadband + stickband, %% of valve span")
-    p.add_argument("--J", type=float, required=True, help="slip jump, %% of valve span")
+    p.add_argument("--S", type=float, required=True, help="deadband + stickband, %% of valve span (0 to 50)")
+    p.add_argument("--J", type=float, required=True, help="slip jump, %% of valve span (0 to 50)")
     p.add_argument("--process", choices=["foptd", "soptd", "integrating"], default="foptd",
                    help="process model (default foptd: first order plus dead time)")
     p.add_argument("--gain", type=float, default=None,
@@ -35,6 +39,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.S < 0 or args.J < 0:
         raise DataError("--S and --J must be >= 0 (% of valve span)")
+    for flag, value in (("--S", args.S), ("--J", args.J)):
+        if value > MAX_SJ_PCT:
+            raise DataError(f"{flag} {value:g}: S and J are % of valve span; use at most {MAX_SJ_PCT:g} (the "
+                            "simulated loop runs at mid-span, and a wider band drives OP into its limits)")
     if args.n < 10:
         raise DataError("--n must be at least 10 samples")
     gain = args.gain if args.gain is not None else (0.02 if args.process == "integrating" else 1.0)
