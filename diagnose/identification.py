@@ -583,9 +583,15 @@ def _confidence_caps(findings: Sequence[Finding], n: int, r2: float | None, meth
     codes = {f.code for f in findings if f.severity != "info"}
     if "compression" in codes:
         cap = min(cap, 0.5)
-        warnings.append(_warn("data_quality.compression",
-                              "historian compression can fake (and hide) stiction shapes: the verdict is "
-                              "hedged; confirm on uncompressed data"))
+        # one finding, one warning: the finding's own warning (what was seen) also says what it
+        # does to the verdict, rather than a second warning of the same code counting twice
+        hedge = "the verdict is hedged; confirm on uncompressed data"
+        seen = next((i for i, w in enumerate(warnings) if w.code == "data_quality.compression"), None)
+        if seen is None:
+            warnings.append(_warn("data_quality.compression",
+                                  f"historian compression can fake (and hide) stiction shapes: {hedge}"))
+        else:
+            warnings[seen] = _warn("data_quality.compression", f"{warnings[seen].message}; {hedge}")
     if "op_fraction" in codes:
         cap = min(cap, 0.5)
     if r2 is not None and r2 < 0.2 and method == "op_pv":
