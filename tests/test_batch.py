@@ -436,7 +436,11 @@ def test_ctrl_c_stops_a_parallel_batch_at_once_and_a_rerun_resumes(tmp_path):
                 pytest.fail(f"attempt {attempt}: the batch did not stop within 20 s of Ctrl-C")
             took = time.monotonic() - t0
             assert proc.returncode == 130 and err.strip().endswith("interrupted"), err
-            assert took < 2.5, f"attempt {attempt}: Ctrl-C took {took:.1f} s: the workers went on"
+            # at once: the workers are killed, not waited for (waiting took 1.7 s here, or forever)
+            assert took < 1.0, f"attempt {attempt}: Ctrl-C took {took:.1f} s"
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and _alive(workers):
+                time.sleep(0.1)
             assert not _alive(workers), "workers outlived the interrupted batch"
         finally:
             if proc.poll() is None:
