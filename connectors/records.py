@@ -40,6 +40,8 @@ class LoopSpec:
     units: dict[str, str] = field(default_factory=dict)
     mode_auto: tuple[float, ...] | None = None
     table: Table | None = None
+    #: tags of the same file with an OP or a PV column but not both: no loop, said on every record
+    left_out: dict[str, str] = field(default_factory=dict)
 
 
 def _loop_name_for_bare(table: Table, options: dict) -> str:
@@ -128,10 +130,15 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
             if len(cands) == 1:
                 bare[role] = cands[0]
     specs = []
+    left_out = {}
     for tag, g in groups.items():
         if "op" in g and "pv" in g:
             name = tag or _loop_name_for_bare(table, options)
             specs.append(LoopSpec(name, g, table=table))
+        elif ("op" in g or "pv" in g) and tag:
+            left_out[tag] = "PV" if "op" in g else "OP"
+    for sp in specs:
+        sp.left_out = left_out
     if not specs:
         have = {r for g in groups.values() for r in g}
         missing = [r.upper() for r in ("op", "pv") if r not in have] or ["OP+PV of one tag"]
@@ -229,6 +236,12 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                              f"{min_samples} samples; give {min_samples} or more, or 0 to keep every sample",
                              path=label)
     findings: list[Finding] = []
+    if spec.left_out:
+        # a loop missing a role is not diagnosed; it would otherwise vanish from a batch unremarked
+        tags = ", ".join(f"{t} (no {role})" for t, role in sorted(spec.left_out.items()))
+        findings.append(Finding("loop_left_out", f"not diagnosed from this file, for want of a column: {tags}; "
+                                "name the columns with --op/--pv or give a tag map", "info",
+                                {"tags": dict(sorted(spec.left_out.items()))}))
     cleaned = {}
     ts_opt = options.get("ts_s")
     n_dups = 0

@@ -311,6 +311,24 @@ def test_files_left_alone_are_reported_with_their_own_reason(plant, tmp_path, ca
                     "left alone: 2 file(s), no loop named 'FIC2': FIC1.csv, FIC3.csv; listed in the summary"]
 
 
+def test_a_tag_without_pv_is_listed_as_left_alone(tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    rec = sticky_loop(4.0, 1.0, n=1500, noise_std=0.03, seed=22, name="FIC9")
+    with open(logs / "plant.csv", "w") as fh:   # FIC8 has its OP exported but not its PV
+        fh.write("time,FIC9.OP,FIC9.PV,FIC8.OP\n")
+        for i in range(rec.n):
+            fh.write(f"{i},{rec.op[i]:.4f},{rec.pv[i]:.4f},{rec.op[i] - 3:.4f}\n")
+    rc = main(["batch", str(logs), "--out", str(tmp_path / "out"), "--workers", "1", "--no-narx", "--no-pdf",
+               "--no-history", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    doc = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [r["loop"] for r in doc["loops"]] == ["FIC9"]
+    assert [f["reason"] for f in doc["skipped_files"]] == ["a loop without PV: FIC8"]
+    assert "left alone: 1 file(s), a loop without PV: FIC8: plant.csv" in out
+
+
 def test_out_must_be_a_folder(plant, tmp_path):
     taken = tmp_path / "loop.csv"
     taken.write_text("a file, not a folder")

@@ -862,3 +862,19 @@ def test_compressed_op_is_not_reported_as_irregular_sampling(tmp_path):
     f.write_text("tag,timestamp,value\n" + "".join(f"{tag},{s:.0f},{v:.4f}\n" for s, tag, v in rows))
     (rec,) = read_records(f)
     assert rec.n == 800 and "compression" in codes(rec) and "irregular_sampling" not in codes(rec)
+
+
+def test_a_tag_with_op_but_no_pv_is_said_on_the_records_of_its_file(tmp_path):
+    rng = np.random.default_rng(3)
+    n = 200
+    t = [f"2026-01-01T00:{k // 60:02d}:{k % 60:02d}Z" for k in range(n)]
+    cols = {"FIC101.OP": 50 + rng.normal(0, 1, n), "FIC101.PV": 20 + rng.normal(0, 1, n),
+            "FIC102.OP": 40 + rng.normal(0, 1, n), "FIC103.PV": 7 + rng.normal(0, 1, n)}
+    p = tmp_path / "plant.csv"
+    p.write_text("time," + ",".join(cols) + "\n"
+                 + "".join(f"{t[k]}," + ",".join(f"{v[k]:.4f}" for v in cols.values()) + "\n" for k in range(n)))
+    recs = read_records(p)
+    assert [r.name for r in recs] == ["FIC101"]
+    f = next(f for f in recs[0].findings if f.code == "loop_left_out")
+    assert f.severity == "info" and f.data["tags"] == {"FIC102": "PV", "FIC103": "OP"}
+    assert "FIC102 (no PV)" in f.message and "FIC103 (no OP)" in f.message

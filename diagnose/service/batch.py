@@ -443,14 +443,22 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
         records = [r for r in records if r.name.lower() == str(want).lower()]
         if not records:
             return {"path": str(p), "digest": None, "rows": [],
-                    "left_alone": {"path": str(p), "reason": f"no loop named {want!r} (loops: {', '.join(names)})"}}
+                    "left_alone": [{"path": str(p), "reason": f"no loop named {want!r} (loops: {', '.join(names)})"}]}
+    # tags with an OP or a PV column but not both: the summary says so, or they vanish unremarked
+    incomplete: dict[str, str] = {}
+    for rec in records:
+        for f in rec.findings:
+            if f.code == "loop_left_out":
+                incomplete.update(f.data.get("tags", {}))
+    left_alone = [{"path": str(p), "reason": f"a loop without {role}: {tag}"}
+                  for tag, role in sorted(incomplete.items())]
     rows = [process_record(cfg, rec, p, digest) for rec in records]
     import resource
 
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
     for r in rows:
         r["worker_peak_rss_mib"] = round(rss, 1)
-    return {"path": str(p), "digest": digest, "rows": rows}
+    return {"path": str(p), "digest": digest, "rows": rows, "left_alone": left_alone}
 
 
 _SETUP_DONE = False
@@ -869,8 +877,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
 
     def collect(outcome: Mapping[str, Any], skipped_file: bool = False) -> None:
         frows = outcome["rows"]
-        if outcome.get("left_alone"):
-            skipped_files.append(dict(outcome["left_alone"]))
+        skipped_files.extend(dict(d) for d in outcome.get("left_alone") or ())
         if hist is not None:
             hist.add_rows([dict(r["_history"], run_at=run_at)
                            for r in frows if r["status"] == "ok" and "_history" in r])  # filed by tag
