@@ -261,7 +261,7 @@ def test_explain_is_the_command_on_the_same_data(loop, capsys):
     (lambda df: diagnose.identify(df, max_samples=-1), r"^max_samples=-1 "),
     (lambda df: diagnose.read_loops(df.tz_localize(None), tz="Europe/Berlin", dst="bogus"),
      r"^dst='bogus' \(--dst\): use one of infer, earliest, latest, raise$"),
-    (lambda df: diagnose.identify(df.tz_localize(None), tz="+25:00"), r"^tz='\+25:00' \(--tz\): unknown time zone"),
+    (lambda df: diagnose.identify(df.tz_localize(None), tz="+25:00"), r"^tz='\+25:00' \(--tz\): time zone offset '\+25:00' is out of range"),
     (lambda df: diagnose.identify(df.tz_localize(None), tz=5), r"^tz=5 "),
     (lambda df: diagnose.identify(123), r"^data=123: give a path \(file or folder\), a file object, a pandas "
                                         r"DataFrame or a LoopRecord$"),
