@@ -374,15 +374,15 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def _unit_files(logs: Path) -> None:
-    """Four files of three loops each: a worker's task lasts several seconds."""
+def _unit_files(logs: Path, n_files: int = 4, n: int = 1500) -> None:
+    """Files of three loops each (four by default): a worker's task lasts several seconds."""
     logs.mkdir()
-    for k in range(4):
-        recs = [sticky_loop(3.0, 1.0, n=1500, noise_std=0.03, seed=40 + 3 * k + j, name=f"L{k}{j}")
+    for k in range(n_files):
+        recs = [sticky_loop(3.0, 1.0, n=n, noise_std=0.03, seed=40 + 3 * k + j, name=f"L{k}{j}")
                 for j in range(3)]
         cols = [f"{r.name}.{role.upper()}" for r in recs for role in ("op", "pv", "sp")]
         lines = ["time," + ",".join(cols)]
-        for i in range(1500):
+        for i in range(n):
             lines.append(f"{i}," + ",".join(f"{getattr(r, role)[i]:.4f}" for r in recs for role in ("op", "pv", "sp")))
         (logs / f"unit{k}.csv").write_text("\n".join(lines) + "\n")
 
@@ -431,20 +431,24 @@ def test_ctrl_c_stops_a_parallel_batch_at_once_and_a_rerun_resumes(tmp_path):
     # Ctrl-C goes to the whole process group. The batch used to wait for its workers: they ran the
     # files already queued to the end, and now and then hung for good on a half-read task queue.
     logs = tmp_path / "logs"
-    _unit_files(logs)
-    out, db = tmp_path / "out", tmp_path / "h.sqlite"
-    cmd = [sys.executable, "-m", "diagnose.service.cli", "batch", str(logs), "--out", str(out), "--workers", "2",
-           "--no-narx", "--no-pdf", "--db", str(db), "--quiet"]
-    for attempt in range(3):   # the hang was a race: Ctrl-C at a few different moments
-        shutil.rmtree(out, ignore_errors=True)
+    _unit_files(logs, n_files=6, n=3000)   # long enough that Ctrl-C lands mid-run on a busy machine
+    interrupted, last = 0, None
+    for attempt in range(5):   # the hang was a race: Ctrl-C at a few different moments
+        if interrupted == 3:
+            break
+        out, db = tmp_path / f"out{attempt}", tmp_path / f"h{attempt}.sqlite"
+        cmd = [sys.executable, "-m", "diagnose.service.cli", "batch", str(logs), "--out", str(out), "--workers",
+               "2", "--no-narx", "--no-pdf", "--db", str(db), "--quiet"]
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                 start_new_session=True)
         try:
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline and not list(out.glob("loops/*/*.json")):
                 time.sleep(0.05)
-            time.sleep(0.4 * attempt)
+            time.sleep(0.3 * (attempt % 3))
             workers = _children(proc.pid)
+            if proc.poll() is not None:
+                continue   # the test was starved and the batch finished first: not a Ctrl-C run
             assert len(workers) >= 2, "no worker processes found"
             os.killpg(proc.pid, signal.SIGINT)
             t0 = time.monotonic()
@@ -453,6 +457,9 @@ def test_ctrl_c_stops_a_parallel_batch_at_once_and_a_rerun_resumes(tmp_path):
             except subprocess.TimeoutExpired:
                 pytest.fail(f"attempt {attempt}: the batch did not stop within 20 s of Ctrl-C")
             took = time.monotonic() - t0
+            if proc.returncode == 0 and (out / "summary.json").exists():
+                continue   # finished between the last look and the signal
+            interrupted, last = interrupted + 1, (out, db)
             assert proc.returncode == 130 and err.strip().endswith("interrupted"), err
             # at once: the workers are killed, not waited for (waiting took 1.7 s here, or forever)
             assert took < 1.0, f"attempt {attempt}: Ctrl-C took {took:.1f} s"
@@ -464,13 +471,15 @@ def test_ctrl_c_stops_a_parallel_batch_at_once_and_a_rerun_resumes(tmp_path):
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
+    assert interrupted >= 2, f"only {interrupted} of the runs were interrupted mid-way"
+    out, db = last
     done = {p.stem for p in out.glob("loops/*/*.json")}
-    assert 1 <= len(done) < 12 and not (out / "summary.json").exists()
+    assert 1 <= len(done) < 18 and not (out / "summary.json").exists()
     res = B.run_batch([logs], out, workers=2, explain=False, narx=False, pdf=False, db=db, progress=False)
     assert {r["loop"] for r in res.rows if r.get("skipped")} == done and res.n_failed == 0
     ref = B.run_batch([logs], tmp_path / "ref", workers=2, explain=False, narx=False, pdf=False, history=False,
                       progress=False)
-    assert _sj(res) == _sj(ref) and len(_sj(ref)) == 12
+    assert _sj(res) == _sj(ref) and len(_sj(ref)) == 18
     with History(db) as h:   # loops finished but not collected before Ctrl-C reach history on the re-run
         assert all(len(h.runs(loop)) == 1 for loop in _sj(ref))
 
