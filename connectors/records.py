@@ -17,8 +17,8 @@ from diagnose.record import Finding, LoopRecord
 from .columns import role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
-from .timebase import (END_TOLERANCE, Cleaned, clean_series, estimate_period, irregularity, iso_utc, runs,
-                       to_grid)
+from .timebase import (END_TOLERANCE, Cleaned, clean_series, empty_slots, estimate_period, irregularity, iso_utc,
+                       jittered_period, runs, to_grid)
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
 DEFAULT_MIN_SAMPLES = 20
@@ -275,8 +275,12 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(Finding("duplicates", f"{n_dups} duplicated timestamps; the first value of each was kept",
                                 "info", {"count": n_dups}))
     ts_s = float(ts_opt) if ts_opt else (table.ts_s if table and table.ts_s else None)
+    jitter = None
     if ts_s is None:
         ts_s = estimate_period([cleaned["op"].t, cleaned["pv"].t])
+        jitter = jittered_period([cleaned["op"].t, cleaned["pv"].t], ts_s)
+        if jitter is not None:
+            ts_s = jitter.ts_s
     if not (np.isfinite(ts_s) and ts_s > 0):
         raise ConnectorError("cannot tell the sample period (fewer than two distinct times); give --ts-s SECONDS",
                              path=label)
@@ -314,7 +318,9 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         g, filled_here = to_grid(c.t, c.x, grid, gap_of[role], step=step, bad_gap_s=max_gap_s)
         gridded[role] = g
         own = estimate_period([c.t])
-        if role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
+        if role in ("op", "pv") and jitter is not None:
+            filled[_nearest(grid, empty_slots(c.t, c.x, jitter))] = True
+        elif role in ("op", "pv") and not (own > 1.5 * ts_s):  # sparser archives are not gaps
             filled |= filled_here
         s = spec.roles[role]
         if role != "mode" and not (role == "pv" and pv_dead is not None):
@@ -444,6 +450,16 @@ def _grid_spans(op: Cleaned, pv: Cleaned, t0: float, ts_s: float, n_grid: int, o
     lo, hi = np.concatenate((lo_a, lo_b)), np.concatenate((hi_a, hi_b))
     order = np.argsort(lo, kind="stable")
     return _merge(lo[order], hi[order])
+
+
+def _nearest(grid: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Index of the grid point nearest each time."""
+    if not times.size or not grid.size:
+        return np.empty(0, np.int64)
+    j = np.clip(np.searchsorted(grid, times), 1, max(1, grid.size - 1))
+    left = np.maximum(j - 1, 0)
+    right = np.minimum(j, grid.size - 1)
+    return np.where(np.abs(times - grid[left]) <= np.abs(grid[right] - times), left, right)
 
 
 def _spacing(c: Cleaned) -> float:

@@ -878,3 +878,39 @@ def test_a_tag_with_op_but_no_pv_is_said_on_the_records_of_its_file(tmp_path):
     f = next(f for f in recs[0].findings if f.code == "loop_left_out")
     assert f.severity == "info" and f.data["tags"] == {"FIC102": "PV", "FIC103": "OP"}
     assert "FIC102 (no PV)" in f.message and "FIC103 (no OP)" in f.message
+
+
+def _jittered_csv(path, jitter_s, *, bad=(), seed=7, n=800):
+    rng = np.random.default_rng(seed)
+    t = 1_767_225_600 + 10.0 * np.arange(n) + rng.uniform(-jitter_s, jitter_s, n)
+    op = [f"{v:.4f}" for v in 50 + 3 * np.sin(np.arange(n) / 20)]
+    for k in bad:
+        op[k] = "Bad"
+    pv = 20 + np.cos(np.arange(n) / 20) + rng.normal(0, 0.05, n)
+    stamps = [np.datetime_as_string(np.datetime64(int(s * 1e6), "us"), unit="us") + "Z" for s in t]
+    path.write_text("time,FIC1.OP,FIC1.PV\n" + "".join(f"{s},{o},{p:.4f}\n" for s, o, p in zip(stamps, op, pv)))
+    return path
+
+
+def test_jittered_sampling_gets_the_clock_period_and_no_invented_gaps(tmp_path):
+    # +-3 s on 10 s stamps: intervals spread over 4-16 s and their median (10.07 s) drifts a
+    # sample over the record, which used to be reported as samples "missing ... filled"
+    (rec,) = read_records(_jittered_csv(tmp_path / "jit.csv", 3.0))
+    assert rec.ts_s == 10.0 and rec.n >= 799
+    assert "gap" not in codes(rec) and "irregular_sampling" in codes(rec)
+    # a bad value is still counted, once, though jittered intervals exceed 1.5 periods anyway
+    (rec,) = read_records(_jittered_csv(tmp_path / "bad.csv", 3.0, bad=(100, 300, 301)))
+    assert rec.ts_s == 10.0 and next(f for f in rec.findings if f.code == "gap").data["filled"] == 3
+    # milder jitter too (intervals within 10 %, so no irregular_sampling finding)
+    (rec,) = read_records(_jittered_csv(tmp_path / "mild.csv", 0.5, bad=(100,)))
+    assert rec.ts_s == 10.0 and next(f for f in rec.findings if f.code == "gap").data["filled"] == 1
+
+
+def test_random_intervals_without_a_clock_keep_the_median_spacing(tmp_path):
+    # intervals drawn at random (no regular clock behind them): there are no slots to fit
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.uniform(7, 13, 800))
+    f = tmp_path / "renewal.csv"
+    f.write_text("t,OP,PV\n" + "".join(f"{s:.3f},{50 + np.sin(s / 100):.4f},{np.cos(s / 100):.4f}\n" for s in t))
+    (rec,) = read_records(f)
+    assert rec.ts_s == pytest.approx(float(np.median(np.diff(np.round(t, 3)))), rel=1e-9)
