@@ -18,7 +18,7 @@ from .columns import role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
 from .timebase import (END_TOLERANCE, Cleaned, clean_series, empty_slots, estimate_period, irregularity, iso_utc,
-                       jittered_period, runs, to_grid)
+                       jittered_period, runs, spread_truncated, to_grid)
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
 DEFAULT_MIN_SAMPLES = 20
@@ -225,6 +225,13 @@ def _bad_finding(role: str, s: Series, n_rows: int) -> Finding | None:
                     "bad_quality": s.n_bad_quality, "examples": list(s.examples[:3]), "frac": round(frac, 4)})
 
 
+#: Share of rows sharing their time stamp above which the stamps are taken as truncated. A file
+#: joined from overlapping exports or a few repeated rows stays far below it; seconds dropped
+#: from data sampled every 50 s or faster put at least a third of the rows in shared stamps
+#: (every row below 30 s).
+TRUNCATED_SHARE = 0.2
+
+
 def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     """One record per contiguous segment of one loop."""
     table = spec.table
@@ -245,6 +252,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     cleaned = {}
     ts_opt = options.get("ts_s")
     n_dups = 0
+    shared = 0.0           # the largest share of OP's or PV's rows in runs of one time stamp
+    spread_rows = 0
     reversed_any = False
     # A PV with no usable value at all (a dead transmitter, a tag exported as bad) does not stop
     # the loop: OP's own shape can still be judged (diagnose.evidence.op_shape). A flat stand-in
@@ -267,11 +276,32 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                                      "a time column", path=label)
             t = np.arange(s.x.size) * float(ts_opt)
         x = _mode_values(s, spec.mode_auto) if role == "mode" else s.x
-        c = clean_series(np.asarray(t, float), x)
+        t = np.asarray(t, float)
+        if ts_opt and s.t is not None and (spread := spread_truncated(t, float(ts_opt))) is not None:
+            spread_rows = max(spread_rows, clean_series(t, x).n_shared)
+            t = spread
+        c = clean_series(t, x)
         n_dups = max(n_dups, c.n_duplicates)
+        if role in ("op", "pv") and t.size:
+            shared = max(shared, c.n_shared / max(1, int(np.count_nonzero(np.isfinite(t)))))
         reversed_any |= c.reversed
         cleaned[role] = c
-    if n_dups:
+    if spread_rows:
+        findings.append(Finding("duplicates", f"{spread_rows} rows shared their time stamp in equal runs (time "
+                                f"stamps truncated, e.g. seconds dropped by a spreadsheet); they were spread in "
+                                f"file order at the given {float(ts_opt):g} s", "info",
+                                {"count": 0, "spread": spread_rows}))
+    if n_dups and shared >= TRUNCATED_SHARE:
+        res = next((f" to whole {u}" for u, q in (("minutes", 60.0), ("seconds", 1.0))
+                    if all(np.all(np.mod(c.t, q) == 0) for r, c in cleaned.items() if r in ("op", "pv"))), "")
+        findings.append(Finding(
+            "duplicates", f"{n_dups} duplicated timestamps: {100 * shared:.0f} % of the rows share their time stamp "
+            f"with the row before or after, so the time stamps look truncated{res} (e.g. seconds dropped by a spreadsheet). "
+            "Only the first row of each time stamp was kept, and the period was read from what was left; "
+            "re-export with full time stamps, or, if the rows are evenly spaced in time order, give --ts-s "
+            "SECONDS (equal runs of rows per time stamp are then spread in file order at that period)",
+            "warning", {"count": n_dups, "share": round(shared, 4)}))
+    elif n_dups:
         findings.append(Finding("duplicates", f"{n_dups} duplicated timestamps; the first value of each was kept",
                                 "info", {"count": n_dups}))
     ts_s = float(ts_opt) if ts_opt else (table.ts_s if table and table.ts_s else None)

@@ -390,6 +390,40 @@ class Cleaned:
     x: np.ndarray
     n_duplicates: int
     reversed: bool
+    n_shared: int = 0          # rows whose time stamp the row before or after has too, in file order
+
+
+def spread_truncated(t: np.ndarray, ts_s: float) -> np.ndarray | None:
+    """Times of rows whose stamps were truncated (``M/D/YYYY H:MM`` from a spreadsheet: six 10 s
+    rows per minute), spread in file order at the period given, or None where that is not safe.
+
+    Safe means: the stamps run one way in file order, every run of equal stamps but the first and
+    last holds the same ``k >= 2`` rows, and consecutive stamps are whole multiples of ``k ts_s``
+    apart, so each run fills its stamp's interval exactly. The first run, when short, is
+    aligned to the end of its interval (truncation keeps a row in the interval it started).
+    """
+    if t.size < 3 or not np.all(np.isfinite(t)):
+        return None
+    d = np.diff(t)
+    flip = bool(np.all(d <= 0)) and bool(np.any(d < 0))
+    if flip:
+        t = t[::-1]
+    elif not np.all(d >= 0):
+        return None
+    starts = np.flatnonzero(np.concatenate(([True], np.diff(t) > 0)))
+    lengths = np.diff(np.append(starts, t.size))
+    if lengths.size < 3:
+        return None
+    k = int(lengths[1])
+    step = k * ts_s
+    jumps = np.diff(t[starts]) / step
+    if (k < 2 or np.any(lengths[1:-1] != k) or lengths[0] > k or lengths[-1] > k
+            or np.any(np.abs(jumps - np.rint(jumps)) > 1e-6) or np.any(np.rint(jumps) < 1)):
+        return None
+    pos = np.arange(t.size) - np.repeat(starts, lengths)
+    pos[:lengths[0]] += k - lengths[0]
+    out = t + pos * ts_s
+    return out[::-1] if flip else out
 
 
 def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
@@ -399,14 +433,19 @@ def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
     d = np.diff(t)
     reversed_ = bool(t.size > 1 and np.count_nonzero(d < 0) > 0.5 * (t.size - 1))
     if t.size > 1 and np.any(d <= 0):
+        # runs of equal stamps next to each other are the mark of truncation; a repeated hour (DST
+        # read as UTC) or overlapping exports duplicate stamps far apart in the file
+        same = d == 0
+        n_shared = int(np.count_nonzero(np.concatenate(([False], same)) | np.concatenate((same, [False]))))
         order = np.argsort(t, kind="stable")                     # duplicates keep file order
         t, x = t[order], x[order]
         if np.all(np.diff(t) > 0):
             return Cleaned(t, x, 0, reversed_)
         s = pd.Series(x, index=t)
-        first = s.groupby(level=0, sort=False).first()           # first non-NaN of each time
+        groups = s.groupby(level=0, sort=False)
+        first = groups.first()                                   # first non-NaN of each time
         return Cleaned(np.array(first.index, dtype=float), np.array(first, dtype=float),
-                       len(s) - len(first), reversed_)
+                       len(s) - len(first), reversed_, n_shared)
     return Cleaned(t, x, 0, reversed_)
 
 

@@ -914,3 +914,46 @@ def test_random_intervals_without_a_clock_keep_the_median_spacing(tmp_path):
     f.write_text("t,OP,PV\n" + "".join(f"{s:.3f},{50 + np.sin(s / 100):.4f},{np.cos(s / 100):.4f}\n" for s in t))
     (rec,) = read_records(f)
     assert rec.ts_s == pytest.approx(float(np.median(np.diff(np.round(t, 3)))), rel=1e-9)
+
+
+def _excel_minutes_csv(path, *, newest_first=False, n=800, first_offset_s=0):
+    # 10 s data saved by a spreadsheet as M/D/YYYY H:MM: the seconds are dropped
+    rng = np.random.default_rng(11)
+    op = 50 + 3 * np.sin(np.arange(n) / 20) + rng.normal(0, 0.05, n)
+    pv = 20 + np.cos(np.arange(n) / 20) + rng.normal(0, 0.05, n)
+    secs = first_offset_s + 10 * np.arange(n)
+    stamps = [f"1/1/2026 {s // 3600}:{s // 60 % 60:02d}" for s in secs]
+    rows = [f"{s},{o:.4f},{p:.4f}\n" for s, o, p in zip(stamps, op, pv)]
+    path.write_text("Date,FIC200.OP,FIC200.PV\n" + "".join(rows[::-1] if newest_first else rows))
+    return path, op
+
+
+def test_truncated_time_stamps_are_a_warning_that_says_what_to_do(tmp_path):
+    f, _ = _excel_minutes_csv(tmp_path / "excel.csv")
+    (rec,) = read_records(f)
+    dup = next(x for x in rec.findings if x.code == "duplicates")
+    assert dup.severity == "warning" and dup.data["share"] == 1.0
+    assert "truncated to whole minutes" in dup.message and "re-export" in dup.message and "--ts-s" in dup.message
+    # a few repeated rows stay an info finding
+    rows = wide_text(300).splitlines(keepends=True)
+    rows[1:1] = rows[1:4]
+    g = tmp_path / "few.csv"
+    g.write_text("".join(rows))
+    (rec,) = read_records(g)
+    assert next(x for x in rec.findings if x.code == "duplicates").severity == "info"
+
+
+@pytest.mark.parametrize("newest_first", [False, True])
+def test_truncated_time_stamps_are_spread_at_the_period_given(tmp_path, newest_first):
+    f, op = _excel_minutes_csv(tmp_path / "excel.csv", newest_first=newest_first, first_offset_s=30)
+    (rec,) = read_records(f, ts_s=10)
+    assert rec.n == 800 and rec.ts_s == 10.0 and rec.start == "2026-01-01T00:00:30Z"
+    np.testing.assert_allclose(rec.op, np.round(op, 4))
+    dup = next(x for x in rec.findings if x.code == "duplicates")
+    assert dup.severity == "info" and dup.data["spread"] == 800
+    # runs of unequal length (a row missing mid-minute) cannot be placed: rows are dropped as before
+    lines = f.read_text().splitlines(keepends=True)
+    del lines[100]
+    f.write_text("".join(lines))
+    (rec,) = read_records(f, ts_s=10)
+    assert any(x.code == "duplicates" and x.severity == "warning" for x in rec.findings)
