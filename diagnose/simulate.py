@@ -204,27 +204,34 @@ def simulate_loop(
 
 
 def make_process(kind: str, *, gain: float, tau_s: float, delay_s: float, tau2_s: float | None = None,
-                 bias: float = 0.0) -> ProcessModel:
+                 bias: float = 0.0, u_balance_pct: float | None = None) -> ProcessModel:
     """A process by name: ``foptd``, ``soptd`` (second lag ``tau2_s``, default ``tau_s / 4``) or
-    ``integrating`` (``tau_s``: a lag on its input; ``bias``: PV at the start)."""
+    ``integrating`` (``tau_s``: a lag on its input; ``bias``: PV at the start; ``u_balance_pct``:
+    the valve position at which PV stands still, default the loop's starting OP)."""
     if kind not in ("foptd", "soptd", "integrating"):
         raise DataError(f"unknown process kind {kind!r}; use foptd, soptd or integrating")
     if kind != "integrating" and not tau_s > 0:
         raise DataError(f"{kind} tau_s must be > 0 seconds, got {tau_s}")
     tau2 = (tau2_s if tau2_s is not None else tau_s / 4) if kind == "soptd" else 0.0
-    return ProcessModel(kind=kind, gain=gain, tau_s=tau_s, delay_s=delay_s, bias=bias, tau2_s=tau2)
+    return ProcessModel(kind=kind, gain=gain, tau_s=tau_s, delay_s=delay_s, bias=bias, tau2_s=tau2,
+                        u_balance_pct=u_balance_pct if kind == "integrating" else None)
 
 
 def sticky_loop(S_pct: float, J_pct: float, *, n: int = 3000, ts_s: float = 1.0, gain: float = 1.0,
                 tau_s: float = 20.0, delay_s: float = 3.0, kind: str = "foptd", noise_std: float = 0.0,
                 load_walk_std: float = 0.0, f0: int = 1, seed: int = 0, name: str = "SIM",
-                warmup: int = 500, Kc: float | None = None, Ti_s: float | None = None) -> LoopRecord:
+                warmup: int = 500, Kc: float | None = None, Ti_s: float | None = None,
+                u_balance_pct: float | None = None) -> LoopRecord:
     """A convenience closed loop: a sticky (or healthy, S = 0) valve on a tuned PI loop.
 
     Self-regulating processes get SIMC tuning; integrating ones a PI tuned for the integrator.
+    The loop starts with OP and the valve at 50 %; an integrating process stands still at
+    ``u_balance_pct`` (default 50 %, so a stuck valve may never be asked to move: give a balance
+    off 50 % for a level whose inflow the starting valve does not match, as
+    ``stiction simulate --process integrating`` does).
     """
     process = make_process(kind, gain=gain, tau_s=tau_s, delay_s=delay_s,
-                           bias=50.0 if kind == "integrating" else 0.0)
+                           bias=50.0 if kind == "integrating" else 0.0, u_balance_pct=u_balance_pct)
     if kind == "integrating":
         theta = delay_s + tau_s + ts_s
         ctrl = PIDController(Kc=1.0 / (gain * 2 * theta), Ti_s=8 * theta)

@@ -51,6 +51,23 @@ def test_simulate_writes_a_loop_with_the_true_mv(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_simulate_integrating_defaults_give_a_sticking_and_slipping_level(tmp_path, seed):
+    # with the level balanced exactly where the stuck valve started, the stem never moved (POS
+    # constant 50): the default "sticky" level loop showed no stick-slip at all
+    out = tmp_path / "level.csv"
+    assert main(["simulate", "--S", "3", "--J", "1", "--process", "integrating", "--seed", str(seed),
+                 "--out", str(out)]) == 0
+    rec = read_wide(out)
+    moving = np.abs(np.diff(rec.mv)) > 1e-9
+    slips = int(np.count_nonzero(moving[1:] & ~moving[:-1]))
+    assert slips >= 6
+    assert np.ptp(rec.mv) > 0.9 and np.ptp(rec.op) > 3.0   # OP crosses the band S, the stem jumps by J or more
+    for x in (rec.op, rec.pv):   # both cycle: several crossings of their mean, PV well off its noise
+        assert np.count_nonzero(np.diff(np.sign(x - x.mean())) != 0) >= 10
+    assert rec.pv.std() > 0.5
+
+
 def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     assert main(["simulate", "--S", "3"]) == 2                       # missing --J and --out
     assert main(["simulate", "--S", "-1", "--J", "1", "--out", str(tmp_path / "x.csv")]) == 1

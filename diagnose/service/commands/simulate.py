@@ -11,12 +11,21 @@ from ...errors import DataError
 #: half the span drives OP into its limits (the loop then says nothing about stiction).
 MAX_SJ_PCT = 50.0
 
+#: Valve position (% of span) at which the simulated level (``--process integrating``) stands still,
+#: against the valve's start at 50 %. At exactly 50 % the stuck valve already sits where the level
+#: balances, and the load (added to PV, which a level does not accumulate) never pushes OP across
+#: the band: the stem never moves. One % off balance is a level whose inflow the stuck valve does not
+#: match, the way a real one never does: the level drifts, OP winds up, the valve slips, and the loop
+#: settles into the stick-slip limit cycle of a sticky level loop.
+INTEGRATING_BALANCE_PCT = 51.0
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--S", type=float, required=True, help="deadband + stickband, %% of valve span (0 to 50)")
     p.add_argument("--J", type=float, required=True, help="slip jump, %% of valve span (0 to 50)")
     p.add_argument("--process", choices=["foptd", "soptd", "integrating"], default="foptd",
-                   help="process model (default foptd: first order plus dead time)")
+                   help="process model (default foptd: first order plus dead time; integrating: a level "
+                        "balanced at 51 %% of valve span, the valve starting at 50 %%)")
     p.add_argument("--gain", type=float, default=None,
                    help="process gain, PV units per %% (integrating: per %% per second); default 1 (0.02)")
     p.add_argument("--tau-s", type=float, default=20.0, help="process time constant, seconds")
@@ -49,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     rec = sticky_loop(args.S, args.J, n=args.n, ts_s=args.ts_s, gain=gain, tau_s=args.tau_s,
                       delay_s=args.delay_s, kind=args.process, noise_std=args.noise,
                       load_walk_std=args.load, f0=args.f0, seed=args.seed, name=args.name,
-                      Kc=args.kc, Ti_s=args.ti_s)
+                      Kc=args.kc, Ti_s=args.ti_s,
+                      u_balance_pct=INTEGRATING_BALANCE_PCT if args.process == "integrating" else None)
     write_wide(rec, args.out)
     print(f"wrote {args.out}: {rec.n} samples at {rec.ts_s:g} s, S={args.S:g} %, J={args.J:g} %",
           file=sys.stderr)
