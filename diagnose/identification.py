@@ -218,8 +218,8 @@ class Identification:
         and the fit rule between 0.5 and the threshold).
     cls : str
         One of `diagnose.stiction_model.CLASSES` (``"none"`` when ``stiction`` is False), or
-        ``"unknown"`` when the verdict is stiction but its size cannot be given (OP-only judgement,
-        or a fit that finds no valve band).
+        ``"unknown"`` when the verdict is stiction but its size or shape cannot be given (OP-only
+        judgement, a fit that finds no valve band, or a stem that never moved: `valve_not_moving`).
     S_pct, J_pct : float or None
         % of valve span, 0 when the class is ``none``, None when ``unknown``.
     S_interval_pct, J_interval_pct : (float, float) or None
@@ -304,6 +304,12 @@ class Identification:
     @property
     def stiction_probability(self) -> float | None:
         return None if self.verdict is None else self.verdict.stiction_probability
+
+    @property
+    def valve_not_moving(self) -> bool:
+        """The recorded stem never moved: the class is ``unknown`` (not judged) and S is at least
+        `fitted_S_pct`, OP's travel over the record."""
+        return any(w.code == "valve_not_moving" for w in self.warnings)
 
     @property
     def op_in_percent(self) -> bool:
@@ -713,7 +719,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         warnings.append(_warn("valve_not_moving",
                               f"the stem position (MV) never moves while OP travels {S_lo:.3g} % of span: "
                               "the valve is stuck (or MV is not the stem position); S is at least that, "
-                              "J cannot be identified"))
+                              "but J and the class (the shape of the friction) cannot be judged from a "
+                              "valve that never moved"))
         S, J = S_lo, 0.0
         S_int, J_int = (S_lo, 100.0), (0.0, 100.0)
         rmse, r2 = fit.rmse, fit.r2
@@ -768,7 +775,12 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
                     class_test=None if ctest is None else ClassTest.from_search(ctest))
     S_out: float | None = float(S)
     J_out: float | None = float(J)
-    if stiction:
+    if stiction and mv_still:
+        # the class is read off how the valve breaks free and where it lands: a stem that never
+        # moved shows neither, and S = OP's travel, J = 0 is a lower bound, not a deadband
+        cls = "unknown"
+        S_out = J_out = None
+    elif stiction:
         cls = stiction_class(S, J)
         if cls == "none" or S < S_SIZE_MIN_PCT:
             # other evidence found stiction the model fit could not size

@@ -80,10 +80,25 @@ def test_op_mv_record_is_fitted_directly():
 def test_a_valve_that_never_moves_is_a_result_with_a_warning():
     rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.02, load_walk_std=0.01, seed=3)
     stuck = rec.replace(mv=np.full(rec.n, 42.0))
-    d = identify(stuck).to_dict()
+    res = identify(stuck)
+    d = res.to_dict()
     assert d["stiction"] is True
-    assert any(w["code"] == "valve_not_moving" for w in d["warnings"])
-    assert d["S"] > 0
+    warn = next(w for w in d["warnings"] if w["code"] == "valve_not_moving")
+    # the stem never moved: no class can be read off it (it was reported "deadband" with
+    # S in [OP's travel, 100] and J in [0, 100]); the class is not judged, and the warning says why
+    assert d["class"] == "unknown" and d["class_alternatives"] == []
+    assert d["S"] is None and d["J"] is None and d["S_interval"] is None and d["J_interval"] is None
+    assert "class" in warn["message"] and "never moved" in warn["message"]
+    assert res.valve_not_moving
+    assert res.fitted_S_pct == pytest.approx(np.percentile(rec.op, 99.5) - np.percentile(rec.op, 0.5))
+
+
+def test_a_short_record_whose_stem_never_moves_has_no_class():
+    rec = sticky_loop(3.0, 1.0, n=60, noise_std=0.02, load_walk_std=0.01, seed=3)
+    assert np.ptp(rec.mv) == 0.0
+    d = identify(rec).to_dict()
+    assert {w["code"] for w in d["warnings"]} >= {"valve_not_moving", "short_record"}
+    assert d["class"] == "unknown" and d["S"] is None and d["J_interval"] is None
 
 
 @pytest.mark.parametrize("op,pv,match", [

@@ -85,6 +85,11 @@ def test_stuck_valve_exits_zero_with_a_warning(tmp_path, capsys):
     assert main(["identify", str(path), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert any(w["code"] == "valve_not_moving" for w in d["warnings"])
+    assert d["class"] == "unknown" and d["J"] is None
+    assert main(["identify", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "class unknown" in out and "deadband" not in out
+    assert "S >= " in out and "J and the class are not judged" in out
 
 
 def _rec(name, n, seg=0):

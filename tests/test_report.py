@@ -532,3 +532,25 @@ def test_an_explanation_shows_itself_in_a_notebook_and_plots_the_report_figure()
     assert repr(expl).startswith("Explanation(loop='X1', missing_physics='actuator_lag'")
     fig = expl.plot()
     assert len(fig.axes) >= 3 and any("missing physics: actuator_lag" in ax.get_title() for ax in fig.axes)
+
+
+def test_a_valve_that_never_moved_is_reported_and_summarised_without_a_class(tmp_path):
+    # a stuck stem showed "class deadband" with S in [OP's travel, 100] and J in [0, 100]
+    from diagnose.service.batch import loop_row
+
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.02, load_walk_std=0.01, seed=3, name="FV3")
+    diag = pipeline.diagnose(rec.replace(mv=np.full(rec.n, 20.0)))
+    assert diag.identification.cls == "unknown"
+    assert "never moved" in diag.verdict_text and "class are not judged" in diag.verdict_text
+    assert "deadband" not in diag.verdict_text
+    assert "never moved" in diag.action and "stem position" in diag.action
+    rows = _quantity_rows(diag)
+    assert rows["Class"].startswith("unknown: not judged: the stem never moved")
+    assert rows["S"].startswith("at least ") and "never moved" in rows["S"]
+    assert rows["J"].startswith("not measurable")
+    md = report.to_markdown(report.loop_blocks(diag))
+    assert "[0.00, 100.00]" not in md and "100.00]" not in md
+    row = {**loop_row(diag, None), "rank": 1}
+    assert row["class"] == "unknown" and row["J_hi"] is None and row["S_hi"] is None
+    summary = report.to_markdown(report.summary_blocks([row]))
+    assert "| unknown |" in summary and "never moved" in summary and "deadband" not in summary

@@ -302,6 +302,11 @@ def verdict_text(ident: Identification, warnings: Sequence[Note] = ()) -> str:
     if not ident.stiction:
         return "No stiction found: the valve follows the controller output" + sure + "."
     S, J = ident.S_pct, ident.J_pct
+    if ident.valve_not_moving and ident.fitted_S_pct is not None:
+        # the class is "unknown" because it was not judged: say why, and the bound S has
+        unit = f" {sj_unit(ident)}" if not ident.op_in_percent else " % of valve span"
+        return (f"Stiction: the valve never moved while OP travelled {ident.fitted_S_pct:.2f}{unit}, so S is "
+                f"at least that; J and the class are not judged{sure}.")
     if S is None or J is None:
         size = "size unknown"
     elif ident.op_in_percent:
@@ -329,7 +334,11 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = ()) -> 
     if "data_quality.compression" in codes:
         parts.append("The historian data look compressed, which can fake stiction: export the "
                      "loop again with compression off (or raw archive values) before acting.")
-    if ident.stiction and ident.S_pct is None:
+    if ident.stiction and ident.valve_not_moving:
+        parts.append("The recorded stem position never moved while the controller output travelled: check "
+                     "that the valve is not stuck or isolated (and that the MV tag is the stem position), "
+                     "then stroke-test it; J and the class need a record in which the valve moves.")
+    elif ident.stiction and ident.S_pct is None:
         parts.append("The evidence says the valve sticks but its size could not be measured: have the "
                      "valve stroke-tested (or record the stem position) at the next opportunity.")
     elif ident.stiction and conf >= 0.5 and S >= S_MINOR_PCT:

@@ -47,6 +47,11 @@ FIGURE_CAPTIONS = {
     "history": "S and J from earlier runs (history database), by the end of each record.",
 }
 
+#: The class of a valve whose recorded stem never moved (warning ``valve_not_moving``): "unknown"
+#: because it is not judged, not because the fit could not size the band.
+NOT_MOVING_MEANING = ("not judged: the stem never moved in this record, so how the valve breaks free and "
+                      "where it lands (deadband, undershoot, no offset, overshoot) cannot be seen")
+
 #: What each stiction class means for the valve, in a maintenance planner's words (docs/model.md).
 CLASS_MEANING = {
     "none": "no stiction: the valve follows the controller output",
@@ -249,7 +254,7 @@ def _source_line(diag: Diagnosis) -> str:
 def _found_rows(diag: Diagnosis) -> list[list[str]]:
     ident = diag.identification
     unit = "% of span" if ident.op_in_percent else "in OP's own units (OP is not in % of span)"
-    meaning = CLASS_MEANING.get(ident.cls)
+    meaning = NOT_MOVING_MEANING if ident.valve_not_moving else CLASS_MEANING.get(ident.cls)
     alt = (f" (the data also allow: {', '.join(ident.class_alternatives)})" if ident.class_alternatives else "")
     rows = [["Class", ident.cls + (f": {meaning}" if meaning else "") + alt]]
     if not ident.stiction and ident.S_interval_pct is not None and ident.J_interval_pct is not None:
@@ -259,6 +264,10 @@ def _found_rows(diag: Diagnosis) -> list[list[str]]:
     elif ident.S_pct is not None and ident.J_pct is not None:
         rows += [[S_MEANING, f"{fmt(ident.S_pct)} {unit}, interval {fmt_interval(ident.S_interval_pct)}"],
                  [J_MEANING, f"{fmt(ident.J_pct)} {unit}, interval {fmt_interval(ident.J_interval_pct)}"]]
+    elif ident.valve_not_moving and ident.fitted_S_pct is not None:
+        rows += [[S_MEANING, f"at least {fmt(ident.fitted_S_pct)} {unit} (OP travelled that far and the stem "
+                             "never moved)"],
+                 [J_MEANING, "not measurable: the valve never broke free in this record"]]
     else:
         rows += [[S_MEANING, "not measurable from these data"], [J_MEANING, "not measurable from these data"]]
     v = ident.verdict

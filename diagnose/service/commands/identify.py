@@ -43,6 +43,9 @@ def summary(ident: Identification) -> str:
                      f"[{ji[0]:.2f}, {ji[1]:.2f}]  ({unit}{src})")
         if ident.class_alternatives:
             lines.append(f"  the data also allow class {' or '.join(ident.class_alternatives)}")
+    elif ident.stiction and ident.valve_not_moving and ident.fitted_S_pct is not None:
+        lines.append(f"  S >= {ident.fitted_S_pct:.2f} % (OP's travel; the stem never moved, so J and the class "
+                     "are not judged)")
     if ident.evidence:
         said = {k: [e.test for e in ident.evidence if e.decision == k]
                 for k in ("stiction", "no_stiction", "undetermined", "cannot_judge")}
