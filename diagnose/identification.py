@@ -465,6 +465,34 @@ def _quality(record: LoopRecord) -> tuple[Finding, ...]:
     return findings
 
 
+def _op_scaled_by_mv(record: LoopRecord, findings: tuple[Finding, ...],
+                     warnings: list[Note]) -> tuple[LoopRecord, tuple[Finding, ...]]:
+    """OP logged as a fraction beside a stem position in %: OP x 100, when MV shows that scale.
+
+    Without MV the tool warns rather than guesses (OP 0..1 could be a valve all but shut); with MV
+    the stem position is the scale. Fitted unscaled, OP -> MV needs a valve gain of 100 the valve fit
+    does not have, so the fit finds no band and a sticky valve passes for a healthy one."""
+    from . import quality
+
+    frac = next((f for f in findings if f.code == "op_fraction" and f.severity != "info"), None)
+    if frac is None or record.mv is None or not quality.fraction_op_tracks_mv(record.op, record.mv):
+        return record, findings
+    op = np.asarray(record.op, dtype=float) * 100.0
+    info = quality.rescaled_op_finding(frac)
+    findings = tuple(info if f is frac else f for f in findings)
+    sat = quality._saturation(op)   # was not checked: saturation means nothing for a fraction
+    if sat is not None:
+        findings += (sat,)
+    rec_findings = tuple(info if f.code == "op_fraction" else f for f in record.findings)
+    warnings.append(_warn("op_rescaled",
+                          f"OP stays within 0..1 ({frac.data.get('min', 0):.3g} to {frac.data.get('max', 0):.3g}) "
+                          "while the stem position (MV) is in % and follows OP x 100: OP was read as a "
+                          "fraction of span and multiplied by 100"))
+    ranges = dict(record.ranges or {})
+    ranges.pop("op", None)
+    return record.replace(op=op, findings=rec_findings, ranges=ranges), findings
+
+
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
@@ -664,6 +692,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     _check(record)
     findings = _quality(record)
     warnings: list[Note] = []
+    if use_mv:
+        record, findings = _op_scaled_by_mv(record, findings, warnings)
     for f in findings:
         if f.severity in ("warning", "error"):
             warnings.append(_warn(f"data_quality.{f.code}", f.message))

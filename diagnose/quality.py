@@ -50,6 +50,9 @@ QUANT_MAX_LEVELS = 50
 #: fraction; an OP in % that never leaves 0..1 % (a valve all but shut for the whole record) is
 #: flagged too, and the message says how to tell.
 FRACTION_MIN_MOVE = 0.01
+#: A fraction OP is scaled to % when OP x 100 lies within this many % of span of the recorded stem
+#: position (median): a valve follows OP to within its band (S rarely exceeds 10 %).
+FRACTION_MV_MAX_OFF_PCT = 10.0
 
 
 def _tolerance(x: np.ndarray) -> float:
@@ -220,6 +223,29 @@ def _op_fraction(op: np.ndarray) -> Finding | None:
                    "of span, not in %, which makes every valve movement look 100 times too small and hides "
                    "stiction; scale OP to % (multiply by 100) or pass the right column with --op", "warning",
                    {"min": lo, "max": hi})
+
+
+def fraction_op_tracks_mv(op: np.ndarray, mv: np.ndarray) -> bool:
+    """Does a fraction-of-span OP (``op_fraction``) scaled by 100 track a stem position in %?
+
+    The stem position shows OP's scale: a valve follows OP to within its band, so OP x 100 lies
+    within a few % of MV, while OP read as % lies some 50 % of span away. A fraction OP beside an MV
+    that is itself within 0..1 (both fractions, or a valve all but shut in %) says nothing of the
+    scale, and neither does an MV that OP x 100 does not follow."""
+    op = np.asarray(op, dtype=float)
+    mv = np.asarray(mv, dtype=float)
+    if op.shape != mv.shape or float(np.max(mv)) <= 1.0 or float(np.min(mv)) < -1.0 or float(np.max(mv)) > 101.0:
+        return False
+    off_pct = float(np.median(np.abs(100.0 * op - mv)))
+    off_raw = float(np.median(np.abs(op - mv)))
+    return off_pct <= FRACTION_MV_MAX_OFF_PCT and off_pct < off_raw / 10.0
+
+
+def rescaled_op_finding(f: Finding) -> Finding:
+    """The ``op_fraction`` finding once OP was scaled to % by the stem position: information only."""
+    return Finding("op_fraction", f"OP was logged as a fraction of span ({f.data.get('min', 0):.3g} to "
+                   f"{f.data.get('max', 0):.3g}); the stem position (MV, in %) follows OP x 100, so OP was "
+                   "multiplied by 100", "info", {**f.data, "rescaled": 100.0})
 
 
 def _manual(record: LoopRecord) -> Finding | None:

@@ -222,3 +222,48 @@ def test_a_stem_that_follows_op_exactly_shows_no_gain_rather_than_a_ratio_of_rou
     row = {ev.test: ev for ev in res.evidence}["model_fit"]
     assert res.method == "op_mv" and row.value == 0.0 and row.decision == "no_stiction"
     assert not res.stiction
+
+
+def _fraction_op(rec):
+    return rec.replace(op=rec.op / 100.0)
+
+
+def test_a_fraction_op_beside_a_stem_position_in_percent_is_scaled_by_it():
+    # OP logged 0..1 with the stem in %: the valve fit saw OP -> MV with a gain of 100 and found no band
+    # (size unknown, confidence held at 50 %), while the same data in % give S = 3, J = 1
+    rec = sticky_loop(3.0, 1.0, n=3000, noise_std=0.02, load_walk_std=0.01, seed=0)
+    res = identify(_fraction_op(rec))
+    codes = {w.code for w in res.warnings}
+    assert res.method == "op_mv" and res.stiction and res.cls == "undershoot"
+    assert res.S_pct == pytest.approx(3.0, abs=0.2) and res.J_pct == pytest.approx(1.0, abs=0.2)
+    assert "op_rescaled" in codes and "data_quality.op_fraction" not in codes and "size_unknown" not in codes
+    assert res.confidence > 0.9
+    frac = next(f for f in res.data_quality if f.code == "op_fraction")
+    assert frac.severity == "info" and frac.data["rescaled"] == 100.0
+    np.testing.assert_allclose(res.record.op, rec.op)   # plots and reports read OP in %
+    # the verdict agrees with the same data without the stem position (warned, not scaled there)
+    no_mv = identify(_no_mv(_fraction_op(rec)))
+    assert no_mv.stiction and "data_quality.op_fraction" in {w.code for w in no_mv.warnings}
+    assert "op_rescaled" not in {w.code for w in no_mv.warnings}
+
+
+def test_the_report_pipeline_uses_the_scaled_op():
+    from diagnose.service import pipeline
+
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.01, seed=2, name="FV5")
+    diag = pipeline.diagnose(_fraction_op(rec), narx=False)
+    assert diag.identification.cls == "undershoot"
+    np.testing.assert_allclose(diag.record.op, rec.op)
+    assert "size unknown" not in diag.verdict_text
+
+
+def test_op_is_scaled_only_when_the_stem_position_shows_the_scale():
+    from diagnose.quality import fraction_op_tracks_mv
+
+    rng = np.random.default_rng(0)
+    op = 0.5 + 0.02 * np.sin(np.arange(500) / 20.0)
+    assert fraction_op_tracks_mv(op, 100.0 * op + rng.normal(0, 0.5, 500))
+    assert not fraction_op_tracks_mv(op, op)                  # both fractions: nothing to go by
+    near_shut = 0.5 + 0.4 * np.sin(np.arange(500) / 20.0)     # OP in % near 0, MV following it in %
+    assert not fraction_op_tracks_mv(near_shut, np.clip(near_shut + 0.2, 0, None) + 0.5)
+    assert not fraction_op_tracks_mv(op, np.full(500, 20.0) + rng.normal(0, 0.5, 500))   # MV elsewhere

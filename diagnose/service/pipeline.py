@@ -517,6 +517,10 @@ def diagnose(record: LoopRecord, *, explain: bool | str = False, narx: bool = Tr
         if threads is not None:
             opts.setdefault("threads", threads)
         ident = identify(record, **opts)
+    if ident.record is not None:
+        # the record as identified (OP logged as a fraction is scaled to % by the stem position):
+        # the NARX-SP run, the missing physics and the report's figures read the same OP
+        record = ident.record
     timings["identify"] = time.perf_counter() - t0
     notes: list[Note] = []
     known = {w.message for w in ident.warnings}
