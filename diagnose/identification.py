@@ -628,6 +628,10 @@ def _confidence_caps(findings: Sequence[Finding], n: int, r2: float | None, meth
             warnings[seen] = _warn("data_quality.compression", f"{warnings[seen].message}; {hedge}")
     if "op_fraction" in codes:
         cap = min(cap, 0.5)
+    if "duplicates" in codes:
+        # a warning only where many rows share a time stamp (a spreadsheet dropped the seconds):
+        # the rows kept are one per stamp, so the record's period and its dynamics are not the plant's
+        cap = min(cap, 0.5)
     if r2 is not None and r2 < 0.2 and method == "op_pv":
         cap = min(cap, 0.8)
         warnings.append(_warn("poor_fit", f"the model explains little of PV (free-run r2 = {r2:.2f}); "

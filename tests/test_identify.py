@@ -110,6 +110,15 @@ def test_unusable_records_raise_data_errors(op, pv, match):
         identify(LoopRecord(name="X", ts_s=1.0, op=op, pv=pv))
 
 
+def test_truncated_time_stamps_hedge_the_verdict(sticky_result):
+    rec = sticky_loop(4.0, 1.5, n=2000, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=1, name="FIC101")
+    dup = Finding("duplicates", "1660 of 2000 rows share their time stamp: truncated", "warning", {"share": 0.83})
+    res = identify(_no_mv(rec).replace(findings=(dup,), meta={"quality_checked": True}))
+    assert res.confidence <= 0.5 < sticky_result.confidence
+    assert any(w["code"] == "data_quality.duplicates" for w in res.to_dict()["warnings"])
+
+
 def test_compression_hedges_the_verdict(sticky_result):
     rec = sticky_loop(4.0, 1.5, n=2000, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
                       load_walk_std=0.01, seed=1, name="FIC101")
