@@ -439,8 +439,11 @@ def test_ctrl_c_stops_a_parallel_batch_at_once_and_a_rerun_resumes(tmp_path):
         out, db = tmp_path / f"out{attempt}", tmp_path / f"h{attempt}.sqlite"
         cmd = [sys.executable, "-m", "diagnose.service.cli", "batch", str(logs), "--out", str(out), "--workers",
                "2", "--no-narx", "--no-pdf", "--db", str(db), "--quiet"]
+        # a test run started in the background (CI, nohup) ignores SIGINT, and a child would inherit
+        # that: the batch is started as from a terminal, with Ctrl-C's default action
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True)
+                                start_new_session=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         try:
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline and not list(out.glob("loops/*/*.json")):
