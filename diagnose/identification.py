@@ -480,7 +480,7 @@ def _op_scaled_by_mv(record: LoopRecord, findings: tuple[Finding, ...],
     op = np.asarray(record.op, dtype=float) * 100.0
     info = quality.rescaled_op_finding(frac)
     findings = tuple(info if f is frac else f for f in findings)
-    sat = quality._saturation(op)   # was not checked: saturation means nothing for a fraction
+    sat = quality.op_saturation(op)   # `assess` leaves it out for a fraction OP; in % it counts
     if sat is not None:
         findings += (sat,)
     rec_findings = tuple(info if f.code == "op_fraction" else f for f in record.findings)

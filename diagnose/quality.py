@@ -199,7 +199,7 @@ def _quantisation(role: str, x: np.ndarray) -> Finding | None:
                    {"role": role, "step": q["step"], "levels": round(q["levels"], 1)})
 
 
-def _saturation(op: np.ndarray) -> Finding | None:
+def op_saturation(op: np.ndarray) -> Finding | None:
     # at a limit = at 0 % (100 %) and exactly at the record's own minimum (maximum): clamped
     mn, mx = float(np.min(op)), float(np.max(op))
     eps = 1e-6 * max(1.0, abs(mn), abs(mx))
@@ -281,7 +281,7 @@ def assess(record: LoopRecord) -> tuple[Finding, ...]:
     if f is not None:
         out.append(f)
     else:
-        f = _saturation(record.op)  # at 0 % or 100 %: meaningless for a fraction
+        f = op_saturation(record.op)  # at 0 % or 100 %: meaningless for a fraction
         if f is not None:
             out.append(f)
     f = _manual(record)
