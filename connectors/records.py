@@ -18,7 +18,7 @@ from .columns import role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
 from .timebase import (END_TOLERANCE, Cleaned, clean_series, empty_slots, estimate_period, irregularity, iso_utc,
-                       jittered_period, runs, spread_truncated, to_grid)
+                       jittered_period, runs, shared_rows, spread_truncated, to_grid)
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
 DEFAULT_MIN_SAMPLES = 20
@@ -278,7 +278,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         x = _mode_values(s, spec.mode_auto) if role == "mode" else s.x
         t = np.asarray(t, float)
         if ts_opt and s.t is not None and (spread := spread_truncated(t, float(ts_opt))) is not None:
-            spread_rows = max(spread_rows, clean_series(t, x).n_shared)
+            spread_rows = max(spread_rows, shared_rows(t))
             t = spread
         c = clean_series(t, x)
         n_dups = max(n_dups, c.n_duplicates)
@@ -316,9 +316,10 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                              path=label)
     max_gap_s = float(options.get("max_gap_s") or DEFAULT_MAX_GAP_SAMPLES * ts_s)
     # a max_gap_s given is the limit for every tag; a mode is a state, not a line between archive points
-    densest = min(_spacing(cleaned["op"]), _spacing(cleaned["pv"]))
-    gap_of = {r: max_gap_s if options.get("max_gap_s") or r == "mode" else _archive_gap(c, densest, max_gap_s)
-              for r, c in cleaned.items()}
+    spacing = {r: _spacing(c) for r, c in cleaned.items()}
+    densest = min(spacing["op"], spacing["pv"])
+    gap_of = {r: max_gap_s if options.get("max_gap_s") or r == "mode" else
+              _archive_gap(c, spacing[r], densest, max_gap_s) for r, c in cleaned.items()}
     starts = [c.t[np.isfinite(c.x)][0] for r, c in cleaned.items() if r in ("op", "pv")]
     ends = [c.t[np.isfinite(c.x)][-1] for r, c in cleaned.items() if r in ("op", "pv")]
     t0, t1 = max(starts), min(ends)
@@ -336,7 +337,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     grid = t0 + gk * ts_s
     step = float((t0 + ts_s) - t0) if n_grid > 1 else max_gap_s
     # a compressed OP is irregular by design (the compression finding says so): PV tells the sampling
-    sampled = "pv" if _spacing(cleaned["op"]) > 1.5 * densest else "op"
+    sampled = "pv" if spacing["op"] > 1.5 * densest else "op"
     irr = irregularity(cleaned[sampled].t, ts_s, max_gap_s)
     if irr > 0.05:
         findings.append(Finding("irregular_sampling", f"{100 * irr:.0f} % of sample intervals differ from "
@@ -497,8 +498,9 @@ def _spacing(c: Cleaned) -> float:
     return estimate_period([c.t[np.isfinite(c.x)]])
 
 
-def _archive_gap(c: Cleaned, densest_s: float, max_gap_s: float) -> float:
-    """The longest gap interpolated in one tag.
+def _archive_gap(c: Cleaned, spacing_s: float, densest_s: float, max_gap_s: float) -> float:
+    """The longest gap interpolated in one tag, whose median archive spacing is ``spacing_s``
+    (`_spacing`).
 
     A tag archived more sparsely than the denser of OP and PV (at a slower rate, or by exception
     as historians compress: irregular points, far apart where the value ran straight) is a line
@@ -507,7 +509,7 @@ def _archive_gap(c: Cleaned, densest_s: float, max_gap_s: float) -> float:
     are both silent, the denser one's gap splits the record anyway.
     """
     t = c.t[np.isfinite(c.x)]
-    if t.size < 2 or not _spacing(c) > 1.5 * densest_s:
+    if t.size < 2 or not spacing_s > 1.5 * densest_s:
         return max_gap_s
     return max(max_gap_s, DEFAULT_MAX_GAP_SAMPLES * float(t[-1] - t[0]) / (t.size - 1))
 

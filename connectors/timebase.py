@@ -426,6 +426,14 @@ def spread_truncated(t: np.ndarray, ts_s: float) -> np.ndarray | None:
     return out[::-1] if flip else out
 
 
+def shared_rows(t: np.ndarray) -> int:
+    """Rows whose time stamp the row before or after has too, in file order (rows without a time
+    left out). Runs of equal stamps next to each other are the mark of truncation; a repeated hour
+    (DST read as UTC) or overlapping exports duplicate stamps far apart in the file."""
+    same = np.diff(t[np.isfinite(t)]) == 0
+    return int(np.count_nonzero(np.concatenate(([False], same)) | np.concatenate((same, [False]))))
+
+
 def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
     """Drop rows without a time, sort by time, keep the first finite value of duplicated times."""
     keep = np.isfinite(t)
@@ -433,17 +441,13 @@ def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
     d = np.diff(t)
     reversed_ = bool(t.size > 1 and np.count_nonzero(d < 0) > 0.5 * (t.size - 1))
     if t.size > 1 and np.any(d <= 0):
-        # runs of equal stamps next to each other are the mark of truncation; a repeated hour (DST
-        # read as UTC) or overlapping exports duplicate stamps far apart in the file
-        same = d == 0
-        n_shared = int(np.count_nonzero(np.concatenate(([False], same)) | np.concatenate((same, [False]))))
+        n_shared = shared_rows(t)
         order = np.argsort(t, kind="stable")                     # duplicates keep file order
         t, x = t[order], x[order]
         if np.all(np.diff(t) > 0):
             return Cleaned(t, x, 0, reversed_)
         s = pd.Series(x, index=t)
-        groups = s.groupby(level=0, sort=False)
-        first = groups.first()                                   # first non-NaN of each time
+        first = s.groupby(level=0, sort=False).first()           # first non-NaN of each time
         return Cleaned(np.array(first.index, dtype=float), np.array(first, dtype=float),
                        len(s) - len(first), reversed_, n_shared)
     return Cleaned(t, x, 0, reversed_)
@@ -459,12 +463,16 @@ def estimate_period(times: Sequence[np.ndarray]) -> float:
     if allv.size == 0:
         return float("nan")
     median = float(np.median(allv))
-    tol = 4 * max(float(np.spacing(np.max(np.abs(t[[0, -1]])))) for t in times if t.size > 1)
+    return _roundest(median, 4 * max(float(np.spacing(np.max(np.abs(t[[0, -1]])))) for t in times if t.size > 1))
+
+
+def _roundest(value: float, tol: float) -> float:
+    """The number with the fewest significant digits within ``tol`` of ``value``."""
     for digits in range(1, 17):
-        rounded = float(f"{median:.{digits}g}")
-        if abs(rounded - median) <= tol:
+        rounded = float(f"{value:.{digits}g}")
+        if abs(rounded - value) <= tol:
             return rounded
-    return median
+    return value
 
 
 @dataclass(frozen=True)
@@ -517,11 +525,7 @@ def jittered_period(times: Sequence[np.ndarray], median: float) -> Jitter | None
     if best is None:
         return None
     _, slope, offset, se = best
-    for digits in range(1, 17):
-        rounded = float(f"{slope:.{digits}g}")
-        if abs(rounded - slope) <= 2 * se:
-            return Jitter(rounded, offset)
-    return Jitter(slope, offset)
+    return Jitter(_roundest(slope, 2 * se), offset)
 
 
 def empty_slots(t: np.ndarray, x: np.ndarray, jitter: Jitter) -> np.ndarray:

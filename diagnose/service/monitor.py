@@ -131,11 +131,10 @@ def _monitor_worker_init(parent_pid: int | None = None) -> None:
     die with it."""
     from .batch import worker_setup
 
-    worker_setup(parent_pid)
-    # Ctrl-C reaches the whole process group and systemd signals the whole cgroup: the monitor
-    # decides what becomes of a window in flight, so a worker must not die under it
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.SIG_IGN)
+    worker_setup(parent_pid)   # a pool worker ignores Ctrl-C, which reaches the whole process group
+    # systemd signals the whole cgroup: the monitor decides what becomes of a window in flight, so a
+    # worker must not die under it
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
         os.nice(10)
     except OSError:  # pragma: no cover - not permitted

@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--J", type=float, required=True, help="slip jump, %% of valve span (0 to 50)")
     p.add_argument("--process", choices=["foptd", "soptd", "integrating"], default="foptd",
                    help="process model (default foptd: first order plus dead time; integrating: a level "
-                        "balanced at 51 %% of valve span, the valve starting at 50 %%)")
+                        f"balanced at {INTEGRATING_BALANCE_PCT:g} %% of valve span, the valve starting at 50 %%)")
     p.add_argument("--gain", type=float, default=None,
                    help="process gain, PV units per %% (integrating: per %% per second); default 1 (0.02)")
     p.add_argument("--tau-s", type=float, default=20.0, help="process time constant, seconds")
