@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from . import search
+from . import quality, search
 from .controller import ControllerAction, controller_action
 from .errors import DataError
 from .evidence import Evidence, pv_usable, run_all
@@ -453,46 +453,6 @@ class Identification:
 
 
 
-def _quality(record: LoopRecord) -> tuple[Finding, ...]:
-    findings = tuple(record.findings)
-    if not (record.meta or {}).get("quality_checked"):
-        try:
-            from . import quality
-        except ImportError:  # pragma: no cover - quality module not installed
-            return findings
-        known = {(f.code, f.message) for f in findings}
-        findings = findings + tuple(f for f in quality.assess(record) if (f.code, f.message) not in known)
-    return findings
-
-
-def _op_scaled_by_mv(record: LoopRecord, findings: tuple[Finding, ...],
-                     warnings: list[Note]) -> tuple[LoopRecord, tuple[Finding, ...]]:
-    """OP logged as a fraction beside a stem position in %: OP x 100, when MV shows that scale.
-
-    Without MV the tool warns rather than guesses (OP 0..1 could be a valve all but shut); with MV
-    the stem position is the scale. Fitted unscaled, OP -> MV needs a valve gain of 100 the valve fit
-    does not have, so the fit finds no band and a sticky valve passes for a healthy one."""
-    from . import quality
-
-    frac = next((f for f in findings if f.code == "op_fraction" and f.severity != "info"), None)
-    if frac is None or record.mv is None or not quality.fraction_op_tracks_mv(record.op, record.mv):
-        return record, findings
-    op = np.asarray(record.op, dtype=float) * 100.0
-    info = quality.rescaled_op_finding(frac)
-    findings = tuple(info if f is frac else f for f in findings)
-    sat = quality.op_saturation(op)   # `assess` leaves it out for a fraction OP; in % it counts
-    if sat is not None:
-        findings += (sat,)
-    rec_findings = tuple(info if f.code == "op_fraction" else f for f in record.findings)
-    warnings.append(_warn("op_rescaled",
-                          f"OP stays within 0..1 ({frac.data.get('min', 0):.3g} to {frac.data.get('max', 0):.3g}) "
-                          "while the stem position (MV) is in % and follows OP x 100: OP was read as a "
-                          "fraction of span and multiplied by 100"))
-    ranges = dict(record.ranges or {})
-    ranges.pop("op", None)
-    return record.replace(op=op, findings=rec_findings, ranges=ranges), findings
-
-
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
@@ -694,10 +654,12 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         The record cannot be judged at all (too short, OP constant).
     """
     _check(record)
-    findings = _quality(record)
+    findings = quality.findings_of(record)
     warnings: list[Note] = []
     if use_mv:
-        record, findings = _op_scaled_by_mv(record, findings, warnings)
+        record, findings, note = quality.op_in_percent(record, findings)
+        if note:
+            warnings.append(_warn("op_rescaled", note))
     for f in findings:
         if f.severity in ("warning", "error"):
             warnings.append(_warn(f"data_quality.{f.code}", f.message))
@@ -726,7 +688,17 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     if use_mv and record.mv is not None:
         method = "op_mv"
         mv = record.mv
-        if np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0]))):
+        travel = float(np.percentile(op, 99.5) - np.percentile(op, 0.5))
+        if np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0]))) and travel < S_MIN_PCT:
+            # OP never asked for more than a band the verdict would not call stiction: a still
+            # stem says nothing of the valve, so the verdict is OP/PV's
+            method = "op_pv"
+            warnings.append(_warn("mv_uninformative",
+                                  f"the stem position (MV) never moves, but OP travels only {travel:.2g} % of "
+                                  f"span, less than the {S_MIN_PCT:g} % band the verdict calls stiction: a "
+                                  "healthy valve need not move either, so the stem says nothing and the "
+                                  "verdict is judged from OP and PV"))
+        elif np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0]))):
             mv_still = True
         else:
             valve_fit = fit_valve(op, mv, ts)

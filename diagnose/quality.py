@@ -248,6 +248,42 @@ def rescaled_op_finding(f: Finding) -> Finding:
                    "multiplied by 100", "info", {**f.data, "rescaled": 100.0})
 
 
+def findings_of(record: LoopRecord) -> tuple[Finding, ...]:
+    """The record's findings, with `assess`'s added unless the reader already assessed it
+    (``meta["quality_checked"]``)."""
+    findings = tuple(record.findings)
+    if not (record.meta or {}).get("quality_checked"):
+        known = {(f.code, f.message) for f in findings}
+        findings = findings + tuple(f for f in assess(record) if (f.code, f.message) not in known)
+    return findings
+
+
+def op_in_percent(record: LoopRecord, findings: tuple[Finding, ...]
+                  ) -> tuple[LoopRecord, tuple[Finding, ...], str | None]:
+    """OP logged as a fraction beside a stem position in %: the record with OP x 100, when MV shows
+    that scale; the findings updated and the warning to give (None: the record as it was).
+
+    Without MV the tool warns rather than guesses (OP 0..1 could be a valve all but shut); with MV
+    the stem position is the scale. Fitted unscaled, OP -> MV needs a valve gain of 100 the valve fit
+    does not have, so the fit finds no band and a sticky valve passes for a healthy one."""
+    frac = next((f for f in findings if f.code == "op_fraction" and f.severity != "info"), None)
+    if frac is None or record.mv is None or not fraction_op_tracks_mv(record.op, record.mv):
+        return record, findings, None
+    op = np.asarray(record.op, dtype=float) * 100.0
+    info = rescaled_op_finding(frac)
+    findings = tuple(info if f is frac else f for f in findings)
+    sat = op_saturation(op)   # `assess` leaves it out for a fraction OP; in % it counts
+    if sat is not None:
+        findings += (sat,)
+    rec_findings = tuple(info if f.code == "op_fraction" else f for f in record.findings)
+    note = (f"OP stays within 0..1 ({frac.data.get('min', 0):.3g} to {frac.data.get('max', 0):.3g}) while the "
+            "stem position (MV) is in % and follows OP x 100: OP was read as a fraction of span and "
+            "multiplied by 100")
+    ranges = dict(record.ranges or {})
+    ranges.pop("op", None)
+    return record.replace(op=op, findings=rec_findings, ranges=ranges), findings, note
+
+
 def _manual(record: LoopRecord) -> Finding | None:
     iv = record.meta.get("manual_intervals") if record.meta else None
     if not iv:

@@ -93,9 +93,31 @@ def test_a_valve_that_never_moves_is_a_result_with_a_warning():
     assert res.fitted_S_pct == pytest.approx(np.percentile(rec.op, 99.5) - np.percentile(rec.op, 0.5))
 
 
+def test_a_still_stem_under_a_small_op_travel_says_nothing_and_op_pv_judges():
+    # OP wanders 0.3 % of span: a healthy valve with a positioner's deadband need not follow, so a
+    # still stem is no proof of stiction; the verdict is the one the same record gets without MV
+    rng = np.random.default_rng(5)
+    rec = sticky_loop(0.0, 0.0, n=2000, noise_std=0.05, load_walk_std=0.01, seed=4)
+    op = 50.0 + 0.3 * (rec.op - rec.op.min()) / np.ptp(rec.op) + rng.normal(0.0, 1e-4, rec.n)
+    small = rec.replace(op=op, mv=np.full(rec.n, 50.0))
+    res = identify(small)
+    codes = {w.code for w in res.warnings}
+    assert "mv_uninformative" in codes and "valve_not_moving" not in codes
+    assert res.method == "op_pv"
+    alone = identify(_no_mv(small))
+    assert res.stiction == alone.stiction and res.stiction_probability == pytest.approx(alone.stiction_probability)
+    # the same still stem under a 3 % travel is a stuck valve
+    big = rec.replace(op=50.0 + 3.0 * (rec.op - rec.op.min()) / np.ptp(rec.op), mv=np.full(rec.n, 50.0))
+    stuck = identify(big)
+    assert stuck.valve_not_moving and stuck.stiction and stuck.method == "op_mv"
+
+
 def test_a_short_record_whose_stem_never_moves_has_no_class():
     rec = sticky_loop(3.0, 1.0, n=60, noise_std=0.02, load_walk_std=0.01, seed=3)
     assert np.ptp(rec.mv) == 0.0
+    # OP's own travel here (0.36 %) is under the band the verdict calls stiction (see the test
+    # above): ten times that is a stem that should have moved
+    rec = rec.replace(op=rec.op.mean() + 10.0 * (rec.op - rec.op.mean()))
     d = identify(rec).to_dict()
     assert {w["code"] for w in d["warnings"]} >= {"valve_not_moving", "short_record"}
     assert d["class"] == "unknown" and d["S"] is None and d["J_interval"] is None

@@ -488,6 +488,20 @@ def test_explain_names_a_concealed_effect_and_the_error_falls(effect, seed, with
     assert fd["window_rms"] is ex.arrays.mismatch.window_rms
 
 
+def test_explain_scales_a_fraction_op_by_the_stem_position():
+    # OP logged 0..1 beside a stem in %: explain scales it as identify does, so the valve stage
+    # sees OP -> MV in one unit and the concealed asymmetry is still named, S in % of span
+    rec, truth = concealed_loop("asymmetric_stiction", 100, n=3000, with_mv=True)
+    frac = rec.replace(op=rec.op / 100.0)
+    ex = explain(frac, target="mv", hypotheses=["asymmetric_stiction"])
+    assert "op_rescaled" in {w.code for w in ex.warnings}
+    assert ex.missing_physics == "asymmetric_stiction"
+    (valve,) = ex.stages
+    assert valve.baseline.S_up_pct == pytest.approx(max(truth["S_open_pct"], truth["S_close_pct"]), rel=0.6)
+    # in % already: nothing scaled, nothing said
+    assert "op_rescaled" not in {w.code for w in explain(rec, target="mv", hypotheses=["asymmetric_stiction"]).warnings}
+
+
 def test_explain_rejects_what_it_cannot_use():
     rec, _ = concealed_loop("none", 1, n=200)
     with pytest.raises(DataError, match="at least"):

@@ -36,6 +36,7 @@ import numpy as np
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
 from ..parallel import thread_count, thread_map
+from .. import quality
 from ..plain import percent_change
 from ..record import LoopRecord
 from .baseline import Baseline, from_hammerstein, from_valve_fit, make_baseline
@@ -433,8 +434,13 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
         stage_names.append("loop")
     if has_mv:
         stage_names.append("valve")
+    # a fraction-of-span OP beside a stem position in %: scaled as identify scales it, so that S and J
+    # come out in % of span and the valve stage has the stem's scale
+    record, _, rescaled = quality.op_in_percent(record, quality.findings_of(record))
     warn: list[ExplainWarning] = [ExplainWarning(f"data_quality.{f.code}", f.message) for f in record.findings
                                   if f.severity in ("warning", "error")]
+    if rescaled:
+        warn.append(ExplainWarning("op_rescaled", rescaled))
     given, source = _given_structures(identification, baseline)
     nthreads = thread_count(threads, cap=4)
 
