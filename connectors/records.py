@@ -304,6 +304,15 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     elif n_dups:
         findings.append(Finding("duplicates", f"{n_dups} duplicated timestamps; the first value of each was kept",
                                 "info", {"count": n_dups}))
+    back = next((c.clock_back_s for r, c in cleaned.items() if r in ("op", "pv") and c.clock_back_s is not None), None)
+    if back is not None:
+        at = iso_utc(back).replace("T", " ").rstrip("Z")
+        findings.append(Finding(
+            "clock_back", f"the time stamps step back by up to an hour once, after {at}, as a local clock does "
+            "when daylight saving time ends: read without their time zone, the repeated stretch overlaps the "
+            "stretch before it, its rows were dropped as duplicates and the record is spliced there; give "
+            "--tz with the plant's time zone (e.g. --tz Europe/Berlin) to read them in order",
+            "warning", {"after": at}))
     ts_s = float(ts_opt) if ts_opt else (table.ts_s if table and table.ts_s else None)
     jitter = None
     if ts_s is None:

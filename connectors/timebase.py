@@ -391,6 +391,22 @@ class Cleaned:
     n_duplicates: int
     reversed: bool
     n_shared: int = 0          # rows whose time stamp the row before or after has too, in file order
+    clock_back_s: float | None = None   # the stamp after which the clock steps back about an hour
+
+
+def clock_back(t: np.ndarray) -> float | None:
+    """The stamp (seconds) after which the time stamps, in file order, step back by half an hour
+    to an hour once and run on in order: local wall-clock time read without its zone, where daylight
+    saving time ends (02:59:50 -> 02:00:00). None otherwise. Newest-first files mirror it."""
+    t = t[np.isfinite(t)]
+    if t.size < 3:
+        return None
+    d = np.diff(t)
+    for sign in (1.0, -1.0):
+        back = np.flatnonzero(sign * d < 0)
+        if back.size == 1 and 1800.0 <= -sign * d[back[0]] <= 3600.0:
+            return float(t[back[0]])
+    return None
 
 
 def spread_truncated(t: np.ndarray, ts_s: float) -> np.ndarray | None:
@@ -442,14 +458,15 @@ def clean_series(t: np.ndarray, x: np.ndarray) -> Cleaned:
     reversed_ = bool(t.size > 1 and np.count_nonzero(d < 0) > 0.5 * (t.size - 1))
     if t.size > 1 and np.any(d <= 0):
         n_shared = shared_rows(t)
+        back = clock_back(t)
         order = np.argsort(t, kind="stable")                     # duplicates keep file order
         t, x = t[order], x[order]
         if np.all(np.diff(t) > 0):
-            return Cleaned(t, x, 0, reversed_)
+            return Cleaned(t, x, 0, reversed_, clock_back_s=back)
         s = pd.Series(x, index=t)
         first = s.groupby(level=0, sort=False).first()           # first non-NaN of each time
         return Cleaned(np.array(first.index, dtype=float), np.array(first, dtype=float),
-                       len(s) - len(first), reversed_, n_shared)
+                       len(s) - len(first), reversed_, n_shared, back)
     return Cleaned(t, x, 0, reversed_)
 
 

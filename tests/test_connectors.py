@@ -137,8 +137,11 @@ def test_semicolon_decimal_comma_european_dates():
 def test_dst_local_times_and_mode_column():
     (naive,) = read_records(DATA / "wide_tab_dst_berlin.tsv")
     assert "duplicates" in codes(naive)                # the repeated hour read as UTC collides
+    # ... and the reader says why and what to do (newest first: the clock steps forward once)
+    back = next(f for f in naive.findings if f.code == "clock_back")
+    assert back.severity == "warning" and "--tz" in back.message and back.data["after"].startswith("2024-10-27 02:")
     (rec,) = read_records(DATA / "wide_tab_dst_berlin.tsv", tz="Europe/Berlin")
-    assert rec.n == 240 and rec.ts_s == 60.0 and "duplicates" not in codes(rec)
+    assert rec.n == 240 and rec.ts_s == 60.0 and not {"duplicates", "clock_back"} & codes(rec)
     assert rec.start == "2024-10-27T00:00:00Z"
     assert rec.meta["order"] == "newest_first"
     assert rec.meta["manual_intervals"] == [[100, 130]]
@@ -146,6 +149,19 @@ def test_dst_local_times_and_mode_column():
     assert man.severity == "warning" and man.data["samples"] == 30
     with pytest.raises(ConnectorError, match=r"wide_tab_dst_berlin\.tsv:\d+ \(column 'Timestamp'\): local time .* ambiguous"):
         read_records(DATA / "wide_tab_dst_berlin.tsv", tz="Europe/Berlin", dst="raise")
+
+
+def test_clock_back_is_one_step_back_of_half_an_hour_to_an_hour():
+    from connectors.timebase import clock_back
+
+    t = np.arange(0.0, 7200.0, 10.0)
+    autumn = np.concatenate((t[:360], t[:360] + 0.0, t[360:] + 0.0))     # 00:00-00:59 twice
+    assert clock_back(autumn) == 3590.0
+    assert clock_back(autumn[::-1]) == 0.0                               # newest first: the mirror
+    assert clock_back(t) is None                                         # in order
+    assert clock_back(np.concatenate((t[:100], t[95:]))) is None         # a stray row, not a clock change
+    twice = np.concatenate((t[:360], t[:360], t[:360]))
+    assert clock_back(twice) is None                                     # two exports pasted together
 
 
 def test_dst_spring_forward_gap_is_shifted():
@@ -616,7 +632,8 @@ def test_frames_time_zones_and_dst():
     np.testing.assert_array_equal(aware.op, rec.op)
     assert aware.start == rec.start
     utc = _one(df.set_axis(local.tz_localize(None), axis=0))   # naive = UTC by default
-    assert "duplicates" in codes(utc)                                   # the repeated hour collides
+    assert {"duplicates", "clock_back"} <= codes(utc)                   # the repeated hour collides
+    assert "clock_back" not in codes(rec)
     # the strict constructor: a tz-aware uniform index is fine; the naive local one is not uniform
     strict = LoopRecord.from_frame(df.set_axis(local, axis=0))
     assert strict.start == rec.start and strict.ts_s == 60.0
