@@ -187,6 +187,30 @@ def polish_structure(obj: Objective, cand: Candidate, lim: Limits) -> Candidate:
     return best if best.sse < cand.sse else cand
 
 
+def integrator_check(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig",
+                     stiction: bool = True) -> Candidate:
+    """An FOPTD whose lag outgrows the lag grid (a quarter of the record) integrates over the
+    record: the integrating kind is searched from the same valve, over input lags up to a sixteenth
+    of the record and every dead time up to the FOPTD's own plus three samples (the long lag leaves
+    the input lag to the dead time), then refined as the search refines; the better of the two is
+    returned. A level loop otherwise tends to come out as a first-order lag of hours that hides
+    its input lag and reads the dead time long."""
+    kind, tau, _, dd = cand.structure
+    span = lim.n * lim.ts_s
+    if lim.fixed or kind != "foptd" or "integrating" not in lim.kinds or tau < span / 4.0:
+        return cand
+    lags = np.geomspace(0.5 * lim.ts_s, max(span / 16.0, lim.ts_s), 9)
+    keys = [("integrating", float(t), 0.0, d) for t in lags
+            for d in range(lim.dmin, max(lim.dmin, min(lim.dmax, int(dd) + 3)) + 1)]
+    alt = best_structure(obj, cand.S_pct, cand.J_pct, cand.f0, lim.grid(keys))
+    if stiction:
+        alt = nelder_mead(obj, alt, lim, cfg)
+    alt = polish_structure(obj, alt, lim)
+    if stiction:
+        alt = nelder_mead(obj, alt, lim, cfg)
+    return alt if alt.sse < cand.sse else cand
+
+
 def linear_fit(obj: Objective, lim: Limits) -> Candidate:
     """The valve without stiction (S = J = 0): the best structure of the full grid, polished."""
     return polish_structure(obj, best_structure(obj, 0.0, 0.0, 1.0, lim.process), lim)
@@ -244,7 +268,10 @@ def coarse_structures(lim: Limits, linear: Candidate) -> ProcessGrid:
     taus = np.geomspace(t_lo, max(t_hi, 1.01 * t_lo), 6)
     d_lin = int(linear.structure[3])
     dset = sorted({max(lim.dmin, dd) for dd in GLOBAL_DELAYS + (d_lin,) if dd <= lim.dmax})
-    keys = [("foptd", float(t), 0.0, dd) for t in taus for dd in dset]
+    # the lags as FOPTD (or, where FOPTD is not searched, the SOPTD of equal lags): each start's own
+    # structure is then picked from the full grid
+    lag = ("foptd", 0.0) if "foptd" in lim.kinds else ("soptd", 1.0) if "soptd" in lim.kinds else None
+    keys = [] if lag is None else [(lag[0], float(t), lag[1] * float(t), dd) for t in taus for dd in dset]
     if "integrating" in lim.kinds:
         keys += [("integrating", float(ts), 0.0, dd) for dd in dset]
     return lim.grid(keys)

@@ -284,3 +284,24 @@ def test_search_windows_find_the_valve_the_whole_record_search_misses():
     assert stiction_class(multi.S_pct, multi.J_pct) == "undershoot"
     assert abs(multi.S_pct - case.S_pct) < 0.05 * case.S_pct
     assert abs(multi.J_pct - case.J_pct) < 0.2 * case.J_pct
+
+
+def test_a_level_loop_is_fitted_as_an_integrator_not_as_a_lag_of_hours():
+    # over a record far shorter than the lag, an FOPTD integrates too; without the check the fit
+    # kept a lag of about two hours and read the integrator's 5 s input lag into the dead time
+    rec = sticky_loop(3.0, 1.0, n=3000, ts_s=1.0, gain=0.02, tau_s=5.0, delay_s=3.0, kind="integrating",
+                      noise_std=0.03, load_walk_std=0.02, seed=16)
+    fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s, gain_sign=1)
+    assert fit.process.kind == "integrating"
+    assert fit.process.delay_s == pytest.approx(3.0, abs=1.0) and fit.process.tau_s < 15.0
+    assert fit.S_pct == pytest.approx(3.0, rel=0.05) and fit.J_pct == pytest.approx(1.0, rel=0.15)
+
+
+def test_a_restricted_model_space_is_kept():
+    from diagnose.search import ModelSpace
+
+    rec = sticky_loop(3.0, 1.0, n=1500, ts_s=1.0, gain=0.02, tau_s=5.0, delay_s=3.0, kind="integrating",
+                      noise_std=0.03, load_walk_std=0.02, seed=16)
+    for kinds in (("integrating",), ("soptd",)):
+        fit = fit_hammerstein(rec.op, rec.pv, rec.ts_s, gain_sign=1, windows=0, space=ModelSpace(kinds=kinds))
+        assert fit.process.kind == kinds[0]
