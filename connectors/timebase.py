@@ -506,36 +506,46 @@ JITTER_SLOT = 0.4
 
 
 def jittered_period(times: Sequence[np.ndarray], median: float) -> Jitter | None:
-    """The period of jittered but complete sampling, or None where the median spacing stands.
+    """The period of jittered sampling, or None where the median spacing stands.
 
     Stamps jittered by +-J around a regular clock give intervals spread over +-2J, and their median
     is a poor period (10 s data with +-3 s jitter: 10.069 s, 0.7 % off, which drifts a sample
     over the record and marks the drift as gaps). Where every time vector is irregular (more than
     5 % of intervals off the median by 2 %) yet each stamp sits within `JITTER_SLOT` of its slot
-    on one regular clock (slots found from the mean spacing, then the clock fitted by least
-    squares), the fitted period is used, as the roundest number within two standard errors. A
-    gap (an interval over 2.5 periods), two stamps in one slot, or drift (clock-free random
-    intervals) keeps the median: regular, gapped and compressed exports are unchanged.
+    on one regular clock, the fitted period is used, as the roundest number within two standard
+    errors. The clock is found on the longest stretch without a gap (an interval over 2.5
+    periods; slots from its mean spacing, then the clock fitted by least squares) and then fitted
+    to every stamp, the gaps skipping whole slots: outages do not stop the clock. Two stamps in one
+    slot, slots missing outside the gaps, or drift (clock-free random intervals) keep the median:
+    regular and compressed exports are unchanged.
     """
     if not (np.isfinite(median) and median > 0):
         return None
     best: tuple[int, float, float, float] | None = None
     for t in times:
         d = np.diff(t)
-        if t.size < 21 or np.any(d <= 0) or np.max(d) > 2.5 * median:
+        if t.size < 21 or np.any(d <= 0):
             return None
-        if np.count_nonzero(np.abs(d - median) > 0.02 * median) <= 0.05 * d.size:
+        gap = d > 2.5 * median
+        inner = d[~gap]
+        if np.count_nonzero(np.abs(inner - median) > 0.02 * median) <= 0.05 * inner.size:
             return None                                  # regular enough: the median is exact
-        k = np.rint((t - t[0]) / (float(t[-1] - t[0]) / (t.size - 1)))
-        for _ in range(2):                               # a missing sample shifts the mean spacing
-            slope, icpt = np.polyfit(k, t - t[0], 1)
-            k = np.rint((t - t[0] - icpt) / slope)
-        if np.any(np.diff(k) < 1):
-            return None                                  # two stamps in one slot: no regular clock
-        slope, icpt = np.polyfit(k, t - t[0], 1)
-        resid = t - t[0] - (icpt + slope * k)
-        if np.max(np.abs(resid)) > JITTER_SLOT * slope or k[-1] - k[0] + 1 > 1.05 * t.size:
+        edges = np.concatenate(([0], np.flatnonzero(gap) + 1, [t.size]))
+        i = int(np.argmax(np.diff(edges)))
+        seg = t[edges[i]:edges[i + 1]]
+        if seg.size < 21:
             return None
+        fit = _clock(seg, float(seg[-1] - seg[0]) / (seg.size - 1), seg[0])
+        if fit is None:
+            return None
+        # the whole vector on that clock: the gaps skip whole slots
+        fit = _clock(t, fit[0], seg[0] + fit[1] - fit[0] * np.rint((seg[0] + fit[1] - t[0]) / fit[0]))
+        if fit is None:
+            return None
+        slope, icpt, k, resid = fit
+        skipped = int(np.sum(np.diff(k)[gap] - 1))
+        if k[-1] - k[0] + 1 - skipped > 1.05 * t.size:
+            return None                                  # slots missing outside the gaps: no clock
         se = float(np.std(resid) / np.sqrt(np.sum((k - k.mean()) ** 2)))
         if best is None or t.size > best[0]:
             best = (t.size, float(slope), float(t[0] + icpt), se)
@@ -543,6 +553,24 @@ def jittered_period(times: Sequence[np.ndarray], median: float) -> Jitter | None
         return None
     _, slope, offset, se = best
     return Jitter(_roundest(slope, 2 * se), offset)
+
+
+def _clock(t: np.ndarray, spacing: float, origin: float
+           ) -> tuple[float, float, np.ndarray, np.ndarray] | None:
+    """The regular clock through stamps ``t`` started from a guess (``spacing``, a slot at
+    ``origin``): (period, offset from ``t[0]``, slot numbers, residuals), or None where two stamps
+    share a slot or one sits further than `JITTER_SLOT` periods from its slot."""
+    k = np.rint((t - origin) / spacing)
+    for _ in range(2):                                   # a missing sample shifts the mean spacing
+        slope, icpt = np.polyfit(k, t - t[0], 1)
+        k = np.rint((t - t[0] - icpt) / slope)
+    if np.any(np.diff(k) < 1):
+        return None                                      # two stamps in one slot: no regular clock
+    slope, icpt = np.polyfit(k, t - t[0], 1)
+    resid = t - t[0] - (icpt + slope * k)
+    if np.max(np.abs(resid)) > JITTER_SLOT * slope:
+        return None
+    return float(slope), float(icpt), k, resid
 
 
 def empty_slots(t: np.ndarray, x: np.ndarray, jitter: Jitter) -> np.ndarray:

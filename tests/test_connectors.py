@@ -923,6 +923,18 @@ def test_jittered_sampling_gets_the_clock_period_and_no_invented_gaps(tmp_path):
     assert rec.ts_s == 10.0 and next(f for f in rec.findings if f.code == "gap").data["filled"] == 1
 
 
+def test_jittered_sampling_with_outages_keeps_the_clock_and_reports_the_gaps(tmp_path):
+    # the same +-3 s jitter with two outages of 10 and 30 minutes: the clock runs on through them
+    f = _jittered_csv(tmp_path / "jitgap.csv", 3.0, n=1000)
+    lines = f.read_text().splitlines(keepends=True)
+    f.write_text("".join(lines[:301] + lines[361:601] + lines[781:]))
+    recs = read_records(f)
+    # the median spacing read 9.97 s and called 23 samples missing that no outage removed
+    assert [r.ts_s for r in recs] == [10.0, 10.0, 10.0] and [r.n for r in recs] == [299, 239, 218]
+    for rec in recs:
+        assert "gap" not in codes(rec) and {"segment", "irregular_sampling"} <= codes(rec)
+
+
 def test_random_intervals_without_a_clock_keep_the_median_spacing(tmp_path):
     # intervals drawn at random (no regular clock behind them): there are no slots to fit
     rng = np.random.default_rng(5)
