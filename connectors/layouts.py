@@ -34,7 +34,11 @@ TAG_HEADERS = {"tag", "tagname", "tag_name", "name", "point", "pointname", "poin
                "signal", "item", "itemid", "item_id", "variable", "sensor", "tagpath", "tag_path"}
 VALUE_HEADERS = {"value", "val", "_value", "reading", "wert", "valeur"}
 QUALITY_HEADERS = {"quality", "q", "status", "confidence", "qualitycode", "quality_code",
-                   "opc_quality", "qualitat", "qualität"}
+                   "opc_quality", "qualitat", "qualität", "qualitydetail", "opcquality"}
+#: OPC-coded quality columns, taken before any other quality column of the same file: AVEVA
+#: (Wonderware) Historian writes ``Quality`` (its own code, 0 = good) beside ``QualityDetail`` and
+#: ``OPCQuality`` (192 = good), and OPC rules read that ``Quality`` 0 as bad.
+OPC_QUALITY_HEADERS = ("qualitydetail", "opcquality", "opc_quality")
 PI_FLAG_HEADERS = {"questionable", "substituted", "isquestionable", "issubstituted"}
 SKIP_HEADERS = {"id", "index", "row", "#", "no", "nr", "unnamed: 0", ""}
 _NEWLINE = re.compile(r"\r\n|\r|\n")
@@ -314,7 +318,8 @@ def parse_long(src: Source, options: dict) -> Table:
         time_j = _date_time_pair(lower)
     else:
         time_j = [j for j, h in enumerate(header) if is_time_header(h) and j not in (tag_j, val_j)][:1]
-    q_j = next((j for j, h in enumerate(lower) if h in QUALITY_HEADERS), None)
+    q_j = next((lower.index(h) for h in OPC_QUALITY_HEADERS if h in lower),
+               next((j for j, h in enumerate(lower) if h in QUALITY_HEADERS), None))
     flags = [j for j, h in enumerate(lower) if h in PI_FLAG_HEADERS]
     dec = _decimal_comma(head.rows, [val_j], head.delimiter) if val_j is not None else False
     text_cols = tuple(j for j in [tag_j, *time_j, *flags] if j is not None)
@@ -375,7 +380,8 @@ def parse_long(src: Source, options: dict) -> Table:
                              examples=examples, first_line=int(lines[idx[0]]), column=header[val_j],
                              cells=cells))
     meta = {"format": "long", "delimiter": delimiter_name(head.delimiter), "decimal": "," if dec else ".",
-            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "quality_scheme": scheme}
+            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "quality_scheme": scheme,
+            "quality_column": header[q_j] if q_j is not None else None}
     return Table(series, label, absolute, meta, raw_columns=header)
 
 

@@ -193,13 +193,23 @@ def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
     return out
 
 
-def _no_values(s: Series) -> str | None:
+_SCHEME_RULES = {"opc": "as OPC codes, good at 192-255", "ip21_status": "as IP.21 status, good at 0",
+                 "phd_confidence": "as PHD confidence, good at 50-100", "text": "as text, good when 'Good'"}
+
+
+def _no_values(s: Series, table: Table | None = None) -> str | None:
     """What a signal without a single usable value holds instead (None when it has one)."""
     if np.isfinite(s.x).any():
         return None
     if s.n_text and s.n_text + s.n_blank >= s.x.size:
         return f"only text values (e.g. {s.examples[0]!r})" if s.examples else "only text values"
     if s.n_bad_quality:
+        meta = table.meta if table is not None else {}
+        rule = _SCHEME_RULES.get(str(meta.get("quality_scheme")).split("+")[0])
+        if meta.get("quality_column") and rule:
+            # every row bad is more often a quality scheme read the wrong way than a dead tag
+            return (f"no value with good quality (column {meta['quality_column']!r} read {rule}); if the "
+                    "export's quality codes mean something else, delete that column")
         return "no value with good quality"
     if s.n_nonfinite:
         return "only NaN/inf values"
@@ -266,7 +276,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     for role, s in spec.roles.items():
         if role == "pv" and pv_dead is not None:
             s = Series(s.name, op_s.t, np.where(np.isfinite(op_s.x), 0.0, np.nan), first_line=s.first_line)
-        elif role in ("op", "pv") and (what := _no_values(s)) is not None:
+        elif role in ("op", "pv") and (what := _no_values(s, table)) is not None:
             raise ConnectorError(f"{role.upper()} column has {what}; nothing to diagnose",
                                  path=label, line=s.first_line, column=s.name)
         t = s.t

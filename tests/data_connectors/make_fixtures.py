@@ -111,8 +111,28 @@ def synthetic() -> None:
     (HERE / "wide_tab_dst_berlin.tsv").write_text("\n".join(lines + body[::-1]) + "\n", encoding="utf-8")
 
 
+def vendors() -> None:
+    """Exports in the layouts vendors' tools write (tests/test_vendor_exports.py)."""
+    op, pv = sim(n=120, seed=3)
+    t0 = datetime(2024, 3, 1, 8, 0, 0)
+    # AVEVA (Wonderware) Historian query saved as CSV: Quality is AVEVA's own (0 good, 1 bad),
+    # QualityDetail and OPCQuality are OPC codes (192 good); a bad sample's value is kept or NULL
+    rows = ["DateTime,TagName,Value,Quality,QualityDetail,OPCQuality"]
+    for k in range(op.size):
+        ts = (t0 + timedelta(seconds=k)).strftime("%Y-%m-%d %H:%M:%S.000")
+        for tag, v in (("FIC201.PV", pv[k]), ("FIC201.OP", op[k])):
+            val, q, qd = f"{v:.4f}", 0, 192
+            if tag == "FIC201.PV" and k == 40:
+                q, qd = 1, 8                 # not connected: the last value, marked bad
+            if tag == "FIC201.PV" and k == 41:
+                val, q, qd = "NULL", 1, 8
+            rows.append(f"{ts},{tag},{val},{q},{qd},{qd}")
+    (HERE / "aveva_history_long.csv").write_bytes(("\r\n".join(rows) + "\r\n").encode())
+
+
 if __name__ == "__main__":
     data = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[3] / "shared/data"
     if data.exists():
         real(data)
     synthetic()
+    vendors()

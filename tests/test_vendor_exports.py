@@ -1,0 +1,37 @@
+"""Exports as vendors' tools write them: AVEVA Historian, DeltaV, IP.21, Aspen/PHD header rows."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from connectors import read_records
+from diagnose.errors import ConnectorError
+
+DATA = Path(__file__).parent / "data_connectors"
+
+
+def bad_values(rec):
+    return {f.data["role"]: f.data for f in rec.findings if f.code == "bad_values"}
+
+
+def test_aveva_history_quality_detail_is_the_opc_code():
+    # AVEVA's own Quality column is 0 for good rows; read as OPC quality it made every row bad
+    (rec,) = read_records(DATA / "aveva_history_long.csv")
+    assert rec.name == "FIC201" and rec.n == 120 and rec.ts_s == 1.0
+    assert rec.meta["quality_scheme"] == "opc"
+    bad = bad_values(rec)
+    assert set(bad) == {"pv"} and bad["pv"]["bad_quality"] == 1 and bad["pv"]["text"] == 1
+
+
+def test_no_good_quality_names_the_column_and_its_reading(tmp_path):
+    rows = (DATA / "aveva_history_long.csv").read_text().splitlines()
+    f = tmp_path / "aveva_quality_only.csv"
+    f.write_text("\n".join(",".join(r.split(",")[:4]) for r in rows) + "\n")
+    with pytest.raises(ConnectorError, match=r"aveva_quality_only\.csv:\d+ \(column 'FIC201\.\w\w'\): \w\w column "
+                                             r"has no value with good quality \(column 'Quality' read as [^)]+, "
+                                             r"good at [^)]+\); if the export's quality codes mean "
+                                             r"something else, delete that column"):
+        read_records(f)
