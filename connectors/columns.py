@@ -12,6 +12,8 @@ case-insensitive.
 * PV: suffix ``PV``, ``MEAS``, ``MEASUREMENT``. SP: suffix ``SP``, ``SV``, ``SETPOINT``.
 * Mode: suffix ``MODE``, ``MD``, ``AM`` (controller mode: text ``AUTO``/``CAS``/``MAN``..., or a
   number where 0 = manual and any other value = automatic; the DCS export's ``.MODE`` 1 = auto).
+* DeltaV parameter paths end in a field: ``FIC-101/PID1/PV.CV`` is tag ``FIC-101/PID1``, suffix
+  ``PV`` (``.CV``, the current value, of any role's parameter; ``MODE.ACTUAL`` for the mode).
 * Time: ``time``, ``timestamp``, ``datetime``, ``date_time``, ``t``, ``ts``, ``_time``.
 
 Anything else needs ``--op/--pv/--sp/--mv`` (or a tag map). Two columns claiming one role is an
@@ -29,13 +31,24 @@ SP_SUFFIXES = {"sp", "sv", "setpoint", "set_point"}
 MODE_SUFFIXES = {"mode", "md", "am", "ctrl_mode", "auto_manual"}
 TIME_NAMES = {"time", "timestamp", "datetime", "date_time", "t", "ts", "_time", "time_s", "t_s"}
 
+_ROLE_SUFFIXES = OP_SUFFIXES | MV_SUFFIXES | PV_SUFFIXES | SP_SUFFIXES | MODE_SUFFIXES | {"mv"}
 _SPLIT = re.compile(r"^(.*)[.:/]([^.:/]+)$")
 
 
+#: DeltaV historian fields after a parameter path (``FIC-101/PID1/PV.CV``, ``.../MODE.ACTUAL``): the
+#: role is the parameter before them.
+_FIELDS = {"cv": None, "actual": "mode"}
+
+
 def split_tag(name: str) -> tuple[str, str]:
-    """``"FIC101.PV"`` -> ``("FIC101", "pv")``; ``"PV"`` -> ``("", "pv")``."""
+    """``"FIC101.PV"`` -> ``("FIC101", "pv")``; ``"PV"`` -> ``("", "pv")``;
+    ``"FIC-101/PID1/OUT.CV"`` -> ``("FIC-101/PID1", "out")``."""
     name = name.strip().strip('"').strip()
     m = _SPLIT.match(name)
+    if m and m.group(2).lower() in _FIELDS:
+        param = split_tag(m.group(1))
+        if param[1] in _ROLE_SUFFIXES and _FIELDS[m.group(2).lower()] in (None, param[1]):
+            return param
     if m:
         return m.group(1), m.group(2).lower()
     return "", name.lower()

@@ -35,3 +35,12 @@ def test_no_good_quality_names_the_column_and_its_reading(tmp_path):
                                              r"good at [^)]+\); if the export's quality codes mean "
                                              r"something else, delete that column"):
         read_records(f)
+
+
+def test_deltav_parameter_paths_with_their_field():
+    (rec,) = read_records(DATA / "deltav_history.csv")
+    assert rec.name == "FIC-201/PID1" and rec.n == 120 and rec.ts_s == 1.0
+    assert rec.meta["columns"] == {"op": "FIC-201/PID1/OUT.CV", "pv": "FIC-201/PID1/PV.CV",
+                                   "sp": "FIC-201/PID1/SP.CV", "mode": "FIC-201/PID1/MODE.ACTUAL"}
+    assert rec.meta["manual_intervals"] == [[60, 70]]
+    assert rec.start == "2024-03-01T08:00:00Z" and np.all(rec.sp == 20.0)

@@ -128,6 +128,16 @@ def vendors() -> None:
                 val, q, qd = "NULL", 1, 8
             rows.append(f"{ts},{tag},{val},{q},{qd},{qd}")
     (HERE / "aveva_history_long.csv").write_bytes(("\r\n".join(rows) + "\r\n").encode())
+    # DeltaV Continuous Historian export: module/block/parameter paths with their .CV field, status
+    # (.ST) columns, the mode's ACTUAL and TARGET, US 12-hour times with milliseconds
+    rows = ["Date/Time,FIC-201/PID1/PV.CV,FIC-201/PID1/PV.ST,FIC-201/PID1/OUT.CV,FIC-201/PID1/SP.CV,"
+            "FIC-201/PID1/MODE.ACTUAL,FIC-201/PID1/MODE.TARGET"]
+    for k in range(op.size):
+        t = t0 + timedelta(seconds=k)
+        ts = f"{t.month}/{t.day}/{t.year} {t.hour % 12 or 12}:{t:%M:%S}.000 {t:%p}"
+        mode = "MAN" if 60 <= k < 70 else "AUTO"
+        rows.append(f"{ts},{pv[k]:.4f},GoodCascade,{op[k]:.4f},20.0000,{mode},AUTO")
+    (HERE / "deltav_history.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
