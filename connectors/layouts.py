@@ -65,6 +65,7 @@ class Series:
     first_line: int | None = None
     column: str | None = None
     cells: pd.Series | None = None
+    units: str | None = None
 
 
 @dataclass
@@ -144,6 +145,7 @@ class _Head:
     header_lines: list[int]          # 0-based line index of each header row
     headers: list[list[str]]         # the header rows' fields
     rows: list[list[str]]            # up to 100 data rows spread over the head, the first one first
+    first: list[tuple[int, list[str]]] = field(default_factory=list)   # the first rows: (line index, fields)
 
 
 def _head(src: Source, n_headers: int = 1) -> _Head:
@@ -160,7 +162,47 @@ def _head(src: Source, n_headers: int = 1) -> _Head:
         rows = [r for r in csv.reader(sample, delimiter=d) if r]
     except csv.Error:
         rows = [ln.split(d) for ln in sample]
-    return _Head(d, hl, headers, rows)
+    first = [(k, split_line(lines[k], d)) for k in body[:_LABEL_ROWS + 1]]
+    return _Head(d, hl, headers, rows, first)
+
+
+#: Rows under the header that may hold descriptions, units or other labels instead of data.
+_LABEL_ROWS = 5
+_UNITS_LABELS = {"units", "unit", "eng units", "eng. units", "engineering units", "engunits", "eu", "uom",
+                 "einheit", "einheiten", "unidad", "unidades", "unité", "unités"}
+
+
+def _label_rows(header: list[str], first: list[tuple[int, list[str]]]) -> list[list[str]]:
+    """The rows right under the header that label the columns (description, units, descriptor
+    rows that Aspen Process Explorer, PHD and PI DataLink exports can carry): no cell is a number
+    or a time, the first column is the time (or a label) column, and some value cell is filled."""
+    if not header or role_of(header[0]) not in (None, "time"):
+        return []
+    out = []
+    for _, fields in first[:_LABEL_ROWS]:
+        cells = _clean(fields)
+        values = [c for c in cells[1:] if c]
+        if not values or any(_numeric_cell(c) or _time_cell(c) for c in cells if c):
+            break
+        out.append(cells)
+    return out
+
+
+def _numeric_cell(cell: str) -> bool:
+    c = cell.replace(",", ".") if re.fullmatch(r"[+-]?\d+,\d+", cell) else cell
+    try:
+        float(c.replace(",", ""))
+        return True
+    except ValueError:
+        return False
+
+
+def _time_cell(cell: str) -> bool:
+    try:
+        parse_times([cell])
+        return True
+    except ConnectorError:
+        return False
 
 
 _OTHER_BREAKS = "\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"     # str.splitlines() breaks there, pandas not
@@ -216,6 +258,8 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
                extra_meta: dict | None = None) -> Table:
     """A header row, one or two time columns (date + time), one column per signal."""
     label = src.label
+    units: dict[str, str] = {}
+    labels: list[list[str]] = []
     if header is None:
         head = _head(src)
         if not head.headers:
@@ -225,6 +269,15 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
         skiprows = head.header_lines[0] + 1
         delimiter = head.delimiter
         sample_rows = head.rows
+        labels = _label_rows(_clean(header), head.first)
+        if labels:
+            # read from the first data row on; the label rows would be unreadable times otherwise
+            skiprows = head.first[len(labels) - 1][0] + 1
+            data = [fields for _, fields in head.first[len(labels):]]
+            sample_rows = data[:1] + [r for r in head.rows[1:] if _clean(r) not in labels]
+            for cells in labels:
+                if cells[0].lower() in _UNITS_LABELS:
+                    units = {h: u for h, u in zip(_clean(header)[1:], cells[1:]) if u}
     d = delimiter or ","
     rows = sample_rows or []
     first_row = first_row if first_row is not None else (rows[0] if rows else None)
@@ -280,9 +333,13 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
             tname = header[time_idx[0]]
         t, absolute, tfmt = _times(cells, lines, label, tname, options, dec)
     series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
+    for s in series:
+        s.units = units.get(s.name)
     meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt,
             "time_columns": [header[j] for j in time_idx]}
+    if labels:
+        meta["label_rows"] = [cells[0] for cells in labels]
     if extra_meta:
         meta.update(extra_meta)
     return Table(series, label, absolute, meta, raw_columns=header)

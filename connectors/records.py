@@ -433,6 +433,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                       "dst": options.get("dst", "infer"), "max_gap_s": max_gap_s,
                       "n_segments": len(usable), "quality_checked": True})
     units = {"op": "%", "mv": "%"}
+    units.update({k: s.units for k, s in spec.roles.items() if k in ("pv", "sp") and s.units})
     units.update({k: v for k, v in spec.units.items() if k in ("pv", "sp")})
     mode = None
     if "mode" in spec.roles:

@@ -44,3 +44,23 @@ def test_deltav_parameter_paths_with_their_field():
                                    "sp": "FIC-201/PID1/SP.CV", "mode": "FIC-201/PID1/MODE.ACTUAL"}
     assert rec.meta["manual_intervals"] == [[60, 70]]
     assert rec.start == "2024-03-01T08:00:00Z" and np.all(rec.sp == 20.0)
+
+
+def test_description_and_units_rows_under_the_header():
+    (rec,) = read_records(DATA / "aspen_units_rows.csv")
+    assert rec.name == "FIC301" and rec.n == 120 and rec.ts_s == 5.0 and rec.start == "2024-03-01T08:00:00Z"
+    assert rec.units["pv"] == "m3/h" and rec.meta["label_rows"] == ["", "Units"]
+    assert not rec.findings
+    first = (DATA / "aspen_units_rows.csv").read_text().splitlines()[3].split(",")
+    assert rec.pv[0] == float(first[1]) and rec.op[0] == float(first[2])
+
+
+def test_a_text_row_under_the_header_that_is_data_is_not_skipped(tmp_path):
+    # a first row of text states with a readable time is data (a gap), not a label row
+    lines = (DATA / "aspen_units_rows.csv").read_text().splitlines()
+    t = lines[3].split(",")[0]
+    f = tmp_path / "states.csv"
+    f.write_text("\n".join([lines[0], f"{t},I/O Timeout,Bad,Bad"] + lines[4:]) + "\n")
+    (rec,) = read_records(f)
+    assert rec.start == "2024-03-01T08:00:05Z" and rec.n == 119 and "label_rows" not in rec.meta
+    assert bad_values(rec)["pv"]["text"] == 1 and bad_values(rec)["op"]["text"] == 1

@@ -138,6 +138,15 @@ def vendors() -> None:
         mode = "MAN" if 60 <= k < 70 else "AUTO"
         rows.append(f"{ts},{pv[k]:.4f},GoodCascade,{op[k]:.4f},20.0000,{mode},AUTO")
     (HERE / "deltav_history.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    # Aspen Process Explorer / PHD style: tag row, then a descriptor row and an engineering-units
+    # row above the data; 5 s, PI-style dates with two-digit years
+    rows = ["Time,FIC301.PV,FIC301.OP,FIC301.SP",
+            ",Reflux flow,Reflux valve output,Reflux flow setpoint",
+            "Units,m3/h,%,m3/h"]
+    for k in range(op.size):
+        t = t0 + timedelta(seconds=5 * k)
+        rows.append(f"{t:%d-%b-%y %H:%M:%S},{pv[k]:.3f},{op[k]:.3f},20.000")
+    (HERE / "aspen_units_rows.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
