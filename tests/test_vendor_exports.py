@@ -64,3 +64,10 @@ def test_a_text_row_under_the_header_that_is_data_is_not_skipped(tmp_path):
     (rec,) = read_records(f)
     assert rec.start == "2024-03-01T08:00:05Z" and rec.n == 119 and "label_rows" not in rec.meta
     assert bad_values(rec)["pv"]["text"] == 1 and bad_values(rec)["op"]["text"] == 1
+
+
+def test_ip21_trend_columns_are_a_long_layout():
+    (rec,) = read_records(DATA / "ip21_trend_long.csv")
+    assert rec.meta["format"] == "long" and rec.meta["quality_scheme"] == "text"
+    assert rec.name == "FIC401" and rec.n == 120 and rec.ts_s == 10.0 and rec.start == "2024-03-01T08:00:00Z"
+    assert bad_values(rec)["pv"]["bad_quality"] == 1 and "op" not in bad_values(rec)

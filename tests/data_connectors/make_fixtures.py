@@ -147,6 +147,16 @@ def vendors() -> None:
         t = t0 + timedelta(seconds=5 * k)
         rows.append(f"{t:%d-%b-%y %H:%M:%S},{pv[k]:.3f},{op[k]:.3f},20.000")
     (HERE / "aspen_units_rows.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
+    # Aspen InfoPlus.21 SQLplus query on the history repeat area, saved as CSV: IP_TREND_* columns,
+    # IP.21's upper-case month names, a text quality status
+    rows = ["NAME,IP_TREND_TIME,IP_TREND_VALUE,IP_TREND_QSTATUS"]
+    for k in range(op.size):
+        t = t0 + timedelta(seconds=10 * k)
+        for tag, v in (("FIC401.PV", pv[k]), ("FIC401.OP", op[k])):
+            q = "Suspect" if tag == "FIC401.PV" and k == 30 else "Good"
+            rows.append(f"{tag},{t:%d-%b-%y %H:%M:%S}.0,{v:.4f},{q}".upper().replace("GOOD", "Good")
+                        .replace("SUSPECT", "Suspect"))
+    (HERE / "ip21_trend_long.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
