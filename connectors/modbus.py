@@ -21,8 +21,10 @@ Configuration (TOML, `load_modbus_config`)::
 Types: ``float32`` (two registers; ``order`` ABCD, CDAB, BADC or DCBA), ``int32``/``uint32`` (two
 registers, ``order`` ABCD or CDAB...), ``int16``, ``uint16``. ``scale``/``offset`` turn the raw
 number into engineering units; ``range = [lo, hi]`` then scales OP/MV to % of span. A ``port``
-outside 1..65535, or two roles of one loop on the same registers (same table and unit id), is a
-one-line error naming the file, the loop and the key when the file is read.
+outside 1..65535, two roles of one loop on the same registers (same table and unit id), or two
+loops on overlapping registers read as another type, order or span, is a one-line error naming
+the file, the loop and the key when the file is read (loops may share a register read the same
+way: one PV for split-range valves).
 
 `ModbusPoller` keeps one `pymodbus.client.AsyncModbusTcpClient` per device, shared by that
 device's loops, and reads each device's registers in as few requests as possible (contiguous
@@ -232,6 +234,7 @@ def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusCon
         loop_id = int(spec["device_id"]) if "device_id" in spec else None
         _check_overlaps(name, regs, loop_id if loop_id is not None else devices[dev].device_id, path)
         loops[name] = LoopConfig(name, dev, regs, loop_id)
+    _check_shared(devices, loops, path)
     period_s = float(data.get("period_s", 1.0))
     if not (math.isfinite(period_s) and period_s > 0):
         raise _err("period_s must be > 0", path)
@@ -258,6 +261,33 @@ def _check_overlaps(loop: str, regs: Mapping[str, RegisterMap], device_id: int, 
                            f"overlap loops.{loop}.{other} ({om.address}..{om.address + om.count - 1}); give each "
                            "role its own registers", path)
         seen.append((role, rm))
+
+
+def _check_shared(devices: Mapping[str, DeviceConfig], loops: Mapping[str, LoopConfig], path: str | None) -> None:
+    """Loops may share a signal (one PV register for two split-range valves) when they read it the
+    same way; registers that only partly overlap, or are read as another type or order, are
+    decoded two ways and one of them is a typo in the map."""
+    by_unit: dict[tuple, list[tuple[int, int, str, RegisterMap]]] = {}
+    for lc in loops.values():
+        dev = devices[lc.device]
+        for role, rm in lc.registers.items():
+            uid = rm.device_id or lc.device_id or dev.device_id
+            by_unit.setdefault((dev.host, dev.port, uid, rm.table), []).append(
+                (rm.address, rm.address + rm.count - 1, f"loops.{lc.name}.{role}", rm))
+    for (_, _, uid, table), regs in by_unit.items():
+        regs.sort(key=lambda r: (r[0], r[1]))
+        reach = None          # the register map reaching furthest so far
+        for a, b, where, rm in regs:
+            if reach is not None and a <= reach[1]:
+                ra, rb, rwhere, rrm = reach
+                same = (ra, rb, rrm.type, rrm.order) == (a, b, rm.type, rm.order)
+                if not same:
+                    raise _err(f"{where}.address {a}: {table} registers {a}..{b} ({rm.type} {rm.order}) overlap "
+                               f"{rwhere} ({ra}..{rb}, {rrm.type} {rrm.order}) on device id {uid}; give each its "
+                               "own registers, or the same address, type and order for a signal the loops share",
+                               path)
+            if reach is None or b > reach[1]:
+                reach = (a, b, where, rm)
 
 
 def load_modbus_config(path: str | os.PathLike) -> ModbusConfig:

@@ -206,6 +206,24 @@ def test_server_restart_gives_a_gap_and_recovery(tmp_path):
     assert recs[-1].meta["t_first_s"] > recs[0].meta["t_last_s"]
 
 
+def test_loops_sharing_a_pv_register_read_it_live(tmp_path):
+    # split-range control: two valves, one flow transmitter; the same register read the same way
+    port = free_port()
+    text = (f"period_s = 0.1\ntimeout_s = 0.5\n[devices.plc]\nhost = '127.0.0.1'\nport = {port}\n"
+            "[loops.FV101A]\nop = { address = 0, type = 'float32' }\npv = { address = 4, type = 'float32' }\n"
+            "[loops.FV101B]\nop = { address = 2, type = 'float32' }\npv = { address = 4, type = 'float32' }\n")
+    cfg_path = tmp_path / "split.toml"
+    cfg_path.write_text(text)
+    cfg = load_modbus_config(cfg_path)
+    p, _ = start_server(["--port", str(port), "--config", str(cfg_path), "--ts", "0.1"])
+    try:
+        values = asyncio.run(ModbusPoller(cfg).read_once())
+    finally:
+        stop(p)
+    assert values["FV101A"]["pv"] == values["FV101B"]["pv"] and math.isfinite(values["FV101A"]["pv"])
+    assert values["FV101A"]["op"] != values["FV101B"]["op"]
+
+
 def test_down_device_does_not_stall_the_others(mixed_server):
     cfg, port = mixed_server
     hole = socket.socket()                     # accepts TCP connections, never answers Modbus

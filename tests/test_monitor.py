@@ -150,6 +150,18 @@ def test_a_port_out_of_range_or_roles_on_the_same_registers_are_config_errors(tm
     assert err.startswith(f"error: {cfg}: {message}") and len(err.strip().splitlines()) == 1, err
 
 
+def test_registers_two_loops_read_two_ways_are_a_config_error(tmp_path, capsys):
+    # a float32 of one loop on the upper register of another loop's float32: both decode garbage
+    cfg = tmp_path / "plant.toml"
+    text = default_config_text(free_port(), 2, period_s=0.2, window_samples=150)
+    cfg.write_text(text.replace("op = { address = 8,", "op = { address = 7,", 1))
+    assert main(["monitor", str(cfg), "--duration", "5", "--out", str(tmp_path / "o"), "--no-history"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {cfg}: loops.SIM001.op.address 7: holding registers 7..8 (float32 ABCD) overlap "
+                          "loops.SIM000.mv (6..7, float32 ABCD) on device id 1; give each its own registers") \
+        and len(err.strip().splitlines()) == 1, err
+
+
 def _silent_device():
     """A TCP listener that accepts connections and never answers (a hung gateway)."""
     import socket
