@@ -24,6 +24,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -49,7 +50,7 @@ _VENDOR_FORMATS: list[tuple[str, list[str]]] = [
                                  "%Y/%m/%d"]),
     (r"^\d{8}[ T]?\d{4,6}", ["%Y%m%d %H%M%S", "%Y%m%dT%H%M%S", "%Y%m%d%H%M%S", "%Y%m%d %H%M"]),
 ]
-_SLASH = re.compile(r"^(\d{1,2})[/.](\d{1,2})[/.](\d{2,4})")
+_SLASH = re.compile(r"^(\d{1,2})[/.-](\d{1,2})[/.-](\d{2,4})")
 _TIME_PARTS = ["%H:%M:%S.%f", "%H:%M:%S", "%H:%M", "%I:%M:%S %p", "%I:%M:%S.%f %p", "%I:%M %p"]
 # an ISO time with a UTC offset after it (a date alone ends in "-27" and is no offset)
 _NAT = np.iinfo(np.int64).min
@@ -87,8 +88,7 @@ def _choose_format(samples: list[str]) -> str:
     if m:
         sep = first[m.end(1)]
         yfmt = "%Y" if len(m.group(3)) == 4 else "%y"
-        dayfirst = sep == "."
-        monthfirst = False
+        dayfirst = monthfirst = False
         for s in samples:
             mm = _SLASH.match(s)
             if mm:
@@ -96,11 +96,17 @@ def _choose_format(samples: list[str]) -> str:
                     dayfirst = True
                 if int(mm.group(2)) > 12:
                     monthfirst = True
-        orders = ["%m{0}%d{0}" + yfmt, "%d{0}%m{0}" + yfmt]
+        orders = [f"%m{sep}%d{sep}{yfmt}", f"%d{sep}%m{sep}{yfmt}"]
         if dayfirst and not monthfirst:
             orders.reverse()
+        elif not monthfirst:
+            # No field above 12 (an export of the 1st to the 12th of a month): the reading whose
+            # dates lie closer together, not a calendar order: 01/03 .. 09/03 read month-first
+            # spreads nine days over nine months. Equal spans keep the locale's custom: day
+            # first after dots (German) and dashes (Dutch), month first after slashes (US).
+            default = orders[1 if sep in ".-" else 0]
+            orders.sort(key=lambda f: (_date_span(samples, f), f != default))
         for date_fmt in orders:
-            date_fmt = date_fmt.format(sep)
             candidates.extend(f"{date_fmt} {tp}" for tp in _TIME_PARTS)
             candidates.append(date_fmt)
     for fmt in candidates:
@@ -111,6 +117,16 @@ def _choose_format(samples: list[str]) -> str:
         except ValueError:
             continue
     raise ValueError(first)
+
+
+def _date_span(samples: list[str], date_fmt: str) -> float:
+    """Days from the earliest to the latest date of the samples read with ``date_fmt`` (inf if one
+    does not read)."""
+    try:
+        days = [datetime.strptime(m.group(0), date_fmt) for m in map(_SLASH.match, samples) if m]
+    except ValueError:
+        return math.inf
+    return (max(days) - min(days)) / timedelta(days=1) if days else math.inf
 
 
 def zone_of(tz: str | None):

@@ -71,3 +71,20 @@ def test_ip21_trend_columns_are_a_long_layout():
     assert rec.meta["format"] == "long" and rec.meta["quality_scheme"] == "text"
     assert rec.name == "FIC401" and rec.n == 120 and rec.ts_s == 10.0 and rec.start == "2024-03-01T08:00:00Z"
     assert bad_values(rec)["pv"]["bad_quality"] == 1 and "op" not in bad_values(rec)
+
+
+@pytest.mark.parametrize("fname, fmt", [("excel_uk_dmy.csv", "%d/%m/%Y %H:%M"), ("excel_nl_dmy.csv", "%d-%m-%Y %H:%M")])
+def test_day_first_dates_without_a_day_above_12(fname, fmt):
+    # month-first, the ten days spread over ten months and split the loop into ten segments
+    (rec,) = read_records(DATA / fname)
+    assert rec.meta["time_format"] == fmt
+    assert rec.start == "2024-03-01T00:00:00Z" and rec.n == 120 and rec.ts_s == 7200.0 and not rec.findings
+
+
+def test_month_first_dates_without_a_day_above_12_stay_month_first(tmp_path):
+    rows = (DATA / "excel_uk_dmy.csv").read_text().splitlines()
+    us = [rows[0]] + [f"{r[3:5]}/{r[:2]}{r[5:]}" for r in rows[1:]]     # the same times, mm/dd/yyyy
+    f = tmp_path / "us.csv"
+    f.write_text("\n".join(us) + "\n")
+    (rec,) = read_records(f)
+    assert rec.meta["time_format"] == "%m/%d/%Y %H:%M" and rec.start == "2024-03-01T00:00:00Z" and rec.n == 120

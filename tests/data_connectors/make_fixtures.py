@@ -157,6 +157,19 @@ def vendors() -> None:
             rows.append(f"{tag},{t:%d-%b-%y %H:%M:%S}.0,{v:.4f},{q}".upper().replace("GOOD", "Good")
                         .replace("SUSPECT", "Suspect"))
     (HERE / "ip21_trend_long.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    # Excel in a UK locale saves dd/mm/yyyy hh:mm; 2-hourly over the 1st-10th of March, so no day
+    # field is above 12
+    rows = ["Date,FIC501.PV,FIC501.OP"]
+    for k in range(op.size):
+        t = datetime(2024, 3, 1) + timedelta(hours=2 * k)
+        rows.append(f"{t:%d/%m/%Y %H:%M},{pv[k]:.3f},{op[k]:.3f}")
+    (HERE / "excel_uk_dmy.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
+    # Excel in a Dutch locale: d-m-yyyy h:mm, semicolons, decimal commas
+    rows = ["Datum;FIC502.PV;FIC502.OP"]
+    for k in range(op.size):
+        t = datetime(2024, 3, 1) + timedelta(hours=2 * k)
+        rows.append(f"{t.day}-{t.month}-{t.year} {t.hour}:{t:%M};{pv[k]:.3f};{op[k]:.3f}".replace(".", ","))
+    (HERE / "excel_nl_dmy.csv").write_text("\r\n".join(rows) + "\r\n", encoding="cp1252")
 
 
 if __name__ == "__main__":
