@@ -56,6 +56,8 @@ _TIME_PARTS = ["%H:%M:%S.%f", "%H:%M:%S", "%H:%M", "%I:%M:%S %p", "%I:%M:%S.%f %
 _NAT = np.iinfo(np.int64).min
 _OFFSET = re.compile(r"[T\s]\S*[+-]\d{2}(?::?\d{2}(?::?\d{2}(?:\.\d+)?)?)?$")
 _FRACTION_COMMA = re.compile(r"(\d{2}:\d{2}:\d{2}),(\d+)")
+# .NET writes seconds to 7 digits (``8:00:00.0000000 AM``); strptime's %f reads at most 6
+_LONG_FRACTION = re.compile(r"(\d:\d{2}:\d{2}\.\d{6})\d+")
 
 
 @dataclass(frozen=True)
@@ -211,6 +213,8 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
     if "," in "\x00".join(cells[nonblank]):       # 23:59:00,000: the fraction after a comma
         norm = np.array([_FRACTION_COMMA.sub(r"\1.\2", c.strip()) if isinstance(c, str) and "," in c else c
                          for c in cells], dtype=object)
+    if _LONG_FRACTION.search(str(norm[nonblank[0]])):
+        norm = np.array([_LONG_FRACTION.sub(r"\1", c) if isinstance(c, str) else c for c in norm], dtype=object)
     sample_idx = [k for k in nonblank[:: max(1, nonblank.size // 200)][:200] if norm[k].strip()]
     if not sample_idx:
         raise _fail("timestamp column is empty", label, None, column)

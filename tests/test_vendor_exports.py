@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -88,3 +89,17 @@ def test_month_first_dates_without_a_day_above_12_stay_month_first(tmp_path):
     f.write_text("\n".join(us) + "\n")
     (rec,) = read_records(f)
     assert rec.meta["time_format"] == "%m/%d/%Y %H:%M" and rec.start == "2024-03-01T00:00:00Z" and rec.n == 120
+
+
+def test_seven_digit_fractions_with_a_12_hour_clock():
+    # .NET's "M/d/yyyy h:mm:ss.fffffff tt": 100 ms data across noon
+    rng = np.random.default_rng(5)
+    rows = ["Timestamp,FIC601.PV,FIC601.OP"]
+    for k in range(200):
+        ms = 11 * 3600_000 + 59 * 60_000 + 50_000 + 100 * k
+        h, rest = divmod(ms, 3600_000)
+        m, rest = divmod(rest, 60_000)
+        rows.append(f"3/1/2024 {h % 12 or 12}:{m:02d}:{rest // 1000:02d}.{rest % 1000:03d}0000 {'AM' if h < 12 else 'PM'},"
+                    f"{20 + rng.normal():.3f},{50 + rng.normal():.3f}")
+    (rec,) = read_records(io.StringIO("\n".join(rows) + "\n"))
+    assert rec.start == "2024-03-01T11:59:50Z" and rec.ts_s == 0.1 and rec.n == 200 and not rec.findings
