@@ -14,6 +14,7 @@ case-insensitive.
   number where 0 = manual and any other value = automatic; the DCS export's ``.MODE`` 1 = auto).
 * DeltaV parameter paths end in a field: ``FIC-101/PID1/PV.CV`` is tag ``FIC-101/PID1``, suffix
   ``PV`` (``.CV``, the current value, of any role's parameter; ``MODE.ACTUAL`` for the mode).
+* Units in brackets after a name are not part of it: ``FIC101.PV [m3/h]`` is ``FIC101.PV`` in m3/h.
 * Time: ``time``, ``timestamp``, ``datetime``, ``date_time``, ``t``, ``ts``, ``_time``.
 
 Anything else needs ``--op/--pv/--sp/--mv`` (or a tag map). Two columns claiming one role is an
@@ -40,10 +41,21 @@ _SPLIT = re.compile(r"^(.*)[.:/]([^.:/]+)$")
 _FIELDS = {"cv": None, "actual": "mode"}
 
 
+_UNITS = re.compile(r"^(.*\S)\s+[\[(]([^\[\]()]*)[\])]$")
+
+
+def strip_units(name: str) -> tuple[str, str | None]:
+    """``"FIC101.PV [m3/h]"`` -> ``("FIC101.PV", "m3/h")``: units after the name, in brackets or
+    parentheses, as spreadsheet and WinCC exports write them."""
+    m = _UNITS.match(name)
+    return (m.group(1), m.group(2).strip() or None) if m else (name, None)
+
+
 def split_tag(name: str) -> tuple[str, str]:
     """``"FIC101.PV"`` -> ``("FIC101", "pv")``; ``"PV"`` -> ``("", "pv")``;
     ``"FIC-101/PID1/OUT.CV"`` -> ``("FIC-101/PID1", "out")``."""
     name = name.strip().strip('"').strip()
+    name = strip_units(name)[0]
     m = _SPLIT.match(name)
     if m and m.group(2).lower() in _FIELDS:
         param = split_tag(m.group(1))

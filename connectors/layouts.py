@@ -21,7 +21,7 @@ import pandas as pd
 
 from diagnose.errors import ConnectorError
 
-from .columns import TIME_NAMES, role_of
+from .columns import TIME_NAMES, role_of, strip_units
 from .textio import (Source, comma_times, commonest, delimiter_name, detect_decimal_comma, numbers, quality_good,
                      read_frame, split_line)
 from .timebase import parse_times
@@ -335,7 +335,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
         t, absolute, tfmt = _times(cells, lines, label, tname, options, dec)
     series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
     for s in series:
-        s.units = units.get(s.name)
+        s.units = units.get(s.name) or strip_units(s.name)[1]
     meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt,
             "time_columns": [header[j] for j in time_idx]}

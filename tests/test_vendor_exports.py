@@ -103,3 +103,12 @@ def test_seven_digit_fractions_with_a_12_hour_clock():
                     f"{20 + rng.normal():.3f},{50 + rng.normal():.3f}")
     (rec,) = read_records(io.StringIO("\n".join(rows) + "\n"))
     assert rec.start == "2024-03-01T11:59:50Z" and rec.ts_s == 0.1 and rec.n == 200 and not rec.findings
+
+
+def test_units_in_brackets_after_the_column_name(tmp_path):
+    rows = (DATA / "excel_nl_dmy.csv").read_text(encoding="cp1252").splitlines()
+    f = tmp_path / "units.csv"
+    f.write_text("\n".join(["Datum;FIC502.PV [m³/h];FIC502.OP (%)"] + rows[1:]) + "\n", encoding="cp1252")
+    (rec,) = read_records(f)
+    assert rec.name == "FIC502" and rec.n == 120 and rec.units["pv"] == "m³/h"
+    assert rec.meta["columns"] == {"pv": "FIC502.PV [m³/h]", "op": "FIC502.OP (%)"}
