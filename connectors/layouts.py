@@ -29,13 +29,14 @@ from .timebase import parse_times
 LAYOUTS = ("wide", "long", "ragged", "influx", "dcs")
 TIME_HEADERS = TIME_NAMES | {"date", "t_stamp", "time_stamp", "sampletime", "sample_time", "date/time",
                              "timestamp_utc", "time_utc", "zeit", "datum/zeit", "zeitstempel",
-                             "datum", "fecha", "ip_trend_time"}
+                             "datum", "fecha", "ip_trend_time", "timestring"}
 TAG_HEADERS = {"tag", "tagname", "tag_name", "name", "point", "pointname", "point_name", "series",
-               "signal", "item", "itemid", "item_id", "variable", "sensor", "tagpath", "tag_path"}
-VALUE_HEADERS = {"value", "val", "_value", "reading", "wert", "valeur", "ip_trend_value"}
+               "signal", "item", "itemid", "item_id", "variable", "sensor", "tagpath", "tag_path",
+               "varname"}
+VALUE_HEADERS = {"value", "val", "_value", "reading", "wert", "valeur", "ip_trend_value", "varvalue"}
 QUALITY_HEADERS = {"quality", "q", "status", "confidence", "qualitycode", "quality_code",
                    "opc_quality", "qualitat", "qualität", "qualitydetail", "opcquality",
-                   "ip_trend_qstatus", "ip_trend_qlevel"}
+                   "ip_trend_qstatus", "ip_trend_qlevel", "validity"}
 #: OPC-coded quality columns, taken before any other quality column of the same file: AVEVA
 #: (Wonderware) Historian writes ``Quality`` (its own code, 0 = good) beside ``QualityDetail`` and
 #: ``OPCQuality`` (192 = good), and OPC rules read that ``Quality`` 0 as bad.

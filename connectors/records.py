@@ -194,7 +194,8 @@ def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
 
 
 _SCHEME_RULES = {"opc": "as OPC codes, good at 192-255", "ip21_status": "as IP.21 status, good at 0",
-                 "phd_confidence": "as PHD confidence, good at 50-100", "text": "as text, good when 'Good'"}
+                 "phd_confidence": "as PHD confidence, good at 50-100", "text": "as text, good when 'Good'",
+                 "wincc_validity": "as WinCC validity, good at 1"}
 
 
 def _no_values(s: Series, table: Table | None = None) -> str | None:

@@ -681,7 +681,7 @@ def quality_good(cells: Any, column: str) -> tuple[np.ndarray, str]:
 
     Schemes: text (``Good``/``Bad``/``Questionable``/``Substituted``/``Uncertain``: only ``Good``
     passes), OPC (0-255, good when the two top bits are set: 192..255), IP.21 status (0 good, 1
-    suspect, 2 bad), PHD confidence (0-100, good at 50 or above). The column name decides when the
+    suspect, 2 bad), PHD confidence (0-100, good at 50 or above), WinCC ``Validity`` (1 good). The column name decides when the
     numbers fit several schemes (``status`` -> IP.21, ``conf`` -> PHD, ``quality`` -> OPC).
     """
     name = column.lower()
@@ -710,6 +710,8 @@ def _numeric_quality(nums: np.ndarray, name: str) -> tuple[np.ndarray, str]:
     vals = set(np.unique(fin).tolist()) if fin.size else set()
     if "conf" in name:
         return nums >= 50, "phd_confidence"
+    if "validity" in name:      # Siemens WinCC archive exports: 1 valid, 0 not
+        return nums == 1, "wincc_validity"
     if "status" in name or (vals and vals <= {0.0, 1.0, 2.0} and "quality" not in name):
         return nums == 0, "ip21_status"
     if fin.size and fin.max() >= 64 and fin.max() <= 255 and np.all(fin == np.round(fin)):

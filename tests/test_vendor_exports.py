@@ -112,3 +112,12 @@ def test_units_in_brackets_after_the_column_name(tmp_path):
     (rec,) = read_records(f)
     assert rec.name == "FIC502" and rec.n == 120 and rec.units["pv"] == "m³/h"
     assert rec.meta["columns"] == {"pv": "FIC502.PV [m³/h]", "op": "FIC502.OP (%)"}
+
+
+def test_wincc_tag_logging_export():
+    (rec,) = read_records(DATA / "wincc_taglogging.csv")
+    assert rec.meta["format"] == "long" and rec.meta["quality_scheme"] == "wincc_validity"
+    assert rec.name == "FIC701" and rec.n == 120 and rec.ts_s == 2.0 and rec.start == "2024-03-01T08:00:00Z"
+    assert bad_values(rec)["pv"]["bad_quality"] == 1 and "op" not in bad_values(rec)
+    first = (DATA / "wincc_taglogging.csv").read_text().splitlines()[1].split(";")
+    assert rec.pv[0] == float(first[2].replace(",", "."))

@@ -170,6 +170,17 @@ def vendors() -> None:
         t = datetime(2024, 3, 1) + timedelta(hours=2 * k)
         rows.append(f"{t.day}-{t.month}-{t.year} {t.hour}:{t:%M};{pv[k]:.3f};{op[k]:.3f}".replace(".", ","))
     (HERE / "excel_nl_dmy.csv").write_text("\r\n".join(rows) + "\r\n", encoding="cp1252")
+    # Siemens WinCC tag logging archive exported as CSV: quoted names and text, decimal commas,
+    # Validity 1/0 and Time_ms (Excel serial days x 1e6) beside the time string
+    rows = ['"VarName";"TimeString";"VarValue";"Validity";"Time_ms"']
+    for k in range(op.size):
+        t = t0 + timedelta(seconds=2 * k)
+        serial = (t - datetime(1899, 12, 30)) / timedelta(days=1) * 1e6
+        for tag, v in (("FIC701.PV", pv[k]), ("FIC701.OP", op[k])):
+            valid = 0 if tag == "FIC701.PV" and k == 50 else 1
+            rows.append(f'"{tag}";"{t:%d.%m.%Y %H:%M:%S}";{v:.4f};{valid};{serial:.4f}'.replace(".", ",")
+                        .replace('"FIC701,', '"FIC701.').replace(f'"{t:%d,%m,%Y}', f'"{t:%d.%m.%Y}'))
+    (HERE / "wincc_taglogging.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
