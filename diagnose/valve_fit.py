@@ -138,8 +138,10 @@ def fit_valve(op_pct, mv_pct, ts_s: float = 1.0, *, train=None, stiction: bool =
     # each of the states the window's first stem sample allows
     m = min(n, VALVE_SEARCH_SAMPLES)
     i0 = widest_window(x, m, None if train is None else obj.weights > 0) if m < n else 0
-    wobj = obj.window(i0, m) if m < n else obj
-    if np.count_nonzero(wobj.weights) < 50:
+    # a window inside the record's burn-in scores no sample at all, and an objective without a
+    # scored sample cannot be built: such a window falls back to the whole record as a thin one does
+    wobj = obj.window(i0, m) if m < n and np.count_nonzero(obj.weights[i0:i0 + m]) >= 50 else obj
+    if wobj is obj or np.count_nonzero(wobj.weights) < 50:
         i0, wobj = 0, obj
     no_lag = lim.grid([("foptd", lim.tau_range_s[0], 0.0, d) for d in range(lim.dmin, lim.dmax + 1)])
     best = lag_and_delay(wobj, best_structure(wobj, 0.0, 0.0, 1.0, no_lag), lim)

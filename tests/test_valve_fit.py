@@ -123,3 +123,12 @@ def test_fit_valve_keeps_the_actuator_lag_within_max_lag_s():
         assert vf.rmse > free.rmse
 
 
+
+
+def test_a_long_record_whose_widest_window_lies_in_the_burn_in_is_fitted():
+    # 60 000 samples: the burn-in (5 %) is 3000 samples, the search window's length, and OP's
+    # widest window is the first one, so the window scores no sample at all
+    rec = sticky_loop(3.0, 1.0, n=60_000, noise_std=0.02, load_walk_std=0.01, seed=1)
+    vf = fit_valve(rec.op, rec.mv, rec.ts_s)
+    assert vf.S_pct == pytest.approx(3.0, rel=0.02)
+    assert vf.J_pct == pytest.approx(1.0, abs=0.06)
