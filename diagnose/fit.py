@@ -591,15 +591,38 @@ class StictionEstimator:
         return {n: getattr(self, n) for n in names}
 
     def set_params(self, **params: Any) -> "StictionEstimator":
+        """Set constructor parameters by name (as scikit-learn's estimators do); returns self."""
         valid = self.get_params()
         for k, v in params.items():
             if k not in valid:
-                raise ValueError(f"invalid parameter {k!r} for StictionEstimator; valid: {', '.join(valid)}")
+                raise DataError(f"invalid parameter {k!r} for StictionEstimator; valid: {', '.join(valid)}")
             setattr(self, k, v)
         return self
 
     def fit(self, record_or_op: Any, pv: Any = None, ts_s: float | None = None) -> "StictionEstimator":
-        """Identify stiction in one loop; returns self."""
+        """Identify stiction in one loop; returns self.
+
+        Parameters
+        ----------
+        record_or_op : LoopRecord or array (n,)
+            The loop's record (`diagnose.read_loops` reads files and DataFrames into records), or
+            the controller output OP in % of valve span, uniformly sampled.
+        pv : array (n,), optional
+            Process variable in engineering units, sampled with OP (needed with OP as an array).
+        ts_s : float, optional
+            Sample period in seconds (needed with OP as an array).
+
+        Returns
+        -------
+        StictionEstimator
+            ``self``, with ``identification_`` and the attributes read from it.
+
+        Raises
+        ------
+        DataError
+            Not a record, no sample period, arrays of different lengths or with gaps, or a record
+            that cannot be judged (too short, OP constant).
+        """
         from .identification import identify
         from .record import LoopRecord
 

@@ -8,6 +8,7 @@ a record at long ones before a record is built.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -50,7 +51,10 @@ class Finding:
 
 
 def _as_series(name: str, values: Any, n: int | None) -> np.ndarray:
-    arr = np.asarray(values, dtype=float)
+    try:
+        arr = np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{name} must be numbers (an array or list of floats): {exc}") from None
     if arr.ndim != 1:
         raise DataError(f"{name} must be one-dimensional, got shape {arr.shape}")
     if n is not None and arr.shape[0] != n:
@@ -109,7 +113,12 @@ class LoopRecord:
     meta: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.ts_s) and self.ts_s > 0):
+        # a string or None would otherwise fail inside numpy with a message about ufuncs
+        try:
+            ts = math.nan if isinstance(self.ts_s, (bool, str, bytes)) else float(self.ts_s)
+        except (TypeError, ValueError):
+            ts = math.nan
+        if not (math.isfinite(ts) and ts > 0):
             raise DataError(f"sample period ts_s must be a positive number of seconds, got {self.ts_s!r}")
         op = _as_series("OP", self.op, None)
         n = op.shape[0]

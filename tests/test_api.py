@@ -286,3 +286,17 @@ def test_the_commands_and_the_batch_check_options_the_same_way(loop, tmp_path, c
     with pytest.raises(diagnose.DataError, match=r"^max_samples=-5 "):
         run_batch([path], tmp_path / "out", workers=1, read_options={"max_samples": -5}, history=False,
                   progress=False)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda rec: diagnose.StictionEstimator().fit(rec.op, rec.pv, "1"),
+     r"^sample period ts_s must be a positive number of seconds, got '1'$"),
+    (lambda rec: diagnose.LoopRecord(name="X", ts_s=None, op=rec.op, pv=rec.pv), r"^sample period ts_s .* got None$"),
+    (lambda rec: diagnose.LoopRecord(name="X", ts_s=1.0, op=["a", "b"], pv=[1.0, 2.0]), r"^OP must be numbers"),
+    (lambda rec: diagnose.StictionEstimator().set_params(S=3), r"^invalid parameter 'S' for StictionEstimator"),
+])
+def test_records_and_the_estimator_refuse_bad_arguments_with_a_data_error(loop, call, match):
+    rec, _, _, _ = loop
+    with pytest.raises(diagnose.DataError, match=match) as err:
+        call(rec)
+    assert "\n" not in str(err.value)
