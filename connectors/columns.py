@@ -84,3 +84,17 @@ def role_of(name: str) -> str | None:
     if suffix in MODE_SUFFIXES:
         return "mode"
     return None
+
+
+#: The label the DataFrame reader gives its source (`connectors.frame`). A frame is read from
+#: Python, where the reading options are keywords (``ts_s=``) and a tag map does not apply, so
+#: the hints of its messages name the keyword rather than the command-line flag (``--ts-s``).
+FRAME_LABEL = "<DataFrame>"
+
+
+def option(flag: str, label: str | None, value: str = "") -> str:
+    """The reading option ``flag`` (``"--ts-s"``), with an optional ``value``, as the user who read
+    ``label`` gives it: ``--ts-s SECONDS`` for a file, ``ts_s=SECONDS`` for a DataFrame."""
+    if label == FRAME_LABEL:
+        return flag.lstrip("-").replace("-", "_") + "=" + value
+    return f"{flag} {value}" if value else flag

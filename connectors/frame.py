@@ -17,13 +17,13 @@ import pandas as pd
 from diagnose.errors import ConnectorError, DataError
 from diagnose.record import LoopRecord
 
-from .columns import role_of
+from .columns import FRAME_LABEL, role_of
 from .layouts import Series, Table, is_time_header
 from .records import build_records, specs_from_table
 from .textio import numbers
 from .timebase import localise, parse_times, zone_of
 
-LABEL = "<DataFrame>"
+LABEL = FRAME_LABEL
 FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",
                  "min_samples", "max_samples")
 
@@ -97,6 +97,17 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
     return Table(series, LABEL, absolute, meta, raw_columns=names)
 
 
+def _in_frame(exc: ConnectorError) -> str:
+    """A reader's error about a frame, placed by column and row position: the reader counts a
+    file's lines from 1 (the frame's rows are its lines), and a frame has no file to name."""
+    if exc.path != LABEL:
+        return str(exc)
+    where = [f"column {exc.column!r}"] if exc.column is not None else []
+    if exc.line is not None:
+        where.append(f"row {exc.line - 1}")
+    return (", ".join(where) + ": " if where else "") + exc.message
+
+
 def records_from_frame(df: pd.DataFrame, **options: Any) -> list[LoopRecord]:
     """Every loop of a DataFrame as records, one per loop per contiguous segment (see `read_loops`
     for the options; ``tags`` and ``fmt`` do not apply to frames).
@@ -127,5 +138,5 @@ def records_from_frame(df: pd.DataFrame, **options: Any) -> list[LoopRecord]:
         for spec in specs:
             records.extend(build_records(spec, options))
     except ConnectorError as exc:
-        raise DataError(str(exc).removeprefix(f"{LABEL}: ")) from None
+        raise DataError(_in_frame(exc)) from None
     return [r.replace(source=None) if r.source == LABEL else r for r in records]

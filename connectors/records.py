@@ -14,7 +14,7 @@ import pandas as pd
 from diagnose.errors import ConnectorError, DataError
 from diagnose.record import Finding, LoopRecord
 
-from .columns import role_of, split_tag
+from .columns import FRAME_LABEL, option, role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
 from .timebase import (END_TOLERANCE, Cleaned, clean_series, empty_slots, estimate_period, irregularity, iso_utc,
@@ -99,7 +99,7 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
                 same = [s for s in cands if split_tag(s.name)[0] == tag] or cands
                 if len(same) != 1:
                     raise ConnectorError(f"no {role.upper()} column found (columns: {_columns_hint(table)}); "
-                                         f"name it with --{role}", path=table.label)
+                                         f"name it with {option('--' + role, table.label)}", path=table.label)
                 roles[role] = same[0]
         tag = split_tag(roles["op"].name)[0] or split_tag(roles["pv"].name)[0]
         for role in ("sp", "mv", "mode"):
@@ -118,7 +118,7 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
         g = groups.setdefault(tag, {})
         if role in g:
             raise ConnectorError(f"columns {g[role].name!r} and {s.name!r} both look like {role.upper()}; "
-                                 f"choose one with --{role}", path=table.label)
+                                 f"choose one with {option('--' + role, table.label)}", path=table.label)
         g[role] = s
     # a bare loop missing a role: take a unique column starting with the role word ("PV_flow_t_h")
     bare = groups.get("")
@@ -143,8 +143,7 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
         have = {r for g in groups.values() for r in g}
         missing = [r.upper() for r in ("op", "pv") if r not in have] or ["OP+PV of one tag"]
         raise ConnectorError(f"no {' or '.join(missing)} column found (columns: {_columns_hint(table)}); "
-                             "name the columns with --op/--pv or give a tag map with --tags"
-                             + _isa_hint(table), path=table.label)
+                             f"{_name_columns(table.label)}" + _isa_hint(table), path=table.label)
     if len(specs) == 1 and options.get("name"):
         specs[0].name = str(options["name"])
     return specs
@@ -171,8 +170,19 @@ def _isa_hint(table: Table) -> str:
             found.setdefault((m.group(1).upper(), m.group(3)), {})[m.group(2).upper()] = s.name
     for pair in found.values():
         if "V" in pair and "T" in pair:
-            return f" (for example --op {pair['V']} --pv {pair['T']}, if {pair['V']} is the valve output in %)"
+            if table.label == FRAME_LABEL:
+                example = f"op={pair['V']!r}, pv={pair['T']!r}"
+            else:
+                example = f"--op {pair['V']} --pv {pair['T']}"
+            return f" (for example {example}, if {pair['V']} is the valve output in %)"
     return ""
+
+
+def _name_columns(label: str | None) -> str:
+    """What to do when the naming rule finds no OP or PV: name them (a tag map is for files only)."""
+    if label == FRAME_LABEL:
+        return "name the columns with op=, pv="
+    return "name the columns with --op/--pv or give a tag map with --tags"
 
 
 def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
@@ -258,7 +268,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         # a loop missing a role is not diagnosed; it would otherwise vanish from a batch unremarked
         tags = ", ".join(f"{t} (no {role})" for t, role in sorted(spec.left_out.items()))
         findings.append(Finding("loop_left_out", f"not diagnosed from this file, for want of a column: {tags}; "
-                                "name the columns with --op/--pv or give a tag map", "info",
+                                f"{_name_columns(label)}", "info",
                                 {"tags": dict(sorted(spec.left_out.items()))}))
     cleaned = {}
     ts_opt = options.get("ts_s")
@@ -283,8 +293,9 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         t = s.t
         if t is None:
             if not ts_opt:
-                raise ConnectorError("no time column; give the sample period with --ts-s SECONDS or add "
-                                     "a time column", path=label)
+                where = "a DatetimeIndex or a time column" if label == FRAME_LABEL else "a time column"
+                raise ConnectorError(f"no time column; give the sample period with {option('--ts-s', label, 'SECONDS')} "
+                                     f"or add {where}", path=label)
             t = np.arange(s.x.size) * float(ts_opt)
         x = _mode_values(s, spec.mode_auto) if role == "mode" else s.x
         t = np.asarray(t, float)
@@ -309,8 +320,9 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
             "duplicates", f"{n_dups} duplicated timestamps: {100 * shared:.0f} % of the rows share their time stamp "
             f"with the row before or after, so the time stamps look truncated{res} (e.g. seconds dropped by a spreadsheet). "
             "Only the first row of each time stamp was kept, and the period was read from what was left; "
-            "re-export with full time stamps, or, if the rows are evenly spaced in time order, give --ts-s "
-            "SECONDS (equal runs of rows per time stamp are then spread in file order at that period)",
+            "re-export with full time stamps, or, if the rows are evenly spaced in time order, give "
+            f"{option('--ts-s', label, 'SECONDS')} (equal runs of rows per time stamp are then spread in file "
+            "order at that period)",
             "warning", {"count": n_dups, "share": round(shared, 4)}))
     elif n_dups:
         findings.append(Finding("duplicates", f"{n_dups} duplicated timestamps; the first value of each was kept",
@@ -322,7 +334,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
             "clock_back", f"the time stamps step back by up to an hour once, after {at}, as a local clock does "
             "when daylight saving time ends: read without their time zone, the repeated stretch overlaps the "
             "stretch before it, its rows were dropped as duplicates and the record is spliced there; give "
-            "--tz with the plant's time zone (e.g. --tz Europe/Berlin) to read them in order",
+            f"{option('--tz', label)} with the plant's time zone (e.g. {option('--tz', label, 'Europe/Berlin')}) "
+            "to read them in order",
             "warning", {"after": at}))
     ts_s = float(ts_opt) if ts_opt else (table.ts_s if table and table.ts_s else None)
     jitter = None
@@ -332,8 +345,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         if jitter is not None:
             ts_s = jitter.ts_s
     if not (np.isfinite(ts_s) and ts_s > 0):
-        raise ConnectorError("cannot tell the sample period (fewer than two distinct times); give --ts-s SECONDS",
-                             path=label)
+        raise ConnectorError("cannot tell the sample period (fewer than two distinct times); give "
+                             f"{option('--ts-s', label, 'SECONDS')}", path=label)
     max_gap_s = float(options.get("max_gap_s") or DEFAULT_MAX_GAP_SAMPLES * ts_s)
     # a max_gap_s given is the limit for every tag; a mode is a state, not a line between archive points
     spacing = {r: _spacing(c) for r, c in cleaned.items()}
@@ -352,7 +365,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     n_points = int((spans[:, 1] - spans[:, 0] + 1).sum())
     if n_points > MAX_GRID_SAMPLES:
         raise ConnectorError(f"{n_points} samples at {ts_s:g} s is too many (the limit is {MAX_GRID_SAMPLES}); "
-                             "give a larger --ts-s", path=label)
+                             f"give a larger {option('--ts-s', label)}", path=label)
     gk = _grid_index(spans)
     grid = t0 + gk * ts_s
     step = float((t0 + ts_s) - t0) if n_grid > 1 else max_gap_s
@@ -414,7 +427,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     op_all = gridded["op"][ok]
     if not spec.ranges.get("op") and op_all.size and (np.min(op_all) < -5 or np.max(op_all) > 105):
         findings.append(Finding("op_range", f"OP ranges from {np.min(op_all):.4g} to {np.max(op_all):.4g}, "
-                                "outside 0-100 %; if it is in engineering units give its range in a tag map",
+                                "outside 0-100 %; if it is in engineering units "
+                                + ("scale it to % of span" if label == FRAME_LABEL else "give its range in a tag map"),
                                 "warning", {"min": float(np.min(op_all)), "max": float(np.max(op_all))}))
     window = _window(usable, max_samples, min_samples, ts_s)
     progress = options.get("_progress")

@@ -35,6 +35,8 @@ import pandas as pd
 
 from diagnose.errors import ConnectorError
 
+from .columns import FRAME_LABEL
+
 DST_POLICIES = ("infer", "earliest", "latest", "raise")
 #: A series' last sample this fraction of a grid step off the last grid point still lands on it.
 END_TOLERANCE = 1e-3
@@ -343,6 +345,15 @@ def _python_fallback(norm, bad, us, aware, fmt, cells, label, column, line_of) -
     return np.array(blank, dtype=np.int64)
 
 
+def _policies(label: str | None, *names: str) -> str:
+    """The DST policies ``names`` as the user gives them: ``--dst earliest/latest`` for a file,
+    ``dst='earliest' or 'latest'`` for a DataFrame."""
+    if label == FRAME_LABEL:
+        quoted = [repr(n) for n in names]
+        return "dst=" + ", ".join(quoted[:-1]) + " or " + quoted[-1]
+    return "--dst " + "/".join(names)
+
+
 def localise(wall_us: np.ndarray, rows: np.ndarray, zone, dst: str, label, column, line_of) -> np.ndarray:
     """UTC seconds of naive local times ``wall_us[rows]`` in ``zone`` under the DST policy."""
     wall = wall_us[rows]
@@ -375,13 +386,13 @@ def localise(wall_us: np.ndarray, rows: np.ndarray, zone, dst: str, label, colum
         if datetime.fromtimestamp(a, zone).replace(tzinfo=None) != dt:  # spring-forward hole
             if dst == "raise":
                 raise ConnectorError(f"local time {dt} does not exist in {zone} (DST change); "
-                                     "choose --dst earliest/latest or give UTC times",
+                                     f"choose {_policies(label, 'earliest', 'latest')} or give UTC times",
                                      path=label, line=line, column=column)
             sec[k] = max(a, b)
             continue
         if dst == "raise":
             raise ConnectorError(f"local time {dt} is ambiguous in {zone} (DST change); "
-                                 "choose --dst earliest/latest/infer or give UTC times",
+                                 f"choose {_policies(label, 'earliest', 'latest', 'infer')} or give UTC times",
                                  path=label, line=line, column=column)
         if dst == "earliest":
             sec[k] = min(a, b)

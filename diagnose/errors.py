@@ -32,6 +32,7 @@ class ConnectorError(StictionError, OSError):
 
     def __init__(self, message: str, *, path: str | None = None, line: int | None = None,
                  column: str | None = None) -> None:
+        self.message = message
         self.path = path
         self.line = line
         self.column = column

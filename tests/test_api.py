@@ -300,3 +300,37 @@ def test_records_and_the_estimator_refuse_bad_arguments_with_a_data_error(loop, 
     with pytest.raises(diagnose.DataError, match=match) as err:
         call(rec)
     assert "\n" not in str(err.value)
+
+
+def test_a_frames_errors_name_python_keywords_and_rows_not_flags_and_lines(loop):
+    # a frame is read from Python: its hints name ts_s=, op=, dst= (no tag map: files only), and a
+    # bad cell is placed by column and row position, not by the reader's line number
+    _, _, df, _ = loop
+    msgs = []
+    for call in (lambda: diagnose.read_loops(df.reset_index(drop=True)),
+                 lambda: diagnose.read_loops(df.drop(columns=["FIC21.PV"])),
+                 lambda: diagnose.read_loops(df.assign(**{"FIC21.OUT": df["FIC21.OP"]}))):
+        with pytest.raises(diagnose.DataError) as err:
+            call()
+        msgs.append(str(err.value))
+    assert msgs[0].endswith("give the sample period with ts_s=SECONDS or add a DatetimeIndex or a time column")
+    assert msgs[1].endswith("name the columns with op=, pv=")
+    assert msgs[2].endswith("choose one with op=")
+    times = df.index.tz_localize(None).strftime("%Y-%m-%d %H:%M:%S").to_series(index=range(len(df)))
+    bad = df.reset_index(drop=True).assign(time=times)
+    bad.loc[7, "time"] = "garbage"
+    with pytest.raises(diagnose.DataError, match=r"^column 'time', row 7: cannot read timestamp 'garbage'"):
+        diagnose.read_loops(bad)
+    autumn = df.set_index(pd.date_range("2025-10-26 01:58", periods=len(df), freq="1s"))
+    with pytest.raises(diagnose.DataError, match=r"choose dst='earliest', 'latest' or 'infer' or give UTC times$"):
+        diagnose.read_loops(autumn, tz="Europe/Berlin", dst="raise")
+    for msg in msgs:
+        assert "--" not in msg and "tag map" not in msg
+
+
+def test_a_files_errors_still_name_the_command_line_flags(tmp_path, capsys):
+    rec = sticky_loop(3.0, 1.0, n=300, seed=1, name="FIC1")
+    path = tmp_path / "nopv.csv"
+    rec.to_frame().drop(columns=["PV"]).rename(columns={"OP": "FIC1.OP"}).to_csv(path)
+    assert main(["identify", str(path)]) != 0
+    assert capsys.readouterr().err.strip().endswith("name the columns with --op/--pv or give a tag map with --tags")
