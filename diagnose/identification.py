@@ -213,6 +213,7 @@ class Identification:
     Attributes
     ----------
     loop : str
+        The loop's name (tag).
     stiction : bool
         The combined verdict (`diagnose.verdict.combine`: the probability against its threshold,
         and the fit rule between 0.5 and the threshold).
@@ -221,8 +222,11 @@ class Identification:
         ``"unknown"`` when the verdict is stiction but its size or shape cannot be given (OP-only
         judgement, a fit that finds no valve band, or a stem that never moved: `valve_not_moving`).
     S_pct, J_pct : float or None
-        % of valve span, 0 when the class is ``none``, None when ``unknown``.
+        % of valve span (in OP's own units when `op_in_percent` is False), 0 when the class is
+        ``none``, None when ``unknown`` or when the verdict came from OP alone (``op_only``: no
+        model, so no size, whatever the verdict).
     S_interval_pct, J_interval_pct : (float, float) or None
+        The 95 % intervals of S and J, same units; None where S and J are.
     process : ProcessModel or None
         The linear process of the Hammerstein fit (None for an OP-only judgement).
     rmse, r2 : float or None
@@ -303,6 +307,7 @@ class Identification:
 
     @property
     def stiction_probability(self) -> float | None:
+        """The combined verdict's probability of stiction, 0..1 (None without a verdict)."""
         return None if self.verdict is None else self.verdict.stiction_probability
 
     @property

@@ -32,3 +32,18 @@ def test_the_api_page_runs_as_a_notebook(tmp_path, monkeypatch):
     assert ns["same"].method == "op_mv" and ns["berlin"].cls == fic103.cls
     assert ns["back"].n == ns["records"][0].n
     assert fic103.to_dict()["source"] is None and result.to_dict()["source"].endswith("dcs_2411FIC20102_stiction.txt")
+
+
+def test_the_confidence_caps_the_pages_list_include_a_stem_that_never_moved():
+    import numpy as np
+
+    from diagnose.identification import identify
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.02, load_walk_std=0.02, seed=2)
+    stuck = identify(rec.replace(mv=np.full(rec.n, 50.0)), class_test=False)
+    assert stuck.valve_not_moving and stuck.confidence == 0.7
+    pages = {p: (ROOT / "docs" / p).read_text(encoding="utf-8") for p in ("verdict.md", "fitting.md", "tutorial.md")}
+    for page, text in pages.items():
+        caps = re.search(r"capped (?:where|when) the data (?:are weak|weaken it).*?\n\n", text, flags=re.S)
+        assert caps and "valve_not_moving" in caps.group(0) and re.search(r"\b(0\.7|70 %)", caps.group(0)), page
