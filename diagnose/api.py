@@ -273,21 +273,33 @@ def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | No
         only; ``mv``: the valve alone (needs MV).
     train_fraction : float
         Leading fraction of the record the fits may use; the rest is held out (0.3 to 0.9).
-    hypotheses : sequence of str, optional
-        Hypotheses to test (default: all registered, `diagnose.physics.REGISTRY`).
+    hypotheses : sequence of str or str, optional
+        Hypotheses to test (default: all registered, `diagnose.physics.REGISTRY`); a string is one
+        name or a comma-separated list, as ``--hypotheses a,b``.
     min_reduction : float
         Smallest relative held-out RMSE reduction that names an effect (0 to 1).
 
     Returns
     -------
     diagnose.physics.Explanation
+
+    Raises
+    ------
+    DataError
+        The data cannot be read or judged, or an option is out of range (one line naming it).
     """
     from .physics import explain as explain_record
 
-    if not 0.3 <= train_fraction <= 0.9:
-        raise DataError(f"train_fraction {train_fraction}: use a value between 0.3 and 0.9")
-    if not 0.0 < min_reduction < 1.0:
-        raise DataError(f"min_reduction {min_reduction}: use a value between 0 and 1")
+    def fraction(v: Any) -> bool:
+        return not isinstance(v, bool) and isinstance(v, numbers.Real)
+
+    if not (fraction(train_fraction) and 0.3 <= train_fraction <= 0.9):
+        raise DataError(f"train_fraction={train_fraction!r} (--train-fraction): use a value between 0.3 and 0.9")
+    if not (fraction(min_reduction) and 0.0 < min_reduction < 1.0):
+        raise DataError(f"min_reduction={min_reduction!r} (--min-reduction): use a value between 0 and 1")
+    if isinstance(hypotheses, str):
+        # one name, or the command's comma-separated list: a bare string would be read letter by letter
+        hypotheses = [h.strip() for h in hypotheses.split(",") if h.strip()]
     rec, notes = load(data, "explained", op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, loop=loop, tz=tz, time=time,
                       dst=dst, tags=tags, format=format, max_samples=max_samples)
     result = explain_record(rec, target=target, train_fraction=train_fraction,

@@ -334,3 +334,19 @@ def test_a_files_errors_still_name_the_command_line_flags(tmp_path, capsys):
     rec.to_frame().drop(columns=["PV"]).rename(columns={"OP": "FIC1.OP"}).to_csv(path)
     assert main(["identify", str(path)]) != 0
     assert capsys.readouterr().err.strip().endswith("name the columns with --op/--pv or give a tag map with --tags")
+
+
+def test_explain_checks_its_own_options_and_takes_one_hypothesis_as_a_string(loop, monkeypatch):
+    import diagnose.physics
+
+    _, path, _, _ = loop
+    for kw, match in ((dict(train_fraction="0.5"), r"^train_fraction='0.5' \(--train-fraction\): use a value"),
+                      (dict(min_reduction="x"), r"^min_reduction='x' \(--min-reduction\): use a value"),
+                      (dict(train_fraction=True), r"^train_fraction=True ")):
+        with pytest.raises(diagnose.DataError, match=match):
+            diagnose.explain(path, **kw)
+    seen = []
+    monkeypatch.setattr(diagnose.physics, "explain", lambda rec, **kw: seen.append(kw["hypotheses"]) or "done")
+    assert diagnose.explain(path, hypotheses="actuator_lag") == "done"
+    assert diagnose.explain(path, hypotheses="actuator_lag, valve_characteristic") == "done"
+    assert seen == [["actuator_lag"], ["actuator_lag", "valve_characteristic"]]
