@@ -56,8 +56,12 @@ def _check_data(data: Any) -> None:
     # an array's repr runs to many lines; its type says enough
     shown = repr(data) if data is None or isinstance(data, numbers.Number) else \
         f"<{type(data).__module__}.{type(data).__qualname__}>"
+    hint = ""
+    if hasattr(data, "__len__") and not isinstance(data, (bytes, bytearray)):
+        # arrays, lists, a Series, a dict of columns: the roles need names and the samples a period
+        hint = " (for arrays: pandas.DataFrame({'OP': op, 'PV': pv}) with ts_s=SECONDS)"
     raise DataError(f"data={shown}: give a path (file or folder), a file object, a pandas DataFrame or a "
-                    "LoopRecord")
+                    f"LoopRecord{hint}")
 
 
 def check_read_options(options: Mapping[str, Any]) -> dict[str, Any]:

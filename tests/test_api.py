@@ -350,3 +350,11 @@ def test_explain_checks_its_own_options_and_takes_one_hypothesis_as_a_string(loo
     assert diagnose.explain(path, hypotheses="actuator_lag") == "done"
     assert diagnose.explain(path, hypotheses="actuator_lag, valve_characteristic") == "done"
     assert seen == [["actuator_lag"], ["actuator_lag", "valve_characteristic"]]
+
+
+@pytest.mark.parametrize("data", [np.zeros((100, 2)), [[1.0, 2.0]] * 100, {"OP": [1.0] * 100},
+                                  pd.Series(np.zeros(100))])
+def test_arrays_are_refused_with_how_to_make_them_a_frame(data):
+    with pytest.raises(diagnose.DataError, match=r"for arrays: pandas.DataFrame\(\{'OP': op, 'PV': pv\}\) "
+                                                 r"with ts_s=SECONDS\)$"):
+        diagnose.identify(data)
