@@ -41,6 +41,18 @@ def test_human_summary(sticky_csv, capsys):
     assert "FIC7: STICTION" in out and "S = " in out and "process:" in out
 
 
+def test_summary_gives_no_percent_sign_to_s_and_j_in_ops_own_units(tmp_path, capsys):
+    # OP in engineering units (here 0..400 for 0..100 %): S and J come out in OP's units, and the
+    # summary line must not call them % while saying they are not
+    rec = sticky_loop(4.0, 1.5, n=1500, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                      load_walk_std=0.01, seed=1, name="FIC7").replace(mv=None)
+    path = tmp_path / "eu.csv"
+    write_wide(rec.replace(op=4.0 * rec.op), path)
+    assert main(["identify", str(path)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("S = "))
+    assert "OP's own units" in line and "%" not in line.split("(")[0]
+
+
 def test_ts_seconds_overrides_the_sample_period(sticky_csv, capsys):
     assert main(["identify", str(sticky_csv), "--ts", "2", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
