@@ -229,6 +229,43 @@ def sticky_loop(S_pct: float, J_pct: float, *, n: int = 3000, ts_s: float = 1.0,
     ``u_balance_pct`` (default 50 %, so a stuck valve may never be asked to move: give a balance
     off 50 % for a level whose inflow the starting valve does not match, as
     ``stiction simulate --process integrating`` does).
+
+    Parameters
+    ----------
+    S_pct, J_pct : float
+        The valve's deadband plus stickband and its slip jump, % of valve span (0 and 0: a healthy
+        valve). A band wider than OP's swing leaves the stem stuck for the whole record.
+    n : int
+        Samples kept after the warm-up.
+    ts_s : float
+        Sample period, seconds.
+    gain : float
+        Process gain, PV units per % of valve travel (integrating: PV units per second per %).
+    tau_s, delay_s : float
+        Process time constant (integrating: its input lag) and dead time, seconds.
+    kind : {"foptd", "soptd", "integrating"}
+        Process structure (soptd: a second lag of ``tau_s / 4``).
+    noise_std : float
+        Standard deviation of white measurement noise on PV, PV units (0: none).
+    load_walk_std : float
+        Step size of a slowly leaking random-walk load on PV, PV units per sample (0: none).
+    f0 : {1, -1}
+        Direction of the valve's last motion before the record starts.
+    seed : int
+        Seed of the noise and the load.
+    name : str
+        Loop name of the record.
+    warmup : int
+        Samples simulated and dropped before the record starts.
+    Kc, Ti_s : float, optional
+        Controller gain (% per PV unit) and integral time (seconds) instead of the automatic tuning.
+    u_balance_pct : float, optional
+        Integrating only: the valve position at which PV holds still (default 50 %).
+
+    Returns
+    -------
+    LoopRecord
+        OP, PV, SP (constant) and MV (the true stem position), uniformly sampled.
     """
     process = make_process(kind, gain=gain, tau_s=tau_s, delay_s=delay_s,
                            bias=50.0 if kind == "integrating" else 0.0, u_balance_pct=u_balance_pct)
