@@ -14,6 +14,10 @@ case-insensitive.
   number where 0 = manual and any other value = automatic; the DCS export's ``.MODE`` 1 = auto).
 * DeltaV parameter paths end in a field: ``FIC-101/PID1/PV.CV`` is tag ``FIC-101/PID1``, suffix
   ``PV`` (``.CV``, the current value, of any role's parameter; ``MODE.ACTUAL`` for the mode).
+* A name with no ``.``, ``:`` or ``/`` may end in ``_`` and one of the abbreviations ``OP``, ``CO``,
+  ``MV`` (OP, as ``.MV``), ``PV``, ``SP``, ``SV``, ``POS``, ``ZT``, ``MODE``, ``MD`` (or ``OP_PCT``,
+  ``MV_PCT``): ``FIC_101_PV`` is tag ``FIC_101``, suffix ``PV``. Words (``_OUT``, ``_POSITION``)
+  are not read this way: ``REACTOR_TEMP_OUT`` is no controller output.
 * Units in brackets after a name are not part of it: ``FIC101.PV [m3/h]`` is ``FIC101.PV`` in m3/h.
 * Time: ``time``, ``timestamp``, ``datetime``, ``date_time``, ``t``, ``ts``, ``_time``.
 
@@ -34,6 +38,10 @@ TIME_NAMES = {"time", "timestamp", "datetime", "date_time", "t", "ts", "_time", 
 
 _ROLE_SUFFIXES = OP_SUFFIXES | MV_SUFFIXES | PV_SUFFIXES | SP_SUFFIXES | MODE_SUFFIXES | {"mv"}
 _SPLIT = re.compile(r"^(.*)[.:/]([^.:/]+)$")
+#: Suffixes read after an underscore (``FIC101_PV``), where names without a tag separator are
+#: common (SCADA tag names): abbreviations only, since words such as ``_OUT`` or ``_POSITION``
+#: also end names of other measurements (``REACTOR_TEMP_OUT``).
+_UNDERSCORE_SUFFIXES = {"op", "co", "op_pct", "mv", "pv", "sp", "sv", "pos", "zt", "mv_pct", "mode", "md"}
 
 
 #: DeltaV historian fields after a parameter path (``FIC-101/PID1/PV.CV``, ``.../MODE.ACTUAL``): the
@@ -63,7 +71,13 @@ def split_tag(name: str) -> tuple[str, str]:
             return param
     if m:
         return m.group(1), m.group(2).lower()
-    return "", name.lower()
+    low = name.lower()
+    if low not in _ROLE_SUFFIXES and low not in TIME_NAMES:
+        # the first underscore that leaves a tag before a role abbreviation: FIC_101_PV, TI101_SP
+        for i in (k for k, ch in enumerate(name) if ch == "_" and k > 0):
+            if low[i + 1:] in _UNDERSCORE_SUFFIXES:
+                return name[:i], low[i + 1:]
+    return "", low
 
 
 def role_of(name: str) -> str | None:

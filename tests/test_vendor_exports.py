@@ -121,3 +121,16 @@ def test_wincc_tag_logging_export():
     assert bad_values(rec)["pv"]["bad_quality"] == 1 and "op" not in bad_values(rec)
     first = (DATA / "wincc_taglogging.csv").read_text().splitlines()[1].split(";")
     assert rec.pv[0] == float(first[2].replace(",", "."))
+
+
+def test_scada_tag_names_with_an_underscore_before_the_role(tmp_path):
+    # InTouch-style tag names (FIC_301_PV): the role after the last underscore when it is one of
+    # the abbreviations; a word such as _OUT stays another measurement
+    f = tmp_path / "scada.csv"
+    rows = ["Time,FIC_301_PV,FIC_301_OP,FIC_301_SP,REACTOR_TEMP_OUT"]
+    rows += [f"2024-03-01 08:{k // 60:02d}:{k % 60:02d},{20 + np.sin(k / 9):.3f},{50 + 3 * np.cos(k / 9):.3f},20,"
+             f"{80 + k / 100:.2f}" for k in range(120)]
+    f.write_text("\n".join(rows) + "\n")
+    (rec,) = read_records(f)
+    assert rec.name == "FIC_301" and rec.n == 120
+    assert rec.meta["columns"] == {"pv": "FIC_301_PV", "op": "FIC_301_OP", "sp": "FIC_301_SP"}
