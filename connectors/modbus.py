@@ -348,6 +348,11 @@ class _Buffer:
         self.v: dict[str, list[float]] = {r: [] for r in ROLES}
 
 
+def _good(buf: _Buffer, i: int) -> bool:
+    """Poll ``i`` of the buffer read both OP and PV."""
+    return bool(np.isfinite(buf.v["op"][i]) and np.isfinite(buf.v["pv"][i]))
+
+
 class ModbusPoller:
     """Poll every configured loop and hand windows of samples on as `LoopRecord`s.
 
@@ -355,7 +360,7 @@ class ModbusPoller:
     ----------
     config : ModbusConfig
     on_window : callable(LoopRecord), optional
-        Called (from the event loop) with each usable stretch of a full window; may be a
+        Called (from the event loop) with each usable stretch of a window; may be a
         coroutine function.
     window_samples : int, optional
         Samples per window (default ``config.window_samples``).
@@ -541,6 +546,13 @@ class ModbusPoller:
             else:
                 st.failed += 1
             buf = self._buffers[lc.name]
+            if ok and not missed and buf.t and not _good(buf, -1):
+                # data are back after an outage: a new window starts here. The window is cut at
+                # the outage anyway; on fixed boundaries the stretch after it would end at the
+                # next one, too short to diagnose however long the data then run
+                if any(_good(buf, i) for i in range(len(buf.t))):
+                    self._emit(lc, buf)
+                buf = self._buffers[lc.name] = _Buffer()
             buf.t.append(t)
             for r in ROLES:
                 buf.v[r].append(vals.get(r, math.nan) if r in lc.registers else math.nan)

@@ -206,6 +206,39 @@ def test_server_restart_gives_a_gap_and_recovery(tmp_path):
     assert recs[-1].meta["t_first_s"] > recs[0].meta["t_last_s"]
 
 
+def test_a_new_window_starts_when_the_data_come_back(tmp_path):
+    # windows of 30 polls: the stretch after an outage runs to a full window of its own instead of
+    # ending at the next fixed boundary (short of the half window the monitor diagnoses)
+    port = free_port()
+    cfg = parse_modbus_config(tomllib.loads(default_config_text(port, 1, period_s=0.05, window_samples=30,
+                                                                timeout_s=0.2)))
+    cfg = type(cfg)(**{**cfg.__dict__, "reconnect_min_s": 0.05, "reconnect_max_s": 0.2})
+    args = ["--port", str(port), "--loops", "1", "--ts", "0.05", "--samples", "600"]
+    p, _ = start_server(args)
+    windows = []
+    poller = ModbusPoller(cfg, on_window=windows.append, min_samples=5)
+
+    async def scenario():
+        task = asyncio.ensure_future(poller.run(6.0, flush=False))
+        await asyncio.sleep(1.2)
+        stop(p)
+        await asyncio.sleep(1.0)
+        p2, _ = await asyncio.get_running_loop().run_in_executor(None, start_server, args)
+        try:
+            return await task, p2
+        except BaseException:
+            stop(p2)
+            raise
+
+    stats, p2 = asyncio.run(scenario())
+    stop(p2)
+    cut = next(i for i, r in enumerate(windows) if any(f.code == "gap" for f in r.findings))
+    after = windows[cut + 1:]
+    assert after and after[0].meta["t_first_s"] > windows[cut].meta["t_last_s"]
+    # the first window after the outage is whole: it starts at the first good poll
+    assert after[0].n == 30 and not any(f.code == "gap" for f in after[0].findings)
+
+
 def test_loops_sharing_a_pv_register_read_it_live(tmp_path):
     # split-range control: two valves, one flow transmitter; the same register read the same way
     port = free_port()
