@@ -44,7 +44,7 @@ import math
 import os
 import struct
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -125,6 +125,57 @@ class RegisterMap:
             lo, hi = self.range
             x = 100.0 * (x - lo) / (hi - lo)
         return x
+
+
+    def raw(self, x: float) -> float:
+        """The register number that `value` turns into ``x``."""
+        if self.range is not None:
+            lo, hi = self.range
+            x = lo + x * (hi - lo) / 100.0
+        return (x - self.offset) / self.scale
+
+
+def _implausible(x: np.ndarray) -> np.ndarray:
+    # what a 32-bit value read in the wrong word or byte order looks like: far beyond any process
+    # value, or a denormal next to zero
+    a = np.abs(x)
+    return ~np.isfinite(x) | (a > 1e6) | ((a > 0) & (a < 1e-20))
+
+
+def better_order(rm: RegisterMap, x: np.ndarray) -> tuple[str, float, float] | None:
+    """For a 32-bit register map whose values look like a wrong byte order: (the order under which
+    the same registers give plausible numbers, a value as read, the same value in that order), or
+    None."""
+    x = np.asarray(x, float)
+    seen = x[~np.isnan(x)]
+    if rm.count != 2 or seen.size == 0 or not _implausible(seen).mean() > 0.5:
+        return None
+    sample = seen[:: max(1, seen.size // 50)]
+    for order in ORDERS:
+        if order == rm.order:
+            continue
+        alt = replace(rm, order=order)
+        try:
+            y = np.array([alt.value(encode_value(rm.raw(v), rm.type, rm.order)) for v in sample])
+        except (OverflowError, ValueError, struct.error):
+            continue
+        if not _implausible(y).any():
+            return order, float(sample[0]), float(y[0])
+    return None
+
+
+def _order_findings(lc: "LoopConfig", v: Mapping[str, list[float]]) -> list[Finding]:
+    """One error finding per order to set, naming the keys read in a wrong byte order."""
+    by_order: dict[str, list[str]] = {}
+    for role, rm in lc.registers.items():
+        hit = better_order(rm, np.asarray(v[role], float))
+        if hit is not None:
+            order, was, now = hit
+            by_order.setdefault(order, []).append(f"loops.{lc.name}.{role} ({rm.type} {rm.order}: {was:.3g}, "
+                                                  f"{order}: {now:.4g})")
+    return [Finding("register_order", f"{', '.join(keys)} look read in the wrong byte order: set order = "
+                    f"\"{order}\" (or check the address)", "error", {"order": order})
+            for order, keys in by_order.items()]
 
 
 @dataclass(frozen=True)
@@ -367,7 +418,8 @@ class ModbusPoller:
     on_sample : callable(loop_name, t_s, values: dict), optional
         Called for every poll of every loop (NaN values when the read failed).
     on_error : callable(loop_name, ModbusReadError), optional
-        Called when a read fails with a configuration-type error (missing register, wrong id).
+        Called when a read fails with a configuration-type error (missing register, wrong id), and
+        once per loop when its registers look read in the wrong byte order.
     min_samples : int
         Shortest stretch of a window that is handed on (default 20).
     """
@@ -383,6 +435,7 @@ class ModbusPoller:
         self.min_samples = int(min_samples)
         self.stats: dict[str, LoopStats] = {name: LoopStats() for name in config.loops}
         self._buffers: dict[str, _Buffer] = {name: _Buffer() for name in config.loops}
+        self._order_said: set[str] = set()
         self._clients: dict[str, Any] = {}
         self.callback_errors: list[tuple[str, str]] = []  # (loop, error) from on_window
         self.cpu_s = 0.0
@@ -566,6 +619,12 @@ class ModbusPoller:
                 self._buffers[lc.name] = _Buffer()
 
     def _emit(self, lc: LoopConfig, buf: _Buffer) -> None:
+        if self.on_error is not None and lc.name not in self._order_said:
+            # said once per loop, from the whole window: garbage decodes to NaN now and then, which
+            # cuts the window into pieces too short to carry the finding
+            for f in _order_findings(lc, buf.v):
+                self._order_said.add(lc.name)
+                self.on_error(lc.name, ModbusReadError(f.message, path=self.config.path))
         for rec in window_records(lc, buf.t, buf.v, self.config.period_s, self.min_samples,
                                   source=self._source(lc)):
             self.stats[lc.name].windows += 1
@@ -631,7 +690,7 @@ def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]],
     lost = int(np.count_nonzero(~ok))
     tt = np.asarray(t, float)
     out = []
-    base: list[Finding] = []
+    base: list[Finding] = _order_findings(lc, v)
     if lost:
         gaps = runs(~ok)
         base.append(Finding("gap", f"{lost} of {n} polls failed or were missed ({len(gaps)} outage(s)); the "

@@ -228,6 +228,26 @@ def test_a_window_too_short_to_identify_is_refused_up_front(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("error: --window = 40 is too short")
 
 
+def test_registers_read_in_the_wrong_word_order_name_the_order_to_set(tmp_path, capsys):
+    # the simulator serves big-endian floats (ABCD); read word-swapped they are +-1e20-ish garbage,
+    # which identify would only refuse as an OP outside 0..100 %
+    port = free_port()
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(port, 1, period_s=0.04, window_samples=100, order="CDAB"))
+    sim = _start_sim(port)
+    try:
+        main(["monitor", str(cfg), "--duration", "6", "--out", str(tmp_path / "o"), "--no-history"])
+    finally:
+        _stop(sim)
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "wrong byte order" in ln]
+    assert len(lines) == 1, err                                  # once, not once per window
+    assert f" SIM000: {cfg}: loops.SIM000.op (float32 CDAB: " in lines[0]
+    assert "loops.SIM000.pv (float32 CDAB: " in lines[0]
+    assert lines[0].endswith('set order = "ABCD" (or check the address)')
+    assert "0..100" not in err
+
+
 def test_a_late_poll_is_not_an_outage_but_silence_or_an_error_is(tmp_path):
     import io
 

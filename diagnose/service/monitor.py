@@ -205,7 +205,8 @@ class Monitor:
         self.stats = MonitorStats()
         self.devices = {name: DeviceState(name, f"{d.host}:{d.port}") for name, d in self.config.devices.items()}
         self.poller = ModbusPoller(self.config, on_window=self._on_window, window_samples=self.window_samples,
-                                   on_sample=self._on_sample)
+                                   on_sample=self._on_sample, on_error=self._on_read_error)
+        self._said: set[tuple[str, str]] = set()
         self.history = None
         if history:
             from .history import History
@@ -289,8 +290,20 @@ class Monitor:
 
                 self._pool = ThreadPoolExecutor(1)
 
+    def _on_read_error(self, loop: str, exc: Exception) -> None:
+        # a configuration-type read error (missing register, wrong id, wrong byte order) comes
+        # back with every poll: each is logged once per loop
+        if (loop, str(exc)) not in self._said:
+            self._said.add((loop, str(exc)))
+            print(f"{_utc(time.time())} {loop}: {exc}", file=self.log, flush=True)
+
     def _on_window(self, record: Any) -> None:
         self.stats.windows += 1
+        if any(f.code == "register_order" for f in record.findings):
+            # garbage from a wrong byte order (said once by `_on_read_error`) would only fail as an
+            # OP outside 0..100 %
+            self.stats.failed += 1
+            return
         if record.n < self.min_samples:
             self.stats.skipped_short += 1
             return
