@@ -329,6 +329,39 @@ def test_a_tag_without_pv_is_listed_as_left_alone(tmp_path, capsys):
     assert "left alone: 1 file(s), a loop without PV: FIC8: plant.csv" in out
 
 
+def test_unreadable_folders_and_files_are_failed_rows_naming_them(plant, tmp_path, monkeypatch, capsys):
+    # root reads through chmod 000, so the refusal the kernel would give another user is simulated
+    logs = tmp_path / "logs"
+    (logs / "locked").mkdir(parents=True)
+    (logs / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
+    (logs / "FIC2.csv").write_bytes((plant / "logs" / "FIC2.csv").read_bytes())
+    (logs / "locked" / "FIC3.csv").write_bytes((plant / "logs" / "FIC3.csv").read_bytes())
+    real_scandir, real_digest = os.scandir, B._file_digest
+
+    def scandir(path="."):
+        if Path(path) == logs / "locked":
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_scandir(path)
+
+    def digest(path):
+        if path is not None and Path(path).name == "FIC2.csv":
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_digest(path)
+
+    monkeypatch.setattr(os, "scandir", scandir)
+    monkeypatch.setattr(B, "_file_digest", digest)
+    rc = main(["batch", str(logs), "--out", str(tmp_path / "out"), "--workers", "1", "--no-narx", "--no-pdf",
+               "--no-history", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    doc = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [r["loop"] for r in doc["loops"] if r["status"] == "ok"] == ["FIC1"]
+    errors = {r["loop"]: r["error"] for r in doc["loops"] if r["status"] != "ok"}
+    assert errors == {"FIC2": f"{logs / 'FIC2.csv'}: cannot read: Permission denied",
+                      "locked": f"{logs / 'locked'}: cannot read the folder: Permission denied"}
+    assert f"failed: locked ({logs / 'locked'}): {logs / 'locked'}: cannot read the folder" in err
+
+
 def test_out_must_be_a_folder(plant, tmp_path):
     taken = tmp_path / "loop.csv"
     taken.write_text("a file, not a folder")

@@ -125,10 +125,17 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
         seen.add(rp)
         files.append(p)
 
+    def unreadable(exc: OSError) -> None:
+        # os.walk skips a folder it cannot list without a word; a nightly job must say so
+        where = exc.filename or "?"
+        if not any(Path(where).resolve() == e or e in Path(where).resolve().parents for e in excl):
+            missing.append(failure_row(safe_name(Path(where).name), str(where),
+                                       f"{where}: cannot read the folder: {exc.strerror or exc}"))
+
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            for root, dirs, names in os.walk(p):
+            for root, dirs, names in os.walk(p, onerror=unreadable):
                 dirs[:] = sorted(d for d in dirs if not d.startswith("."))
                 if any(Path(root).resolve() == e or e in Path(root).resolve().parents for e in excl):
                     continue
@@ -181,6 +188,11 @@ def _one_line(exc: BaseException) -> str:
     if isinstance(exc, StictionError):
         return text or type(exc).__name__
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _read_error(path: Path, exc: OSError) -> str:
+    """One line for a file the batch cannot open, in the readers' words (``FILE: cannot read: ...``)."""
+    return f"{path}: cannot read: {exc.strerror or exc}"
 
 
 def failure_row(loop: str, source: str, error: str) -> dict[str, Any]:
@@ -894,7 +906,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
                 digest = _file_digest(f)
             except OSError as exc:
                 collect({"path": str(f), "digest": None,
-                         "rows": [failure_row(safe_name(f.stem), str(f), _one_line(exc))]})
+                         "rows": [failure_row(safe_name(f.stem), str(f), _read_error(f, exc))]})
                 continue
             done = _load_state(cfg, str(f), digest)
             if done is not None:
