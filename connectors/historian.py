@@ -63,9 +63,20 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     Text is written as UTF-8. The file gets the permissions the umask allows (as ``open`` would),
     not the 0600 of the temporary file it is renamed from.
     """
+    from diagnose.errors import ConnectorError
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    # the temporary file's name in an OSError means nothing to the user: name the file asked for
+    if path.is_dir():
+        raise ConnectorError("is a folder; give the name of the file to write", path=str(path))
+    above = next((p for p in path.parents if p.exists()), None)
+    if above is not None and not above.is_dir():
+        raise ConnectorError(f"cannot write: {above} is a file, not a folder", path=str(path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise ConnectorError(f"cannot write: {exc.strerror or exc}", path=str(path)) from None
     try:
         os.fchmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as fh:
@@ -73,9 +84,11 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, ConnectorError):
+            raise ConnectorError(f"cannot write: {exc.strerror or exc}", path=str(path)) from None
         raise
 
 

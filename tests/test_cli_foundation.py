@@ -83,6 +83,18 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     assert main(["no-such-command"]) == 2
 
 
+def test_an_output_that_cannot_be_written_is_named_not_its_temporary_file(tmp_path, capsys):
+    taken = tmp_path / "taken.csv"
+    taken.write_text("a file")
+    cases = ((tmp_path, f"error: {tmp_path}: is a folder; give the name of the file to write"),
+             (taken / "x.csv", f"error: {taken / 'x.csv'}: cannot write: {taken} is a file, not a folder"))
+    for out, says in cases:
+        assert main(["simulate", "--S", "3", "--J", "1", "--n", "100", "--out", str(out)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [says]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.csv"]    # no temporary file left
+
+
 def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path):
     # `stiction history | head -1`: stdout's reader is gone; no "error: [Errno 32] Broken pipe"
     from diagnose.service.history import History
