@@ -109,6 +109,18 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert err.startswith("error: no runs of loop 'NOPE'") and "FIC9" in err and "Traceback" not in err
 
 
+def test_cli_limit_keeps_the_last_runs_and_refuses_less_than_one(tmp_path, capsys):
+    db = tmp_path / "h.sqlite"
+    _fill(db, "FIC9", [1.0, 1.4, 2.1])
+    assert main(["history", "FIC9", "--db", str(db), "--limit", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split()[1] for ln in lines[2:]] == ["1.40", "2.10"]
+    for bad in ("0", "-1"):
+        assert main(["history", "FIC9", "--db", str(db), "--limit", bad]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "" and f"argument --limit: {bad} must be 1 or more" in captured.err
+
+
 def _dated(loop: str, S: float, start: str, h: str) -> dict:
     return {**_res(loop, S, h=h), "record": {"start": start, "n": 1441, "ts_s": 60.0}}
 
