@@ -45,6 +45,15 @@ def _seconds(values: Any, tz: str | None, dst: str, column: str) -> tuple[np.nda
     return out, True
 
 
+def _zone(values: Any, tz: str | None) -> str | None:
+    """How datetimes were read, as `parse_times` says it: "offset" for aware ones, else the zone of
+    naive ones (None for timedeltas)."""
+    dtype = getattr(values, "dtype", None)
+    if pd.api.types.is_timedelta64_dtype(dtype):
+        return None
+    return "offset" if getattr(dtype, "tz", None) is not None else (tz or "UTC")
+
+
 def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
     """The frame's columns as the named time series of a `Table` (what a layout parser gives)."""
     if not isinstance(df, pd.DataFrame):
@@ -57,7 +66,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
     tz, dst = options.get("tz"), options.get("dst", "infer")
     t = None
     absolute = False
-    tfmt = None
+    tfmt = tzone = None
     time_col = None
     if options.get("ts"):
         if options["ts"] not in names:
@@ -65,7 +74,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         time_col = names.index(options["ts"])
     elif isinstance(df.index, (pd.DatetimeIndex, pd.TimedeltaIndex)):
         t, absolute = _seconds(df.index, tz, dst, str(df.index.name or "index"))
-        tfmt = "index"
+        tfmt, tzone = "index", _zone(df.index, tz)
     elif not options.get("ts_s"):
         time_col = next((j for j, n in enumerate(names) if role_of(n) == "time" or is_time_header(n)
                          and role_of(n) is None), None)
@@ -73,12 +82,12 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         col = df.iloc[:, time_col]
         if pd.api.types.is_datetime64_any_dtype(col.dtype) or pd.api.types.is_timedelta64_dtype(col.dtype):
             t, absolute = _seconds(col, tz, dst, names[time_col])
-            tfmt = "datetime"
+            tfmt, tzone = "datetime", _zone(col, tz)
         else:
             values = col.to_numpy()
             pt = parse_times(values if values.dtype.kind in "fiu" else values.astype(object), tz=tz, dst=dst,
                              label=LABEL, column=names[time_col], lines=np.arange(len(df)) + 1)
-            t, absolute, tfmt = pt.seconds, pt.absolute, pt.fmt
+            t, absolute, tfmt, tzone = pt.seconds, pt.absolute, pt.fmt, pt.tz
     series = []
     for j, name in enumerate(names):
         if j == time_col:
@@ -92,7 +101,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         series.append(Series(name=name, t=t, x=num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                              n_blank=num.n_blank, examples=num.examples, first_line=None, column=name,
                              cells=num.text))
-    meta = {"format": "dataframe", "time_format": tfmt,
+    meta = {"format": "dataframe", "time_format": tfmt, "time_zone": tzone,
             "time_columns": [names[time_col]] if time_col is not None else []}
     return Table(series, LABEL, absolute, meta, raw_columns=names)
 

@@ -232,12 +232,12 @@ def _decimal_comma(rows: list[list[str]], cols: list[int], delimiter: str) -> bo
 
 
 def _times(cells: Any, lines: np.ndarray, label: str, column: str, options: dict,
-           decimal_comma: bool = False) -> tuple[np.ndarray, bool, str]:
+           decimal_comma: bool = False) -> tuple[np.ndarray, bool, str, str | None]:
     if decimal_comma:   # the file's decimal comma holds for a time column of numbers too
         cells = comma_times(_text(cells)) or cells
     pt = parse_times(cells, tz=options.get("tz"), dst=options.get("dst", "infer"), label=label,
                      column=column, lines=lines)
-    return pt.seconds, pt.absolute, pt.fmt
+    return pt.seconds, pt.absolute, pt.fmt, pt.tz
 
 
 def _text(col: np.ndarray) -> list[str]:
@@ -324,7 +324,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
     src.progress.say(f"{len(frame)} rows parsed; reading the times")
     t = None
     absolute = False
-    tfmt = None
+    tfmt = tzone = None
     if time_idx:
         if len(time_idx) == 2:
             cells = [f"{a.strip()} {b.strip()}".strip()
@@ -333,12 +333,12 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
         else:
             cells = cols[time_idx[0]]
             tname = header[time_idx[0]]
-        t, absolute, tfmt = _times(cells, lines, label, tname, options, dec)
+        t, absolute, tfmt, tzone = _times(cells, lines, label, tname, options, dec)
     series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
     for s in series:
         s.units = units.get(s.name) or strip_units(s.name)[1]
     meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
-            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt,
+            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "time_zone": tzone,
             "time_columns": [header[j] for j in time_idx]}
     if labels:
         meta["label_rows"] = [cells[0] for cells in labels]
@@ -398,7 +398,7 @@ def parse_long(src: Source, options: dict) -> Table:
         tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(_text(cols[time_j[0]]), _text(cols[time_j[1]]))]
     else:
         tcells = cols[time_j[0]]
-    t, absolute, tfmt = _times(tcells, lines, label, header[time_j[0]], options, dec)
+    t, absolute, tfmt, tzone = _times(tcells, lines, label, header[time_j[0]], options, dec)
     num = numbers(cols[val_j], dec)
     finite = np.isfinite(num.values)
     bad_q = np.zeros(len(frame), bool)
@@ -439,7 +439,7 @@ def parse_long(src: Source, options: dict) -> Table:
                              examples=examples, first_line=int(lines[idx[0]]), column=header[val_j],
                              cells=cells))
     meta = {"format": "long", "delimiter": delimiter_name(head.delimiter), "decimal": "," if dec else ".",
-            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "quality_scheme": scheme,
+            "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "time_zone": tzone, "quality_scheme": scheme,
             "quality_column": header[q_j] if q_j is not None else None}
     return Table(series, label, absolute, meta, raw_columns=header)
 
@@ -466,7 +466,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
         raise ConnectorError("header only, no data rows", path=label, line=head.header_lines[0] + 1)
     series: list[Series] = []
     absolute = False
-    tfmt = None
+    tfmt = tzone = None
     j = 0
     while j < len(header):
         if not is_time_header(header[j]) or j + 1 >= len(header):
@@ -486,7 +486,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
             tl = lines[keep]
             vcells = np.array(_text(cols[j + 1]), dtype=object)[keep]
             dec = _decimal_comma([[c] for c in vcells[:: max(1, keep.size // 100)][:100]], [0], head.delimiter)
-            tt, absolute, tfmt = _times([tcells[k] for k in keep], tl, label, header[j], options, dec)
+            tt, absolute, tfmt, tzone = _times([tcells[k] for k in keep], tl, label, header[j], options, dec)
             num = numbers(vcells, dec)
             series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                                  n_blank=num.n_blank, examples=num.examples, first_line=int(tl[0]),
@@ -496,7 +496,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
         raise ConnectorError("no timestamp/value column pairs found for the ragged layout", path=label,
                              line=head.header_lines[0] + 1)
     meta = {"format": "ragged", "delimiter": delimiter_name(head.delimiter), "encoding": src.encoding,
-            "bom": src.bom, "time_format": tfmt}
+            "bom": src.bom, "time_format": tfmt, "time_zone": tzone}
     return Table(series, label, absolute, meta, raw_columns=[s.name for s in series])
 
 
@@ -559,18 +559,18 @@ def parse_influx(src: Source, options: dict) -> Table:
     if not groups:
         raise ConnectorError("InfluxDB CSV without data rows", path=label)
     series = []
-    absolute, tfmt = True, None
+    absolute, tfmt, tzone = True, None, None
     for name, parts in groups.items():
         tc = np.concatenate([p[0] for p in parts])
         vc = np.concatenate([p[1] for p in parts])
         rows = np.concatenate([p[2] for p in parts])
-        tt, absolute, tfmt = _times(tc, line[rows], label, "_time", options)
+        tt, absolute, tfmt, tzone = _times(tc, line[rows], label, "_time", options)
         num = numbers(vc)
         series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                              n_blank=num.n_blank, examples=num.examples, first_line=int(line[rows[0]]),
                              column=name))
     meta = {"format": "influx", "delimiter": "comma", "encoding": src.encoding, "bom": src.bom,
-            "time_format": tfmt}
+            "time_format": tfmt, "time_zone": tzone}
     return Table(series, label, absolute, meta, raw_columns=list(groups))
 
 

@@ -328,7 +328,11 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(Finding("duplicates", f"{n_dups} duplicated timestamps; the first value of each was kept",
                                 "info", {"count": n_dups}))
     back = next((c.clock_back_s for r, c in cleaned.items() if r in ("op", "pv") and c.clock_back_s is not None), None)
-    if back is not None:
+    # only naive times read as UTC can hide a clock change that --tz would undo: times with an offset,
+    # epoch numbers or times already read in a zone stepping back are something else
+    wall_clock = (table is not None and table.meta.get("time_zone") == "UTC" and not options.get("tz")
+                  and table.meta.get("time_format") not in ("epoch_s", "epoch_ms"))
+    if back is not None and wall_clock:
         at = iso_utc(back).replace("T", " ").rstrip("Z")
         findings.append(Finding(
             "clock_back", f"the time stamps step back by up to an hour once, after {at}, as a local clock does "

@@ -428,7 +428,10 @@ class Cleaned:
 def clock_back(t: np.ndarray) -> float | None:
     """The stamp (seconds) after which the time stamps, in file order, step back by half an hour
     to an hour once and run on in order: local wall-clock time read without its zone, where daylight
-    saving time ends (02:59:50 -> 02:00:00). None otherwise. Newest-first files mirror it."""
+    saving time ends (02:59:50 -> 02:00:00). None otherwise. Newest-first files mirror it.
+
+    The stretch after the step must start within the stretch before it, as a repeated hour does: two
+    pieces of an export pasted in the wrong order step back too, but repeat nothing."""
     t = t[np.isfinite(t)]
     if t.size < 3:
         return None
@@ -436,7 +439,9 @@ def clock_back(t: np.ndarray) -> float | None:
     for sign in (1.0, -1.0):
         back = np.flatnonzero(sign * d < 0)
         if back.size == 1 and 1800.0 <= -sign * d[back[0]] <= 3600.0:
-            return float(t[back[0]])
+            k = int(back[0])
+            if sign * t[k + 1] >= sign * t[0]:
+                return float(t[k])
     return None
 
 

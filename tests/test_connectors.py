@@ -162,6 +162,37 @@ def test_clock_back_is_one_step_back_of_half_an_hour_to_an_hour():
     assert clock_back(np.concatenate((t[:100], t[95:]))) is None         # a stray row, not a clock change
     twice = np.concatenate((t[:360], t[:360], t[:360]))
     assert clock_back(twice) is None                                     # two exports pasted together
+    swapped = np.concatenate((t[200:560], t[:200]))                       # pieces pasted in the wrong order
+    assert clock_back(swapped) is None and clock_back(swapped[::-1]) is None
+
+
+def _stamped_csv(path, stamps, rng):
+    op = 50 + np.cumsum(rng.normal(0, 0.3, stamps.size))
+    pv = op + rng.normal(0, 0.1, stamps.size)
+    lines = ["time,FIC7.OP,FIC7.PV"] + [f"{s},{o:.4f},{v:.4f}" for s, o, v in zip(stamps, op, pv)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_clock_back_is_said_only_of_naive_times_that_repeat_a_stretch(tmp_path):
+    # a DST change read without --tz repeats an hour; pieces pasted out of order, or times with an
+    # offset, step back too but --tz would not help them, and nothing was dropped from the former
+    rng = np.random.default_rng(3)
+    base = np.datetime64("2026-01-01T00:00:00") + np.arange(3000).astype("timedelta64[s]")
+    text = np.datetime_as_string(base, unit="s")
+    cases = {"swapped_Z.csv": np.concatenate((text[1500:], text[:1500])) + "Z",
+             "swapped.csv": np.concatenate((text[1500:], text[:1500])),
+             "overlap_Z.csv": np.concatenate((text[:2400], text)) + "Z",
+             "overlap.csv": np.concatenate((text[:2400], text))}
+    said = {}
+    for name, stamps in cases.items():
+        _stamped_csv(tmp_path / name, stamps, rng)
+        (rec,) = read_records(tmp_path / name)
+        said[name] = "clock_back" in codes(rec)
+        if name.startswith("swapped"):
+            assert rec.n == 3000 and "duplicates" not in codes(rec)
+    assert said == {"swapped_Z.csv": False, "swapped.csv": False, "overlap_Z.csv": False, "overlap.csv": True}
+    (rec,) = read_records(tmp_path / "overlap.csv", tz="Europe/Berlin")   # read in its zone: no DST in January
+    assert "clock_back" not in codes(rec)
 
 
 def test_dst_spring_forward_gap_is_shifted():
