@@ -554,3 +554,13 @@ def test_a_valve_that_never_moved_is_reported_and_summarised_without_a_class(tmp
     assert row["class"] == "unknown" and row["J_hi"] is None and row["S_hi"] is None
     summary = report.to_markdown(report.summary_blocks([row]))
     assert "| unknown |" in summary and "never moved" in summary and "deadband" not in summary
+
+
+def test_evidence_numbers_show_the_gate_of_the_bicoherence_index():
+    from diagnose.evidence.result import Evidence
+
+    # NLI above its threshold, yet no stiction: the signal is Gaussian (NGI under its own threshold)
+    ev = Evidence("choudhury_bicoherence", 0.117, 0.01, "no_stiction", "PV is Gaussian by its bicoherence",
+                  extras={"NGI": -0.0455, "NLI": 0.117, "NGI_threshold": 0.001})
+    (row,) = report.evidence_rows(SimpleNamespace(evidence=(ev,), verdict=None), numbers=True)
+    assert row[1:] == ["no stiction", "0.117", "0.01, once NGI > 0.001 (NGI here -0.0455)"]

@@ -185,6 +185,11 @@ def evidence_rows(ident: Identification, *, numbers: bool = False) -> list[list[
         if numbers:
             low = ev.extras.get("threshold_low")
             thr = number(ev.threshold) + ("" if low is None else f" (no stiction at {number(low)} or below)")
+            gate = ev.extras.get("NGI_threshold")
+            if gate is not None and ev.extras.get("NGI") is not None:
+                # the index (NLI) counts only for a non-Gaussian signal: without this, an NLI above
+                # its threshold beside "no stiction" reads as a contradiction
+                thr += f", once NGI > {number(gate)} (NGI here {number(ev.extras['NGI'])})"
             row += [number(ev.value), thr]
         else:
             row.append(ev.note)
