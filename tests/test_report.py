@@ -564,3 +564,13 @@ def test_evidence_numbers_show_the_gate_of_the_bicoherence_index():
                   extras={"NGI": -0.0455, "NLI": 0.117, "NGI_threshold": 0.001})
     (row,) = report.evidence_rows(SimpleNamespace(evidence=(ev,), verdict=None), numbers=True)
     assert row[1:] == ["no stiction", "0.117", "0.01, once NGI > 0.001 (NGI here -0.0455)"]
+
+
+def test_summary_words_probabilities_as_the_loop_reports_do():
+    row = {"loop": "FIC7", "status": "ok", "rank": 1, "severity": 74.9, "class": "undershoot", "S_pct": 5.0,
+           "J_pct": 2.0, "stiction_probability": 0.9979, "confidence": 0.9979, "sticky": True,
+           "data_quality_warnings": 0, "report": "loops/FIC7/FIC7.md"}
+    healthy = dict(row, loop="FIC8", rank=2, severity=0.0, stiction_probability=0.0004, confidence=0.9996,
+                   sticky=False, **{"class": "none"})
+    table = next(b for b in report.summary_blocks([row, healthy]) if b[0] == "table")
+    assert [r[6:8] for r in table[2]] == [["> 99 %", "> 99 %"], ["< 1 %", "> 99 %"]]

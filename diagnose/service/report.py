@@ -422,7 +422,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
             blocks.append(("strong", degradation))
         blocks.append(("table", ["Record end", "S %", "J %", "Class", "Confidence", "Run"],
                        [[str(r.get("data_end") or "-")[:19], fmt(r.get("S_pct")), fmt(r.get("J_pct")),
-                         fmt(r.get("class")), fmt(r.get("confidence"), ".0%"), str(r.get("run_at", ""))[:19]]
+                         fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]]
                         for r in history_rows]))
         if "history" in figs:
             blocks.append(("figure", "history", FIGURE_CAPTIONS["history"]))
@@ -474,7 +474,8 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
             osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".1f"), fmt(r.get("class")),
                       fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units,
-                      fmt(r.get("stiction_probability"), ".0%"), fmt(r.get("confidence"), ".0%"),
+                      # as the loop's own report words them: a rounded "100%" reads as a certainty
+                      percent(r.get("stiction_probability")), percent(r.get("confidence")),
                       osc,
                       fmt(r.get("data_quality_warnings"), "d") + (" (degrading)" if r.get("degradation") else "")])
     blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "P(stiction)", "Conf.", "Oscillation",
