@@ -424,7 +424,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(Finding("segment", f"split into {len(usable)} segment(s) at gaps longer than "
                                 f"{max_gap_s:g} s (longest gap {max(gap_s, default=0):g} s"
                                 + (f"; {dropped} stretch(es) under {min_samples} samples dropped" if dropped else "")
-                                + "); each segment is diagnosed on its own",
+                                + "); each segment is a record of its own (identify takes the longest, "
+                                "batch diagnoses each)",
                                 "warning", {"segments": len(usable), "dropped": dropped,
                                             "gaps_s": [round(g, 3) for g in gap_s][:50],
                                             "max_gap_s": max_gap_s}))

@@ -117,3 +117,17 @@ def test_several_loops_need_loop_and_segments_take_the_longest():
         select_record(recs, "C", "f.csv")
     rec, notes = select_record([_rec("A", 100, 0), _rec("A", 300, 1), _rec("B", 50)], "A", "f.csv")
     assert rec.n == 300 and notes[0]["code"] == "segments"
+
+
+def test_a_gapped_record_is_not_said_to_be_diagnosed_segment_by_segment(tmp_path, capsys):
+    # identify takes the longest segment; the reader's finding must not claim each one is diagnosed
+    rec = sticky_loop(4.0, 1.5, n=1200, noise_std=0.02, load_walk_std=0.01, seed=2, name="FIC8").replace(mv=None)
+    path = tmp_path / "gapped.csv"
+    write_wide(rec, path)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:401] + lines[461:]) + "\n")      # a minute missing after 400 rows
+    assert main(["identify", str(path)]) == 0
+    out = capsys.readouterr().out
+    seg = next(ln for ln in out.splitlines() if "[data_quality.segment]" in ln)
+    assert "diagnosed on its own" not in seg and "identify takes the longest" in seg
+    assert "identified the longest (740 samples)" in out
