@@ -12,8 +12,7 @@ alone. The search strategies are `diagnose.search`; `fit_hammerstein` composes t
    each class band refined with its own structure;
 5. on long records (``max_samples``) and with ``windows``, the same search on windows of the record,
    each result refined on the whole record from its own start state, the cheapest kept;
-6. where the best is an FOPTD whose lag outgrows a quarter of the record, the integrating kind
-   searched from the same valve (`integrator_check`);
+6. the best valve under every other process kind of the model space (`kind_check`);
 7. a local (S, J, f0) zoom and a final Nelder-Mead, the error surface at the final structure, and
    intervals from it.
 
@@ -41,7 +40,7 @@ from .objective import (Candidate, Objective, ProcessGrid, burn_in, legendre_bas
 from .parallel import thread_map
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
-                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, integrator_check, linear_fit,
+                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, kind_check, linear_fit,
                      nelder_mead, noise_costs, noise_model, polish_structure, refine_many, resolve, search_windows,
                      shape_bands, shape_profile, start_state, widest_window, zoom)
 from .stiction_model import stiction_batch
@@ -410,7 +409,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     # the looks are independent: on several cores they run side by side
     candidates += thread_map(look, spans, threads)
     best, obj, x0 = min(candidates, key=lambda c: c[0].sse)
-    best = integrator_check(obj, best, lim, search.polish, stiction)
+    best = kind_check(obj, best, lim, search.polish, stiction)
     if stiction and best.S_pct > 0:
         best = zoom(obj, best, lim, search.zoom)
         if not lim.fixed:

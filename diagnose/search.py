@@ -187,28 +187,36 @@ def polish_structure(obj: Objective, cand: Candidate, lim: Limits) -> Candidate:
     return best if best.sse < cand.sse else cand
 
 
-def integrator_check(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig",
-                     stiction: bool = True) -> Candidate:
-    """An FOPTD whose lag outgrows the lag grid (a quarter of the record) integrates over the
-    record: the integrating kind is searched from the same valve, over input lags up to a sixteenth
-    of the record and every dead time up to the FOPTD's own plus three samples (the long lag leaves
-    the input lag to the dead time), then refined as the search refines; the better of the two is
-    returned. A level loop otherwise tends to come out as a first-order lag of hours that hides
-    its input lag and reads the dead time long."""
-    kind, tau, _, dd = cand.structure
-    span = lim.n * lim.ts_s
-    if lim.fixed or kind != "foptd" or "integrating" not in lim.kinds or tau < span / 4.0:
+def kind_check(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig",
+               stiction: bool = True) -> Candidate:
+    """The candidate's valve under every other process kind of the model space: that kind's full
+    structure grid, then Nelder-Mead, a structure polish and Nelder-Mead; the cheapest of all.
+
+    The searches before pick the kind with the structures they try, and the basin of the right kind
+    can lie outside them: a level loop ends as a first-order lag of hours with its input lag read
+    as dead time, and a training span of a first-order loop as an integrator that misses the
+    held-out part by many times PV's spread."""
+    if lim.fixed or len(lim.kinds) < 2:
         return cand
-    lags = np.geomspace(0.5 * lim.ts_s, max(span / 16.0, lim.ts_s), 9)
-    keys = [("integrating", float(t), 0.0, d) for t in lags
-            for d in range(lim.dmin, max(lim.dmin, min(lim.dmax, int(dd) + 3)) + 1)]
-    alt = best_structure(obj, cand.S_pct, cand.J_pct, cand.f0, lim.grid(keys))
-    if stiction:
-        alt = nelder_mead(obj, alt, lim, cfg)
-    alt = polish_structure(obj, alt, lim)
-    if stiction:
-        alt = nelder_mead(obj, alt, lim, cfg)
-    return alt if alt.sse < cand.sse else cand
+    best = cand
+    for kind in lim.kinds:
+        keys = [k for k in lim.process.keys if k[0] == kind]
+        if kind == cand.structure[0] or not keys:
+            continue
+        alt = polish_structure(obj, best_structure(obj, cand.S_pct, cand.J_pct, cand.f0, lim.grid(keys)), lim)
+        if stiction and alt.sse < KIND_CHECK_MARGIN * best.sse:
+            # near enough at the other kind's valve to be worth refining (lags and valve co-adapt)
+            alt = nelder_mead(obj, alt, lim, cfg)
+            alt = polish_structure(obj, alt, lim)
+            alt = nelder_mead(obj, alt, lim, cfg)
+        if alt.sse < best.sse:
+            best = alt
+    return best
+
+
+#: `kind_check` refines another kind's structure when, at the candidate's valve, it costs less
+#: than this many times the candidate.
+KIND_CHECK_MARGIN = 1.1
 
 
 def linear_fit(obj: Objective, lim: Limits) -> Candidate:

@@ -502,6 +502,23 @@ def test_explain_scales_a_fraction_op_by_the_stem_position():
     assert "op_rescaled" not in {w.code for w in explain(rec, target="mv", hypotheses=["asymmetric_stiction"]).warnings}
 
 
+def test_a_healthy_sample_loop_is_left_alone_without_an_unexplained_warning():
+    # FIC101: a healthy valve whose stem follows OP exactly and a PV that is mostly noise. The
+    # residual is the noise, so nothing is unexplained, and an exact stem model leaves nothing to
+    # improve: no relative change of the stem's error may read as millions of per cent
+    from pathlib import Path
+
+    import diagnose
+
+    (rec,) = diagnose.read_loops(Path(__file__).resolve().parents[1] / "sample_logs" / "FIC101.csv")
+    ex = explain(rec)
+    assert ex.missing_physics is None
+    assert "physics.unexplained" not in {w.code for w in ex.warnings}
+    mv = [h for h in ex.hypotheses if h.stage == "valve"]
+    assert mv and all(abs(h.reduction) < 0.05 for h in mv)
+    assert "-0 %" not in ex.explanation
+
+
 def test_explain_rejects_what_it_cannot_use():
     rec, _ = concealed_loop("none", 1, n=200)
     with pytest.raises(DataError, match="at least"):

@@ -297,6 +297,16 @@ _COST_RANK = {"external_disturbance": 4, "time_varying_friction": 3, "valve_char
               "asymmetric_stiction": 1}
 
 
+def _noise_like(e: np.ndarray) -> bool:
+    """A residual no bigger than twice its own sample-to-sample noise (``std(diff e) / sqrt 2``,
+    the RMS of white noise): what is left is measurement noise, not a miss. A regulated PV that is
+    mostly noise otherwise reads as a baseline that misses half of it."""
+    if e.size < 3:
+        return True
+    white = float(np.std(np.diff(e))) / math.sqrt(2.0)
+    return float(np.sqrt(np.mean(e * e))) <= 2.0 * white
+
+
 def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypothesis], ref_sse: float,
            min_reduction: float, threads: int) -> None:
     """Judge the reference and every fitted hypothesis on the held-out part by their
@@ -313,6 +323,10 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
     n_eff = effective_n(e_ref)
     run.n_eff = n_eff
     ref_tr_rms = math.sqrt(ref_sse / max(int(stage.train.sum()), 1))   # for the materiality rules
+    # a reference that reproduces the held-out part to rounding (a noise-free stem) leaves nothing
+    # to improve: changes are taken against at least a thousandth of the signal's spread, not
+    # against the rounding error itself
+    floor = 1e-3 * (float(np.std(stage.y[ho])) or 1.0)
     plc = run.mismatch.limit_cycle_period_s
     for fitted, y_hat in zip(fits, means[1:]):
         h = by_name[fitted.name]
@@ -320,7 +334,7 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
         e = (stage.y - y_hat)[ho]
         sse = float(e @ e)
         r_h = rmse(e)
-        red = 1.0 - r_h / ref_rmse if ref_rmse > 0 else 0.0
+        red = (ref_rmse - r_h) / max(ref_rmse, floor)
         # independent samples: counted on the better model's residual (a missing effect leaves the
         # reference's residual slow and correlated; the right model's is closer to the noise)
         n_h = max(n_eff, effective_n(e)) if sse < sse_ref else n_eff
@@ -504,7 +518,7 @@ def _assemble(record: LoopRecord, runs: dict[str, _StageRun], hyps: Sequence[Phy
                 "the fitted lag is shorter than one sample; the sampling is too coarse to resolve it"))
     else:
         ss = np.std(stage.y[stage.heldout]) or 1.0
-        if min(base_rmse, run.ref_rmse) > 0.5 * ss:
+        if min(base_rmse, run.ref_rmse) > 0.5 * ss and not _noise_like((stage.y - run.ref_hat)[stage.heldout]):
             warn.append(ExplainWarning(
                 "physics.unexplained",
                 "the baseline misses much of the held-out data but no hypothesis explains it significantly; "
@@ -584,7 +598,7 @@ def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: 
         desc = REGISTRY[h.name].description if h.name in REGISTRY else h.name
         parts.append(f"Missing physics: {h.name} ({desc}; {_fmt_params(h.params)}). "
                      f"With it the held-out RMSE falls to {improved_rmse:.4g} "
-                     f"({-100 * (1 - improved_rmse / base_rmse) if base_rmse > 0 else 0:+.0f} % against the baseline).")
+                     f"({percent_change(improved_rmse / base_rmse - 1.0 if base_rmse > 0 else 0.0)} against the baseline).")
     else:
         # by the relative change: the stages' RMSEs are in different units (PV units, % of span)
         best = max((t[2] for r in runs.values() for t in r.fitted), key=lambda h: h.reduction,
@@ -592,7 +606,7 @@ def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: 
         if best is not None:
             on = "MV" if best.target == "mv" else "PV"
             parts.append(f"No missing physics named: the best hypothesis ({best.name}) changes the held-out "
-                         f"RMSE of {on} by {-100 * best.reduction:+.0f} % against the plain model refit on "
+                         f"RMSE of {on} by {percent_change(-best.reduction)} against the plain model refit on "
                          f"{on}" + (f"; refused: {best.refused}." if best.refused else "."))
         else:
             parts.append("No hypothesis was tested.")
