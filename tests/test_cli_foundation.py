@@ -83,6 +83,42 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     assert main(["no-such-command"]) == 2
 
 
+@pytest.mark.parametrize("flag,value,says", [
+    ("--noise", "-1", "0 or more"), ("--load", "-0.5", "0 or more"), ("--noise", "nan", "0 or more"),
+    ("--n", "10", "50 or more"), ("--ts-s", "0", "more than 0 seconds"), ("--delay-s", "-1", "0 seconds or more"),
+    ("--tau-s", "-2", "0 seconds or more"), ("--gain", "0", "other than 0"),
+])
+def test_simulate_refuses_a_bad_flag_value_as_a_usage_error_naming_the_flag(tmp_path, capsys, flag, value, says):
+    from diagnose.objective import MIN_SAMPLES
+
+    out = tmp_path / "x.csv"
+    assert main(["simulate", "--S", "3", "--J", "1", flag, value, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]   # argparse's usage synopsis comes first, as for every command
+    assert last.startswith(f"stiction simulate: error: argument {flag}") and f"{value}: give" in last
+    assert says.replace("50", str(MIN_SAMPLES)) in last
+    assert "Traceback" not in err and "ts_s" not in err and not out.exists()
+
+
+def test_simulate_writes_the_shortest_record_identify_takes_and_help_gives_the_defaults(tmp_path, capsys):
+    from diagnose.objective import MIN_SAMPLES
+
+    out = tmp_path / "x.csv"
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", str(MIN_SAMPLES), "--out", str(out)]) == 0
+    assert read_wide(out).n == MIN_SAMPLES
+    assert main(["identify", str(out), "--json"]) == 0   # the shortest simulation is one identify takes
+    capsys.readouterr()
+    # a foptd process with no time constant: named by its flag, not the simulator's tau_s
+    assert main(["simulate", "--S", "3", "--J", "1", "--tau-s", "0", "--out", str(tmp_path / "y.csv")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --tau-s 0: ")
+    assert main(["simulate", "--help"]) == 0
+    help_ = " ".join(capsys.readouterr().out.split())
+    for flag, default in (("--tau-s", "20.0"), ("--delay-s", "3.0"), ("--n", "3000"), ("--noise", "0.02"),
+                          ("--load", "0.01")):
+        assert re.search(rf"{flag} \S+ (?:(?! --).)*?\(default {re.escape(default)}\)", help_), flag
+
+
 def test_an_output_that_cannot_be_written_is_named_not_its_temporary_file(tmp_path, capsys):
     taken = tmp_path / "taken.csv"
     taken.write_text("a file")

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from typing import Callable
 
 from ...errors import DataError
+from ...objective import MIN_SAMPLES
 
 #: Largest S and J, % of valve span: the simulated loop runs at mid-span, and a wider band than
 #: half the span drives OP into its limits (the loop then says nothing about stiction).
@@ -20,20 +23,69 @@ MAX_SJ_PCT = 50.0
 INTEGRATING_BALANCE_PCT = 51.0
 
 
+def _number(low: float, *, above: bool = False, what: str) -> Callable[[str], float]:
+    """An argparse type: a finite number >= ``low`` (``above``: > ``low``). Checked while parsing,
+    so a bad value is a usage error (exit 2) naming the flag, as every command's bad flag values are,
+    and not a domain error from deep in the simulator that names its parameter instead."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number; give {what}") from None
+        if not math.isfinite(v) or v < low or (above and v == low):
+            raise argparse.ArgumentTypeError(f"{text}: give {what}")
+        return v
+    return parse
+
+
+def _samples(text: str) -> int:
+    # identify refuses a shorter record, so a shorter simulation is a file nothing can diagnose
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give {MIN_SAMPLES} or more "
+                                         "samples") from None
+    if n < MIN_SAMPLES:
+        raise argparse.ArgumentTypeError(f"{text}: give {MIN_SAMPLES} or more samples (identify needs "
+                                         f"at least {MIN_SAMPLES})")
+    return n
+
+
+def _gain(text: str) -> float:
+    # a zero gain has no controller tuning (SIMC divides by it): a traceback, not a loop
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number; give a process gain other than 0") from None
+    if not math.isfinite(v) or v == 0:
+        raise argparse.ArgumentTypeError(f"{text}: give a process gain other than 0 (negative: a "
+                                         "reverse-acting process)")
+    return v
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--S", type=float, required=True, help="deadband + stickband, %% of valve span (0 to 50)")
     p.add_argument("--J", type=float, required=True, help="slip jump, %% of valve span (0 to 50)")
     p.add_argument("--process", choices=["foptd", "soptd", "integrating"], default="foptd",
                    help="process model (default foptd: first order plus dead time; integrating: a level "
                         f"balanced at {INTEGRATING_BALANCE_PCT:g} %% of valve span, the valve starting at 50 %%)")
-    p.add_argument("--gain", type=float, default=None,
+    p.add_argument("--gain", type=_gain, default=None,
                    help="process gain, PV units per %% (integrating: per %% per second); default 1 (0.02)")
-    p.add_argument("--tau-s", type=float, default=20.0, help="process time constant, seconds")
-    p.add_argument("--delay-s", type=float, default=3.0, help="process dead time, seconds")
-    p.add_argument("--ts-s", "--ts", dest="ts_s", type=float, default=1.0, help="sample period, seconds")
-    p.add_argument("--n", type=int, default=3000, help="number of samples")
-    p.add_argument("--noise", type=float, default=0.02, help="measurement noise std, PV units")
-    p.add_argument("--load", type=float, default=0.01, help="random-walk load increment std, PV units")
+    p.add_argument("--tau-s", type=_number(0.0, what="a time constant of 0 seconds or more (more than 0 "
+                                                       "unless --process integrating)"),
+                   default=20.0, help="process time constant (integrating: its input lag), seconds "
+                                      "(default %(default)s)")
+    p.add_argument("--delay-s", type=_number(0.0, what="a dead time of 0 seconds or more"), default=3.0,
+                   help="process dead time, seconds (default %(default)s)")
+    p.add_argument("--ts-s", "--ts", dest="ts_s", type=_number(0.0, above=True, what="a sample period of more "
+                                                                                      "than 0 seconds"),
+                   default=1.0, help="sample period, seconds (default %(default)s)")
+    p.add_argument("--n", type=_samples, default=3000,
+                   help=f"number of samples, {MIN_SAMPLES} or more (default %(default)s)")
+    p.add_argument("--noise", type=_number(0.0, what="a noise std of 0 or more PV units (0: no noise)"),
+                   default=0.02, help="measurement noise std, PV units (default %(default)s)")
+    p.add_argument("--load", type=_number(0.0, what="a load step std of 0 or more PV units (0: no load)"),
+                   default=0.01, help="random-walk load increment std, PV units (default %(default)s)")
     p.add_argument("--f0", type=int, choices=[-1, 1], default=1, help="valve's starting direction")
     p.add_argument("--kc", type=float, default=None, help="controller gain (default: SIMC tuning)")
     p.add_argument("--ti-s", type=float, default=None, help="integral time, seconds (default: SIMC)")
@@ -52,8 +104,8 @@ def run(args: argparse.Namespace) -> int:
         if value > MAX_SJ_PCT:
             raise DataError(f"{flag} {value:g}: S and J are % of valve span; use at most {MAX_SJ_PCT:g} (the "
                             "simulated loop runs at mid-span, and a wider band drives OP into its limits)")
-    if args.n < 10:
-        raise DataError("--n must be at least 10 samples")
+    if args.tau_s == 0 and args.process != "integrating":   # only a level's input lag may be 0
+        raise DataError(f"--tau-s 0: a {args.process} process needs a time constant of more than 0 seconds")
     gain = args.gain if args.gain is not None else (0.02 if args.process == "integrating" else 1.0)
     rec = sticky_loop(args.S, args.J, n=args.n, ts_s=args.ts_s, gain=gain, tau_s=args.tau_s,
                       delay_s=args.delay_s, kind=args.process, noise_std=args.noise,
