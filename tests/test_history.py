@@ -133,9 +133,9 @@ def test_backfilled_exports_are_ordered_by_their_records_not_by_the_run(tmp_path
             hist.add_rows([H.row_from_stored(_dated("FIC1", S, f"2026-{month}-10T00:00:00Z", h=month), run_at=run_at)])
         rows = hist.runs("FIC1")
     assert [r["S_pct"] for r in rows] == [1.0, 1.3, 1.7]
-    assert [r["data_end"] for r in rows] == ["2026-01-11T00:00:00+00:00", "2026-02-11T00:00:00+00:00",
-                                            "2026-03-11T00:00:00+00:00"]
-    assert {r["run_at"] for r in rows} == {run_at}   # the run time is kept beside
+    assert [r["data_end"] for r in rows] == ["2026-01-11T00:00:00Z", "2026-02-11T00:00:00Z",
+                                            "2026-03-11T00:00:00Z"]
+    assert {r["run_at"] for r in rows} == {"2026-04-01T02:00:00Z"}   # the run time is kept beside
     warn = H.degradation(rows)
     assert warn and "2026-01-11 to 2026-03-11" in warn
     text = H.format_trend("FIC1", rows)
@@ -144,9 +144,9 @@ def test_backfilled_exports_are_ordered_by_their_records_not_by_the_run(tmp_path
 
 def test_record_end_is_the_last_sample_and_none_without_a_start():
     assert H.record_end({"record": {"start": "2026-01-01T00:00:00Z", "n": 3, "ts_s": 30.0}}) == \
-        "2026-01-01T00:01:00+00:00"
+        "2026-01-01T00:01:00Z"
     assert H.record_end({"record": {"start": "2026-01-01T01:00:00+01:00", "n": 1, "ts_s": 1.0}}) == \
-        "2026-01-01T00:00:00+00:00"
+        "2026-01-01T00:00:00Z"
     assert H.record_end({"record": {"start": None, "n": 100, "ts_s": 1.0}}) is None
 
 
@@ -180,7 +180,7 @@ def test_a_version_1_database_is_read_and_migrated_in_place(tmp_path, capsys):
         assert hist.conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
         rows = hist.runs("FIC1")
         assert [r["S_pct"] for r in rows] == [1.0, 1.3]   # by the records' ends, filled in
-        assert rows[0]["data_end"] == "2026-01-11T00:00:00+00:00"
+        assert rows[0]["data_end"] == "2026-01-11T00:00:00Z"
         assert hist.add_rows([H.row_from_stored(_dated("FIC1", 1.6, "2026-03-10T00:00:00Z", h="03"))]) == 1
         assert [r["S_pct"] for r in hist.runs("FIC1")] == [1.0, 1.3, 1.6]
 
@@ -207,10 +207,39 @@ def test_a_diagnosis_is_filed_as_its_stored_json_reads_back(tmp_path):
     stored = H.row_from_stored(json.loads(json.dumps(diag.to_dict())), run_at=live["run_at"], input_hash="x")
     assert {k: v for k, v in live.items() if k != "result_json"} == \
         {k: v for k, v in stored.items() if k != "result_json"}
-    assert live["loop"] == "FIC_4" and live["data_end"] == "2026-02-01T00:19:59+00:00"
+    assert live["loop"] == "FIC_4" and live["data_end"] == "2026-02-01T00:19:59Z"
     assert live["S_pct"] == diag.identification.S_pct and live["verdict"] == diag.verdict_text
     with H.History(tmp_path / "h.sqlite") as hist:
         assert hist.add(diag, run_at=live["run_at"], input_hash="x")
         assert not hist.add(diag, run_at=live["run_at"], input_hash="x")     # stored once
         (row,) = hist.runs("FIC_4", with_result=True)
     assert json.loads(row["result_json"])["schema"] == "stiction.loop/2"
+
+
+def test_cli_words_the_confidence_as_the_reports_do_and_gives_every_time_with_z(tmp_path, capsys):
+    import json
+
+    from diagnose.plain import percent
+
+    db = tmp_path / "h.sqlite"
+    with H.History(db) as hist:
+        sure = dict(_dated("FIC1", 1.0, "2026-01-10T00:00:00Z", h="a"), confidence=0.9979)
+        hist.add_rows([H.row_from_stored(sure, run_at="2026-04-01T02:00:00Z"),
+                       H.row_from_stored(dict(_dated("FIC1", 1.2, "2026-02-10T00:00:00+01:00", h="b"),
+                                              confidence=0.42))])
+        # a row as an earlier release stored it, its times ending in +00:00
+        hist.conn.execute("INSERT INTO runs (loop, run_at, data_start, data_end, input_hash, S_pct, confidence) "
+                          "VALUES ('FIC1', '2026-04-02T02:00:00+00:00', '2026-03-10T00:00:00+00:00', "
+                          "'2026-03-11T00:00:00+00:00', 'c', 1.4, 0.999)")
+        hist.conn.commit()
+    assert main(["history", "FIC1", "--db", str(db)]) == 0
+    lines = capsys.readouterr().out.splitlines()[2:5]   # the runs (a degradation warning follows)
+    assert "100%" not in "".join(lines)
+    assert [percent(c) in line for c, line in zip((0.9979, 0.42, 0.999), lines)] == [True] * 3
+    assert "> 99 %" in lines[0] and " 42 % " in lines[1]
+    assert main(["history", "FIC1", "--db", str(db), "--json"]) == 0
+    runs = json.loads(capsys.readouterr().out)["runs"]
+    assert [(r["data_start"], r["data_end"]) for r in runs] == [
+        ("2026-01-10T00:00:00Z", "2026-01-11T00:00:00Z"), ("2026-02-09T23:00:00Z", "2026-02-10T23:00:00Z"),
+        ("2026-03-10T00:00:00Z", "2026-03-11T00:00:00Z")]
+    assert all(r["run_at"].endswith("Z") for r in runs)

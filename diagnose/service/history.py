@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 from ..errors import StictionError
-from ..plain import finite_or_none
+from ..plain import finite_or_none, percent
 
 if TYPE_CHECKING:
     from .pipeline import Diagnosis
@@ -78,7 +78,7 @@ def default_db_path() -> Path:
 
 
 def utc_now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return datetime.now(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
 
 
 def _parse_time(text: Any) -> datetime | None:
@@ -91,8 +91,17 @@ def _parse_time(text: Any) -> datetime | None:
     return t if t.tzinfo is not None else t.replace(tzinfo=timezone.utc)
 
 
+def utc_text(text: Any) -> Any:
+    """A stored time as UTC ISO 8601 ending in ``Z``, the form the readers give a record's start
+    (rows written before this form ended in ``+00:00``); anything that is not a time as it is."""
+    t = _parse_time(text)
+    if t is None:
+        return text
+    return t.astimezone(timezone.utc).isoformat().replace("+00:00", "Z")
+
+
 def end_of_record(start: Any, n: Any, ts_s: Any) -> str | None:
-    """UTC time of the last sample (``...+00:00``) of a record of ``n`` samples every ``ts_s``
+    """UTC time of the last sample (``...Z``) of a record of ``n`` samples every ``ts_s``
     seconds from ``start`` (ISO 8601); None when the start is unknown (an export of sample indices)."""
     t0 = _parse_time(start)
     if t0 is None:
@@ -106,7 +115,7 @@ def end_of_record(start: Any, n: Any, ts_s: Any) -> str | None:
     from datetime import timedelta
 
     end = t0 + timedelta(seconds=(n - 1) * ts)
-    return end.astimezone(timezone.utc).isoformat(timespec="seconds")
+    return end.astimezone(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
 
 
 def record_end(result: Mapping[str, Any]) -> str | None:
@@ -134,7 +143,7 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
     return {
         "loop": history_loop(ident.loop),
         "run_at": run_at or utc_now(),
-        "data_start": rec.start,
+        "data_start": utc_text(rec.start),
         "data_end": end_of_record(rec.start, rec.n, rec.ts_s),
         "source": rec.source or ident.source,
         "input_hash": input_hash or diag.input_hash or "",
@@ -170,7 +179,7 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
     return {
         "loop": history_loop(str(result.get("loop") or result.get("loop_id"))),
         "run_at": run_at or utc_now(),
-        "data_start": rec.get("start"),
+        "data_start": utc_text(rec.get("start")),
         "data_end": record_end(result),
         "source": rec.get("source") or result.get("source"),
         "input_hash": input_hash or result.get("input_hash") or "",
@@ -281,6 +290,9 @@ class History:
             sql += f" LIMIT {int(limit)}"
         rows = [dict(r) for r in self.conn.execute(sql, args)]
         rows.reverse()
+        for r in rows:   # one form whatever release wrote the row
+            for key in ("run_at", "data_start", "data_end"):
+                r[key] = utc_text(r[key])
         return rows
 
     def loops(self) -> list[str]:
@@ -334,18 +346,18 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
     if not rows:
         return f"{loop}: no runs in the history\n"
     lines = [f"{loop}: {len(rows)} run(s)",
-             f"{'record end (UTC)':<20} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} {'conf':>5} "
+             f"{'record end (UTC)':<20} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} {'conf':>6} "
              f"{'sev':>4}  {'run (UTC)':<20}"]
     for r in rows:
         iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
               else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
         S = "-" if r.get("S_pct") is None else f"{r['S_pct']:.2f}"
         J = "-" if r.get("J_pct") is None else f"{r['J_pct']:.2f}"
-        conf = "-" if r.get("confidence") is None else f"{r['confidence']:.0%}"
+        conf = percent(r.get("confidence"))   # as the reports word it: a rounded "100%" reads as a certainty
         sev = "-" if r.get("severity") is None else f"{r['severity']:.0f}"
         end = str(r.get("data_end") or "-")[:19]
         lines.append(f"{end:<20} {S:>6} {iv:>15} {J:>6} "
-                     f"{str(r.get('class') or '-'):<12} {conf:>5} {sev:>4}  {str(r.get('run_at'))[:19]:<20}")
+                     f"{str(r.get('class') or '-'):<12} {conf:>6} {sev:>4}  {str(r.get('run_at'))[:19]:<20}")
     warn = degradation(rows)
     if warn:
         lines.append(f"WARNING: {warn}")
