@@ -76,6 +76,12 @@ def percent_change(fraction: Any, none: str = "-") -> str:
     return "0 %" if r == 0 else f"{r:+d} %"
 
 
+def count(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and the noun in its number: ``count(1, "loop")`` -> ``"1 loop"``, ``count(0, "file")``
+    -> ``"0 files"``."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"
+
+
 def percent(fraction: Any, none: str = "-") -> str:
     """A probability or share as a whole percentage (``0.97`` -> ``"97 %"``); above 99.5 % it reads
     ``"> 99 %"`` and below 0.5 % ``"< 1 %"``: a rounded 100 % would read as a certainty."""

@@ -574,3 +574,28 @@ def test_summary_words_probabilities_as_the_loop_reports_do():
                    sticky=False, **{"class": "none"})
     table = next(b for b in report.summary_blocks([row, healthy]) if b[0] == "table")
     assert [r[6:8] for r in table[2]] == [["> 99 %", "> 99 %"], ["< 1 %", "> 99 %"]]
+
+
+def test_summary_puts_the_degradation_beside_s_not_among_the_data_quality_warnings():
+    row = {"loop": "FIC7", "status": "ok", "rank": 1, "severity": 74.9, "class": "undershoot", "S_pct": 5.0,
+           "J_pct": 2.0, "stiction_probability": 0.9, "confidence": 0.9, "sticky": True,
+           "data_quality_warnings": 2, "degradation": "S grew over the last 3 runs", "report": "loops/FIC7/FIC7.md"}
+    (_, header, rows) = next(b for b in report.summary_blocks([row]) if b[0] == "table")
+    cells = dict(zip(header, rows[0]))
+    assert cells["DQ warn."] == "2" and cells["S %"] == "5.00 (degrading)"
+
+
+def test_evidence_summary_agrees_in_number():
+    from types import SimpleNamespace
+
+    def ident(*decisions):
+        return SimpleNamespace(evidence=[SimpleNamespace(test=f"t{i}", decision=d, reason="")
+                                         for i, d in enumerate(decisions)], verdict=None)
+
+    one_each = report.evidence_summary(ident("stiction", "no_stiction", "undetermined"))
+    assert one_each.startswith("Of the 3 tests that could judge this record, 1 says stiction, 1 says no stiction "
+                               "and 1 is undecided.")
+    two_each = report.evidence_summary(ident("stiction", "stiction", "undetermined", "undetermined"))
+    assert "Of the 4 tests" in two_each and "2 say stiction, 0 say no stiction and 2 are undecided." in two_each
+    assert report.evidence_summary(ident("stiction")).startswith("Of the 1 test that could judge this record, "
+                                                                 "1 says stiction")

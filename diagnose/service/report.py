@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
-from ..plain import duration, number, percent, percent_change
+from ..plain import count, duration, number, percent, percent_change
 
 if TYPE_CHECKING:
     from ..controller import ControllerAction
@@ -215,8 +215,13 @@ def evidence_summary(ident: Identification) -> str:
     for ev in ident.evidence:
         by.setdefault(ev.decision, []).append(ev.test)
     judged = len(ident.evidence) - len(by["cannot_judge"])
-    text = (f"Of the {judged} tests that could judge this record, {len(by['stiction'])} say stiction, "
-            f"{len(by['no_stiction'])} say no stiction and {len(by['undetermined'])} are undecided.")
+    def said(n: int, one: str, many: str) -> str:
+        return f"{n} {one if n == 1 else many}"
+
+    text = (f"Of the {count(judged, 'test')} that could judge this record, "
+            f"{said(len(by['stiction']), 'says', 'say')} stiction, "
+            f"{said(len(by['no_stiction']), 'says', 'say')} no stiction and "
+            f"{said(len(by['undetermined']), 'is', 'are')} undecided.")
     reasons: dict[str, int] = {}
     for ev in ident.evidence:
         if ev.decision == "cannot_judge":
@@ -441,6 +446,32 @@ SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_
                    "data_quality_warnings", "degradation", "action", "report", "source", "error"]
 
 
+#: What a failed summary row stands for (its ``scope``): an input path that could not be opened
+#: (no such file or folder, a folder that cannot be listed), a file found but not read (or its
+#: worker died), or one loop of a file that was read. Rows without a scope are loops.
+FAILED_SCOPES = ("input", "file", "loop")
+
+
+def tally(rows: Sequence[Mapping[str, Any]]) -> dict[str, int]:
+    """What a batch's rows count: ``loops`` (found in the files read: ``diagnosed`` and
+    ``loops_failed``), ``files_failed`` and ``inputs_failed``. A file that could not be read is
+    not a loop, so it is counted apart."""
+    scope = [r.get("scope") or "loop" for r in rows if r.get("status") != "ok"]
+    ok = sum(1 for r in rows if r.get("status") == "ok")
+    return {"diagnosed": ok, "loops_failed": scope.count("loop"), "loops": ok + scope.count("loop"),
+            "files_failed": scope.count("file"), "inputs_failed": scope.count("input")}
+
+
+def not_read(t: Mapping[str, int]) -> list[str]:
+    """The inputs a batch could not read, in words (nothing when it read them all)."""
+    out = []
+    if t["files_failed"]:
+        out.append(f"{count(t['files_failed'], 'file')} could not be read")
+    if t["inputs_failed"]:
+        out.append(f"{count(t['inputs_failed'], 'input')} not found or not readable")
+    return out
+
+
 def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant stiction summary",
                    generated_at: str | None = None, tool_version: str | None = None,
                    links: bool = True, skipped_files: Sequence[Mapping[str, Any]] = ()) -> list[Block]:
@@ -450,8 +481,9 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
     bad = [r for r in rows if r.get("status") != "ok"]
     sticky = [r for r in ok if r.get("sticky")]
     blocks: list[Block] = [("title", title)]
-    line = (f"{len(rows)} loops: {len(ok)} diagnosed, {len(bad)} failed; "
-            f"{len(sticky)} with stiction.")
+    t = tally(rows)
+    line = (f"{count(t['loops'], 'loop')}: {t['diagnosed']} diagnosed, {t['loops_failed']} failed; "
+            f"{len(sticky)} with stiction." + "".join(f" {x[0].upper()}{x[1:]}." for x in not_read(t)))
     if generated_at:
         line += f" Generated {generated_at}"
         if tool_version:
@@ -472,12 +504,14 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         osc = duration(r.get("oscillation_period_s"))
         if r.get("slow_cycle_period_s"):
             osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
+        # the degradation is S's trend over the loop's records: beside S, not a data-quality warning
+        rising = " (degrading)" if r.get("degradation") else ""
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".1f"), fmt(r.get("class")),
-                      fmt(r.get("S_pct")) + op_units, fmt(r.get("J_pct")) + op_units,
+                      fmt(r.get("S_pct")) + op_units + rising, fmt(r.get("J_pct")) + op_units,
                       # as the loop's own report words them: a rounded "100%" reads as a certainty
                       percent(r.get("stiction_probability")), percent(r.get("confidence")),
                       osc,
-                      fmt(r.get("data_quality_warnings"), "d") + (" (degrading)" if r.get("degradation") else "")])
+                      fmt(r.get("data_quality_warnings"), "d")])
     blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "P(stiction)", "Conf.", "Oscillation",
                              "DQ warn."], table))
     if any(r.get("degradation") for r in ok):
