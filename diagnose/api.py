@@ -168,6 +168,13 @@ def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *,
     return connectors.read_loops(data, tags=tags, fmt=format, progress=progress, **opts)
 
 
+def records_named(records: Sequence[LoopRecord], loop: str) -> list[LoopRecord]:
+    """The records of the loop named ``loop``, its name matched exactly: the readers keep
+    ``FIC102`` and ``fic102`` as two loops, so ``--loop`` names one of them (identify, explain and
+    the batch alike)."""
+    return [r for r in records if r.name == loop]
+
+
 def choose_record(records: Sequence[LoopRecord], loop: str | None, source: str,
                   verb: str = "identified") -> tuple[LoopRecord, tuple[Note, ...]]:
     """The record to work on: the named (or only) loop's longest segment, and notes that say so."""
@@ -175,7 +182,7 @@ def choose_record(records: Sequence[LoopRecord], loop: str | None, source: str,
         raise DataError(f"{source}: no loop found")
     names = list(dict.fromkeys(r.name for r in records))
     if loop is not None:
-        chosen = [r for r in records if r.name == loop]
+        chosen = records_named(records, loop)
         if not chosen:
             raise DataError(f"{source}: no loop named {loop!r} (loops: {', '.join(names)})")
     elif len(names) > 1:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import shutil
@@ -79,8 +80,10 @@ def test_reports_summary_and_ranking(first_run):
     # the probability of stiction behind the ranking, in the table and the CSV
     assert float(table[0]["stiction_probability"]) > float(table[2]["stiction_probability"])
     doc = json.loads((out / "summary.json").read_text())
-    assert doc["n_loops"] == 4 and doc["n_failed"] == 1
+    # the broken file is a file that could not be read, not a fourth loop
+    assert doc["n_loops"] == 3 and doc["n_failed"] == 1 and doc["n_files_failed"] == 1
     md = (out / "summary.md").read_text()
+    assert "3 loops: 3 diagnosed, 0 failed; " in md and " 1 file could not be read." in md
     assert "[FIC1](loops/FIC1/FIC1.md)" in md and "## Failed loops and files" in md and "P(stiction)" in md
     assert (out / "summary.pdf").read_bytes()[:5] == b"%PDF-"
     assert not [p for p in out.rglob("*.tmp")], "temporary files left behind"
@@ -309,6 +312,54 @@ def test_files_left_alone_are_reported_with_their_own_reason(plant, tmp_path, ca
     left = [ln for ln in out.splitlines() if ln.startswith("left alone:")]
     assert left == ["left alone: 1 file(s), not a historian text export: notes.md; listed in the summary",
                     "left alone: 2 file(s), no loop named 'FIC2': FIC1.csv, FIC3.csv; listed in the summary"]
+
+
+def test_the_batch_counts_loops_apart_from_the_files_and_inputs_it_could_not_read(tmp_path):
+    from diagnose.service.commands.batch import report
+
+    ok = {"loop": "FIC1", "status": "ok", "source": "a.csv"}
+    cases = [  # (rows, files found) -> the first line
+        ([ok, B.failure_row("empty", "empty.csv", "empty.csv: file is empty", "file")], 2,
+         "1 loop from 1 file: 1 diagnosed (0 unchanged since the last run), 0 failed; 1 file could not be read"),
+        ([B.failure_row("nope.csv", "nope.csv", "nope.csv: no such file or folder", "input")], 0,
+         "0 loops from 0 files: 0 diagnosed (0 unchanged since the last run), 0 failed; 1 input not found or "
+         "not readable"),
+        ([ok, dict(ok, loop="FIC2"), B.failure_row("FIC3", "a.csv", "a.csv: too short")]
+         + [B.failure_row(f"x{i}", f"x{i}.csv", "unreadable", "file") for i in range(2)], 3,
+         "3 loops from 1 file: 2 diagnosed (0 unchanged since the last run), 1 failed; 2 files could not be read"),
+    ]
+    for rows, n_files, says in cases:
+        stream = io.StringIO()
+        report(B.BatchResult(rows=rows, out_dir=tmp_path, n_files=n_files, elapsed_s=1.0, pdf=False), stream)
+        assert stream.getvalue().splitlines()[0] == says + ", 1.0 s"
+
+
+def _two_cases_of_one_tag(folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    a = sticky_loop(4.0, 1.0, n=800, noise_std=0.03, seed=31, name="FIC7")
+    b = sticky_loop(0.0, 0.0, n=800, noise_std=0.03, seed=32, name="fic7")
+    path = folder / "plant.csv"
+    with open(path, "w") as fh:
+        fh.write("time,FIC7.OP,FIC7.PV,fic7.OP,fic7.PV\n")
+        for i in range(a.n):
+            fh.write(f"{i},{a.op[i]:.4f},{a.pv[i]:.4f},{b.op[i]:.4f},{b.pv[i]:.4f}\n")
+    return path
+
+
+def test_loop_names_the_loop_exactly_as_identify_does(tmp_path, capsys):
+    # the reader keeps FIC7 and fic7 as two loops; --loop FIC7 diagnosed both
+    path = _two_cases_of_one_tag(tmp_path / "logs")
+    common = ["--workers", "1", "--no-narx", "--no-pdf", "--no-history", "--quiet"]
+    for want in ("FIC7", "fic7"):
+        out = tmp_path / f"out_{want}"
+        assert main(["batch", str(path), "--out", str(out), "--loop", want, *common]) == 0
+        doc = json.loads((out / "summary.json").read_text())
+        assert [r["loop"] for r in doc["loops"]] == [want]
+        capsys.readouterr()
+        assert main(["identify", str(path), "--loop", want, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["loop"] == want
+    assert main(["batch", str(path), "--out", str(tmp_path / "out_x"), "--loop", "Fic7", *common]) == 0
+    assert "left alone: 1 file(s), no loop named 'Fic7': plant.csv" in capsys.readouterr().out
 
 
 def test_a_tag_without_pv_is_listed_as_left_alone(tmp_path, capsys):

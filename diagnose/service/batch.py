@@ -49,7 +49,7 @@ from connectors.historian import atomic_write
 
 from ..errors import DataError, StictionError
 from ..parallel import cores_per_worker, usable_cores
-from .report import SUMMARY_COLUMNS
+from .report import SUMMARY_COLUMNS, tally
 
 if TYPE_CHECKING:
     from .pipeline import Diagnosis
@@ -130,7 +130,7 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
         where = exc.filename or "?"
         if not any(Path(where).resolve() == e or e in Path(where).resolve().parents for e in excl):
             missing.append(failure_row(safe_name(Path(where).name), str(where),
-                                       f"{where}: cannot read the folder: {exc.strerror or exc}"))
+                                       f"{where}: cannot read the folder: {exc.strerror or exc}", "input"))
 
     for item in inputs:
         p = Path(item)
@@ -150,7 +150,7 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
         elif p.is_file():
             add(p)
         else:
-            missing.append(failure_row(str(p), str(p), f"{p}: no such file or folder"))
+            missing.append(failure_row(str(p), str(p), f"{p}: no such file or folder", "input"))
     return files, missing
 
 
@@ -195,8 +195,10 @@ def _read_error(path: Path, exc: OSError) -> str:
     return f"{path}: cannot read: {exc.strerror or exc}"
 
 
-def failure_row(loop: str, source: str, error: str) -> dict[str, Any]:
-    return {"loop": loop, "status": "failed", "source": source, "error": error}
+def failure_row(loop: str, source: str, error: str, scope: str = "loop") -> dict[str, Any]:
+    """A failed summary row; ``scope`` (`report.FAILED_SCOPES`) says whether a loop, a whole file
+    or an input path failed, so a file that could not be read is not counted as a loop."""
+    return {"loop": loop, "status": "failed", "source": source, "error": error, "scope": scope}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -448,11 +450,14 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
     except MemoryError:
         raise
     except Exception as exc:
-        return {"path": str(p), "digest": None, "rows": [failure_row(safe_name(p.stem), str(p), _one_line(exc))]}
+        return {"path": str(p), "digest": None,
+                "rows": [failure_row(safe_name(p.stem), str(p), _one_line(exc), "file")]}
     want = cfg.read_options.get("loop")
     if want:
         names = sorted({r.name for r in records})
-        records = [r for r in records if r.name.lower() == str(want).lower()]
+        from ..api import records_named
+
+        records = records_named(records, str(want))
         if not records:
             return {"path": str(p), "digest": None, "rows": [],
                     "left_alone": [{"path": str(p), "reason": f"no loop named {want!r} (loops: {', '.join(names)})"}]}
@@ -779,6 +784,11 @@ class BatchResult:
         return sum(1 for r in self.rows if r["status"] != "ok")
 
     @property
+    def counts(self) -> dict[str, int]:
+        """`report.tally` of the rows: loops found, diagnosed and failed; files and inputs not read."""
+        return tally(self.rows)
+
+    @property
     def n_skipped(self) -> int:
         return sum(1 for r in self.rows if r.get("skipped"))
 
@@ -814,7 +824,9 @@ def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool
         w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in SUMMARY_COLUMNS})
     atomic_write(out_dir / "summary.csv", buf.getvalue())
     clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
-    doc = {**meta, "n_loops": len(rows), "n_failed": sum(1 for r in rows if r["status"] != "ok"),
+    t = tally(rows)
+    doc = {**meta, "n_loops": t["loops"], "n_failed": sum(1 for r in rows if r["status"] != "ok"),
+           "n_files_failed": t["files_failed"], "n_inputs_failed": t["inputs_failed"],
            "loops": clean, "skipped_files": [dict(f) for f in skipped_files]}
     atomic_write(out_dir / "summary.json", json.dumps(doc, indent=1, default=str))
     kw = {"generated_at": meta.get("generated_at"), "tool_version": meta.get("tool_version"),
@@ -906,7 +918,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
                 digest = _file_digest(f)
             except OSError as exc:
                 collect({"path": str(f), "digest": None,
-                         "rows": [failure_row(safe_name(f.stem), str(f), _read_error(f, exc))]})
+                         "rows": [failure_row(safe_name(f.stem), str(f), _read_error(f, exc), "file")]})
                 continue
             done = _load_state(cfg, str(f), digest)
             if done is not None:
@@ -929,7 +941,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
                     except Exception as exc:  # a worker died (memory, signal): record, go on
                         f = path_of.get(id(fu), "?")
                         outcome = {"path": f, "digest": None,
-                                   "rows": [failure_row(safe_name(Path(f).stem), f, _one_line(exc))]}
+                                   "rows": [failure_row(safe_name(Path(f).stem), f, _one_line(exc), "file")]}
                     collect(outcome)
             except BaseException:  # Ctrl-C above all: stop now, do not wait for the workers
                 getattr(ex, "abort", ex.close)()

@@ -54,11 +54,16 @@ def explain_mode(value: str) -> bool | str:
 
 def report(res, stream=None) -> None:
     """What the batch did, on stdout; failures on stderr."""
+    from ...plain import count
+    from ..report import not_read
+
     stream = stream or sys.stdout
-    ok = len(res.rows) - res.n_failed
-    print(f"{len(res.rows)} loops from {res.n_files} files: {ok} diagnosed "
-          f"({res.n_skipped} unchanged since the last run), {res.n_failed} failed, "
-          f"{res.elapsed_s:.1f} s", file=stream)
+    t = res.counts
+    # loops are what the files read held: a file that could not be read is said apart, not a loop
+    said = [f"{count(t['loops'], 'loop')} from {count(res.n_files - t['files_failed'], 'file')}: "
+            f"{t['diagnosed']} diagnosed ({res.n_skipped} unchanged since the last run), "
+            f"{t['loops_failed']} failed"] + not_read(t)
+    print("; ".join(said) + f", {res.elapsed_s:.1f} s", file=stream)
     pdf = getattr(res, "pdf", True)
     print(f"summary: {res.out_dir / 'summary.md'} (also {'.pdf, ' if pdf else ''}.csv, .json)", file=stream)
     print(f"per-loop reports: {res.out_dir / 'loops'}/LOOP/LOOP.md ({'.pdf, ' if pdf else ''}.json, figures)",
