@@ -77,3 +77,22 @@ def test_target_mv_needs_the_stem_position(tmp_path, capsys):
     rc = main(["explain", str(path), "--target", "mv"])
     assert rc == 1
     assert "stem position" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flat,says", [
+    ({"pv": 50.0}, "PV (50) is constant"),
+    ({"mv": 42.0}, "MV (42) is constant"),
+    ({"op": 40.0}, "OP (40) is constant"),
+    ({"pv": 50.0, "op": 40.0}, "PV (50) and OP (40) are constant"),
+])
+def test_a_constant_signal_is_named(tmp_path, capsys, flat, says):
+    import numpy as np
+
+    rec, _ = concealed_loop("none", 2, n=600, with_mv=True)
+    rec = rec.replace(**{role: np.full(rec.n, value) for role, value in flat.items()})
+    path = tmp_path / "flat.csv"
+    write_wide(rec, path)
+    assert main(["explain", str(path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {path}: ") and says in err[0], err
+    assert ("--target pv" in err[0]) == (flat.keys() == {"mv"})   # the valve stage alone: judge PV instead

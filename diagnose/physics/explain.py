@@ -462,8 +462,15 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
     for sn in stage_names:
         stage = _stage_for(record, sn, train)
         if np.ptp(stage.y) <= 0 or np.ptp(stage.x) <= 0:
-            raise DataError(f"{record.name}: {'PV' if sn == 'loop' else 'MV'} or OP is constant; "
-                            "nothing to explain")
+            # OP's value as recorded: stage.x may be shifted into 0..100 %
+            flat = [f"{role} ({float(shown[0]):g})"
+                    for role, shown, seen in (("PV" if sn == "loop" else "MV", stage.y, stage.y),
+                                              ("OP", record.op, stage.x))
+                    if np.ptp(seen) <= 0]
+            todo = ("use --target pv, or give a period in which the stem moved" if flat[0].startswith("MV")
+                    and len(flat) == 1 else "give a period in which the loop moved")
+            raise DataError(f"{record.name}: {' and '.join(flat)} {'is' if len(flat) == 1 else 'are'} constant "
+                            f"over the whole record, so the {sn} stage has no mismatch to explain; {todo}")
         if sn == "loop":
             mine = [h for h in hyps if h.side == PROCESS_SIDE or (h.side == VALVE_SIDE and not has_mv)]
         else:
