@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 from typing import IO, Any
 
-from diagnose.errors import ConnectorError
+from diagnose.errors import ConnectorError, StictionError
 from diagnose.record import LoopRecord
 
 FILE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".prn")
@@ -142,32 +142,54 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
             raise ConnectorError(f"folder has no export files ({', '.join(FILE_SUFFIXES)})", path=path)
     specs = []
     reporters = {}
+    skipped: list[tuple[str, str]] = []
     for src in sources:
-        opened = open_source(src, progress)
-        table = parse(opened, options)
+        try:
+            opened = open_source(src, progress)
+            table = parse(opened, options)
+            found = specs_from_table(table, options, tagmap)
+        except (StictionError, OSError) as exc:
+            if not folder:
+                raise
+            # one bad export (empty, cut off, a stray CSV) must not hide the loop the others hold
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            skipped.append((src, text if text.startswith(src) else f"{src}: {text}"))
+            continue
         reporters[table.label] = opened.progress
-        found = specs_from_table(table, options, tagmap)
         if not found and tagmap is not None and not folder:
             wanted = ", ".join(f"{lm.roles['op'].tag}/{lm.roles['pv'].tag}" for lm in list(tagmap.loops.values())[:5])
             cols = ", ".join([s.name for s in table.series][:12])
             raise ConnectorError(f"none of the tag map's loops ({wanted}) has its OP and PV tags in the file "
                                  f"(columns: {cols})", path=table.label)
         specs.extend(found)
+    # where the loop wanted may sit in a file that could not be read, the error says so
+    unread = (f"; {len(skipped)} of its files could not be read (the first: {skipped[0][1]})"
+              if skipped else "")
+    if not specs and skipped and len(skipped) == len(sources):
+        raise ConnectorError(f"none of its {len(sources)} export files could be read (the first: {skipped[0][1]})",
+                             path=os.fspath(source))
     if not specs:
-        raise ConnectorError("no loop of the tag map was found in any file", path=os.fspath(source)
+        raise ConnectorError("no loop of the tag map was found in any file" + unread, path=os.fspath(source)
                              if not hasattr(source, "read") else None)
     specs = merge_specs(specs)
     if options.get("loop"):
         want = str(options["loop"])
         sel = [s for s in specs if s.name == want or s.name.lower() == want.lower()]
         if not sel:
-            raise ConnectorError(f"no loop named {want!r} (loops: {', '.join(s.name for s in specs)})",
+            raise ConnectorError(f"no loop named {want!r} (loops: {', '.join(s.name for s in specs)}){unread}",
                                  path=None if hasattr(source, "read") else os.fspath(source))
         specs = sel
     records: list[LoopRecord] = []
     for spec in specs:
         reporter = reporters.get(spec.table.label) if spec.table else None
         records.extend(build_records(spec, dict(options, _progress=reporter)))
+    if skipped:
+        from diagnose.record import Finding
+
+        # info, not a warning: the loops read are whole as read, and the commands print each
+        # skipped file on stderr (`file_skipped`)
+        notes = [Finding("file_skipped", f"skipped {text}", "info", {"path": src}) for src, text in skipped]
+        records = [r.with_findings(*notes) for r in records]
     return records
 
 

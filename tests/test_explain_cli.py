@@ -96,3 +96,15 @@ def test_a_constant_signal_is_named(tmp_path, capsys, flat, says):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {path}: ") and says in err[0], err
     assert ("--target pv" in err[0]) == (flat.keys() == {"mv"})   # the valve stage alone: judge PV instead
+
+
+def test_a_folder_names_each_file_it_skipped(tmp_path, capsys):
+    import numpy as np
+
+    rec, _ = concealed_loop("none", 2, n=600)
+    write_wide(rec.replace(pv=np.full(rec.n, 50.0)), tmp_path / "loop.csv")
+    (tmp_path / "empty.csv").write_text("")
+    assert main(["explain", str(tmp_path)]) == 1   # read from loop.csv: its flat PV is the error
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0] == f"note: skipped {tmp_path / 'empty.csv'}: file is empty"
+    assert len(err) == 2 and err[1].startswith(f"error: {tmp_path}: ") and "PV (50) is constant" in err[1]

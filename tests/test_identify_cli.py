@@ -131,3 +131,33 @@ def test_a_gapped_record_is_not_said_to_be_diagnosed_segment_by_segment(tmp_path
     seg = next(ln for ln in out.splitlines() if "[data_quality.segment]" in ln)
     assert "diagnosed on its own" not in seg and "identify takes the longest" in seg
     assert "identified the longest (740 samples)" in out
+
+
+def test_a_folder_skips_the_files_it_cannot_read_and_says_so(sticky_csv, tmp_path, capsys):
+    # one loop exported in two parts, an empty export and a stray CSV beside them
+    folder = tmp_path / "fic7"
+    folder.mkdir()
+    header, *rows = sticky_csv.read_text().splitlines()
+    half = len(rows) // 2
+    (folder / "part1.csv").write_text("\n".join([header, *rows[:half]]) + "\n")
+    (folder / "part2.csv").write_text("\n".join([header, *rows[half:]]) + "\n")
+    (folder / "empty.csv").write_text("")
+    (folder / "stray.csv").write_text("time,x\n1,2\n")
+    assert main(["identify", str(folder), "--json"]) == 0
+    captured = capsys.readouterr()
+    d = json.loads(captured.out)
+    assert d["loop"] == "FIC7" and d["n_samples"] == len(rows)          # both parts, joined
+    notes = [ln for ln in captured.err.splitlines() if ln.startswith("note: ")]
+    assert notes == [f"note: skipped {folder / 'empty.csv'}: file is empty",
+                     f"note: skipped {folder / 'stray.csv'}: no OP or PV column found (columns: time, x); "
+                     "name the columns with --op/--pv or give a tag map with --tags"]
+    assert sorted(f["data"]["path"] for f in d["data_quality"] if f["code"] == "file_skipped") == \
+        [str(folder / "empty.csv"), str(folder / "stray.csv")]
+    assert not any(w["code"].endswith("file_skipped") for w in d["warnings"])   # the verdict is untouched
+    # none readable: one line naming the folder, exit 1
+    for name in ("part1.csv", "part2.csv"):
+        (folder / name).unlink()
+    assert main(["identify", str(folder)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {folder}: none of its 2 export files could be read (the first: "
+                   f"{folder / 'empty.csv'}: file is empty)"]

@@ -57,7 +57,9 @@ def add_read_arguments(p: argparse.ArgumentParser, verb: str, *, tags: bool = Tr
 
 def add_file_arguments(p: argparse.ArgumentParser, verb: str) -> None:
     """FILE and the reading options (``verb``: what is done to the loop)."""
-    p.add_argument("file", metavar="FILE", help="historian export (CSV or another supported layout)")
+    p.add_argument("file", metavar="FILE", help="historian export (CSV or another supported layout), or a "
+                                                "folder of them read as one source (files it cannot read are "
+                                                "skipped with a note)")
     add_read_arguments(p, verb)
 
 
@@ -97,6 +99,15 @@ def naming_file(path: str | os.PathLike) -> Iterator[None]:
         if not text.startswith((f"{label}:", f"{label} ")):
             exc.args = (f"{label}: {text}",)
         raise
+
+
+def say_skipped(findings) -> None:
+    """One line on stderr per file of a folder that could not be read and was skipped (the reader's
+    ``file_skipped`` findings): the result holds the loops of the other files, and a file left out
+    must not pass in silence."""
+    for f in findings:
+        if f.code == "file_skipped":
+            print(f"note: {f.message}", file=sys.stderr)
 
 
 def select_record(records: list, loop: str | None, source: str, verb: str = "identified"):

@@ -8,7 +8,7 @@ import sys
 from typing import Any
 
 from ...errors import DataError
-from ._loopfile import add_file_arguments, emit, naming_file, read_options, select_record
+from ._loopfile import add_file_arguments, emit, naming_file, read_options, say_skipped, select_record
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     with naming_file(args.file):
         records = connectors.read_records(args.file, **opts)
         rec, notes = select_record(records, args.loop, str(args.file), "explained")
+        say_skipped(rec.findings)
         result = explain(rec, target=args.target, train_fraction=args.train_fraction, hypotheses=hyps,
                          min_reduction=args.min_reduction)
     result = result.with_warnings(tuple(ExplainWarning(w["code"], w["message"]) for w in notes))

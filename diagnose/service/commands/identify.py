@@ -11,7 +11,7 @@ import json
 import sys
 from typing import TYPE_CHECKING
 
-from ._loopfile import add_file_arguments, naming_file, read_options
+from ._loopfile import add_file_arguments, naming_file, read_options, say_skipped
 
 if TYPE_CHECKING:
     from ...identification import Identification
@@ -82,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     opts = read_options(args)
     with naming_file(args.file):
         ident = identify(args.file, **opts)
+    say_skipped(ident.data_quality)
     if args.json:
         d = ident.to_dict()
         sys.stdout.write(json.dumps(d, allow_nan=False) + "\n")
