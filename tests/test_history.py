@@ -118,7 +118,7 @@ def test_cli_limit_keeps_the_last_runs_and_refuses_less_than_one(tmp_path, capsy
     for bad in ("0", "-1"):
         assert main(["history", "FIC9", "--db", str(db), "--limit", bad]) == 2
         captured = capsys.readouterr()
-        assert captured.out == "" and f"argument --limit: {bad} must be 1 or more" in captured.err
+        assert captured.out == "" and f"argument --limit: {bad}: give 1 or more" in captured.err
 
 
 def _dated(loop: str, S: float, start: str, h: str) -> dict:

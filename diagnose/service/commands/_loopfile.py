@@ -12,19 +12,10 @@ from contextlib import contextmanager
 from typing import Any, Callable, Iterator
 
 from ...errors import StictionError
+from ._args import whole_number
 
 #: The layouts ``--format`` takes (`connectors.layouts`).
 FORMATS = ("auto", "wide", "long", "ragged", "influx", "dcs")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text} must be 0 or more")
-    return v
 
 
 def add_read_arguments(p: argparse.ArgumentParser, verb: str, *, tags: bool = True) -> None:
@@ -51,7 +42,7 @@ def add_read_arguments(p: argparse.ArgumentParser, verb: str, *, tags: bool = Tr
     if tags:
         g.add_argument("--tags", metavar="TOML", help="tag map (TOML) naming each loop's columns")
     g.add_argument("--loop", metavar="NAME", help=f"the loop to {verb} when a file holds several")
-    g.add_argument("--max-samples", dest="max_samples", type=_positive_int, metavar="N",
+    g.add_argument("--max-samples", dest="max_samples", type=whole_number(0, "0 or more"), metavar="N",
                    help="samples kept per loop, the newest (default 100000; 0 keeps all)")
 
 

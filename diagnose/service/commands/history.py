@@ -5,23 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 
-
-def _at_least_one(text: str) -> int:
-    # 0 or a negative N used to print every run, the opposite of what was asked
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"{text} must be 1 or more")
-    return n
+from ._args import whole_number
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("loop", nargs="?", default=None, help="loop name (omit to list the loops)")
     p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
                                               "or ~/.local/share/stiction/history.sqlite)")
-    p.add_argument("--limit", type=_at_least_one, default=None, metavar="N", help="only the last N runs (N >= 1)")
+    p.add_argument("--limit", type=whole_number(1, "1 or more"), default=None, metavar="N", help="only the last N runs (N >= 1)")
     p.add_argument("--json", action="store_true", help="print the runs as JSON")
 
 

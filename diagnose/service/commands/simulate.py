@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from typing import Callable
 
 from ...errors import DataError
 from ...objective import MIN_SAMPLES
+from ._args import number, whole_number
 
 #: Largest S and J, % of valve span: the simulated loop runs at mid-span, and a wider band than
 #: half the span drives OP into its limits (the loop then says nothing about stiction).
@@ -23,32 +23,8 @@ MAX_SJ_PCT = 50.0
 INTEGRATING_BALANCE_PCT = 51.0
 
 
-def _number(low: float, *, above: bool = False, what: str) -> Callable[[str], float]:
-    """An argparse type: a finite number >= ``low`` (``above``: > ``low``). Checked while parsing,
-    so a bad value is a usage error (exit 2) naming the flag, as every command's bad flag values are,
-    and not a domain error from deep in the simulator that names its parameter instead."""
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number; give {what}") from None
-        if not math.isfinite(v) or v < low or (above and v == low):
-            raise argparse.ArgumentTypeError(f"{text}: give {what}")
-        return v
-    return parse
-
-
-def _samples(text: str) -> int:
-    # identify refuses a shorter record, so a shorter simulation is a file nothing can diagnose
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give {MIN_SAMPLES} or more "
-                                         "samples") from None
-    if n < MIN_SAMPLES:
-        raise argparse.ArgumentTypeError(f"{text}: give {MIN_SAMPLES} or more samples (identify needs "
-                                         f"at least {MIN_SAMPLES})")
-    return n
+#: identify refuses a shorter record, so a shorter simulation is a file nothing can diagnose
+_samples = whole_number(MIN_SAMPLES, f"{MIN_SAMPLES} or more samples (identify needs at least {MIN_SAMPLES})")
 
 
 def _gain(text: str) -> float:
@@ -71,20 +47,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"balanced at {INTEGRATING_BALANCE_PCT:g} %% of valve span, the valve starting at 50 %%)")
     p.add_argument("--gain", type=_gain, default=None,
                    help="process gain, PV units per %% (integrating: per %% per second); default 1 (0.02)")
-    p.add_argument("--tau-s", type=_number(0.0, what="a time constant of 0 seconds or more (more than 0 "
+    p.add_argument("--tau-s", type=number(0.0, what="a time constant of 0 seconds or more (more than 0 "
                                                        "unless --process integrating)"),
                    default=20.0, help="process time constant (integrating: its input lag), seconds "
                                       "(default %(default)s)")
-    p.add_argument("--delay-s", type=_number(0.0, what="a dead time of 0 seconds or more"), default=3.0,
+    p.add_argument("--delay-s", type=number(0.0, what="a dead time of 0 seconds or more"), default=3.0,
                    help="process dead time, seconds (default %(default)s)")
-    p.add_argument("--ts-s", "--ts", dest="ts_s", type=_number(0.0, above=True, what="a sample period of more "
+    p.add_argument("--ts-s", "--ts", dest="ts_s", type=number(0.0, above=True, what="a sample period of more "
                                                                                       "than 0 seconds"),
                    default=1.0, help="sample period, seconds (default %(default)s)")
     p.add_argument("--n", type=_samples, default=3000,
                    help=f"number of samples, {MIN_SAMPLES} or more (default %(default)s)")
-    p.add_argument("--noise", type=_number(0.0, what="a noise std of 0 or more PV units (0: no noise)"),
+    p.add_argument("--noise", type=number(0.0, what="a noise std of 0 or more PV units (0: no noise)"),
                    default=0.02, help="measurement noise std, PV units (default %(default)s)")
-    p.add_argument("--load", type=_number(0.0, what="a load step std of 0 or more PV units (0: no load)"),
+    p.add_argument("--load", type=number(0.0, what="a load step std of 0 or more PV units (0: no load)"),
                    default=0.01, help="random-walk load increment std, PV units (default %(default)s)")
     p.add_argument("--f0", type=int, choices=[-1, 1], default=1, help="valve's starting direction")
     p.add_argument("--kc", type=float, default=None, help="controller gain (default: SIMC tuning)")
