@@ -54,7 +54,10 @@ class SearchConfig:
     """The search of `fit_hammerstein`: each strategy's config (`diagnose.search`), and
     ``max_samples``: longer records are searched on the ``max_samples``-sample window where OP covers
     the widest range, at the full rate, and the result is refined on the whole record (None: search
-    the whole record)."""
+    the whole record). ``kind_check``: try the best valve under every other process kind
+    (`diagnose.search.kind_check`); the looks at windows leave it to the whole record's fit, since
+    a window's kind is refined on the record anyway and checking it there only moves which valley
+    the record's refinement starts from."""
 
     grid: GridConfig = GridConfig()
     dense: DenseConfig = DenseConfig()
@@ -64,6 +67,7 @@ class SearchConfig:
     final: PolishConfig = PolishConfig(max_iter=100, tol=1e-6, rounds=1)
     max_samples: int | None = 4000
     noise_candidates: tuple = NOISE_CANDIDATES
+    kind_check: bool = True
 
 
 # --------------------------------------------------------------------------------------------------
@@ -389,7 +393,7 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     if stiction and not lim.fixed:
         spans += search_windows(n, windows, w)
     window_space = replace(space, S_max_pct=float(lim.S_grid[-1]))
-    window_search = replace(search, max_samples=None)
+    window_search = replace(search, max_samples=None, kind_check=False)
 
     def look(span: tuple[int, int]) -> tuple[Candidate, Objective, float | None]:
         """The search on one window, refined on the whole record."""
@@ -409,7 +413,8 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     # the looks are independent: on several cores they run side by side
     candidates += thread_map(look, spans, threads)
     best, obj, x0 = min(candidates, key=lambda c: c[0].sse)
-    best = kind_check(obj, best, lim, search.polish, stiction)
+    if search.kind_check:
+        best = kind_check(obj, best, lim, search.polish, stiction)
     if stiction and best.S_pct > 0:
         best = zoom(obj, best, lim, search.zoom)
         if not lim.fixed:
