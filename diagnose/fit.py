@@ -12,7 +12,8 @@ alone. The search strategies are `diagnose.search`; `fit_hammerstein` composes t
    each class band refined with its own structure;
 5. on long records (``max_samples``) and with ``windows``, the same search on windows of the record,
    each result refined on the whole record from its own start state, the cheapest kept;
-6. the best valve under every other process kind of the model space (`kind_check`);
+6. the best valve under the process kinds of the other family, integrating or self-regulating
+   (`kind_check`);
 7. a local (S, J, f0) zoom and a final Nelder-Mead, the error surface at the final structure, and
    intervals from it.
 

@@ -189,19 +189,25 @@ def polish_structure(obj: Objective, cand: Candidate, lim: Limits) -> Candidate:
 
 def kind_check(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig",
                stiction: bool = True) -> Candidate:
-    """The candidate's valve under every other process kind of the model space: that kind's full
-    structure grid, then Nelder-Mead, a structure polish and Nelder-Mead; the cheapest of all.
+    """The candidate's valve under the process kinds of the other family (an integrating process
+    for a self-regulating candidate, FOPTD and SOPTD for an integrating one): each kind's full
+    structure grid and a structure polish, then, where it comes near, Nelder-Mead, a structure
+    polish and Nelder-Mead; the cheapest of all.
 
-    The searches before pick the kind with the structures they try, and the basin of the right kind
-    can lie outside them: a level loop ends as a first-order lag of hours with its input lag read
-    as dead time, and a training span of a first-order loop as an integrator that misses the
-    held-out part by many times PV's spread."""
+    Over a record shorter than its lag a self-regulating process integrates, and the searches,
+    which pick the kind with the structures they try, can end in the wrong family: a level loop as
+    a first-order lag of hours with its input lag read as dead time, a training span of a
+    first-order loop as an integrator that misses the held-out part by many times PV's spread.
+    FOPTD against SOPTD is left to the searches, which try both on one grid: where the valve model
+    is itself wrong (an asymmetric or drifting valve), the cheaper of the two is often the one
+    further from the plant."""
     if lim.fixed or len(lim.kinds) < 2:
         return cand
     best = cand
+    integrating = cand.structure[0] == "integrating"
     for kind in lim.kinds:
         keys = [k for k in lim.process.keys if k[0] == kind]
-        if kind == cand.structure[0] or not keys:
+        if (kind == "integrating") == integrating or not keys:
             continue
         alt = polish_structure(obj, best_structure(obj, cand.S_pct, cand.J_pct, cand.f0, lim.grid(keys)), lim)
         if stiction and alt.sse < KIND_CHECK_MARGIN * best.sse:
