@@ -13,9 +13,9 @@ alone. The search strategies are `diagnose.search`; `fit_hammerstein` composes t
 5. on long records (``max_samples``) and with ``windows``, the same search on windows of the record,
    each result refined on the whole record from its own start state, the cheapest kept;
 6. the best valve under the process kinds of the other family, integrating or self-regulating
-   (`kind_check`);
-7. a local (S, J, f0) zoom and a final Nelder-Mead, the error surface at the final structure, and
-   intervals from it.
+   (`other_kinds`), refined; those that come near go on beside the best;
+7. a local (S, J, f0) zoom and a final Nelder-Mead of each, the cheapest kept; the error surface at
+   the final structure, and intervals from it.
 
 The linear block is kept low order and strictly causal with positive lags on purpose: in closed
 loop an unconstrained linear model can reproduce PV from OP through the inverse of the controller
@@ -41,7 +41,7 @@ from .objective import (Candidate, Objective, ProcessGrid, burn_in, legendre_bas
 from .parallel import thread_map
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
-                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, kind_check, linear_fit,
+                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit, other_kinds,
                      nelder_mead, noise_costs, noise_model, polish_structure, refine_many, resolve, search_windows,
                      shape_bands, shape_profile, start_state, widest_window, zoom)
 from .stiction_model import stiction_batch
@@ -55,10 +55,10 @@ class SearchConfig:
     """The search of `fit_hammerstein`: each strategy's config (`diagnose.search`), and
     ``max_samples``: longer records are searched on the ``max_samples``-sample window where OP covers
     the widest range, at the full rate, and the result is refined on the whole record (None: search
-    the whole record). ``kind_check``: try the best valve under every other process kind
-    (`diagnose.search.kind_check`); the looks at windows leave it to the whole record's fit, since
-    a window's kind is refined on the record anyway and checking it there only moves which valley
-    the record's refinement starts from."""
+    the whole record). ``kind_check``: also finish the best valve under the process kinds of the other
+    family (`diagnose.search.other_kinds`); the looks at windows leave it to the whole record's
+    fit, since a window's kind is refined on the record anyway and checking it there only moves
+    which valley the record's refinement starts from."""
 
     grid: GridConfig = GridConfig()
     dense: DenseConfig = DenseConfig()
@@ -414,12 +414,17 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     # the looks are independent: on several cores they run side by side
     candidates += thread_map(look, spans, threads)
     best, obj, x0 = min(candidates, key=lambda c: c[0].sse)
+    finalists = [best]
     if search.kind_check:
-        best = kind_check(obj, best, lim, search.polish, stiction)
-    if stiction and best.S_pct > 0:
-        best = zoom(obj, best, lim, search.zoom)
-        if not lim.fixed:
-            best = nelder_mead(obj, best, lim, search.final)
+        finalists += other_kinds(obj, best, lim, search.polish, stiction)
+    done = []
+    for best in finalists:
+        if stiction and best.S_pct > 0:
+            best = zoom(obj, best, lim, search.zoom)
+            if not lim.fixed:
+                best = nelder_mead(obj, best, lim, search.final)
+        done.append(best)
+    best = min(done, key=lambda c: c.sse)
     return finish(obj, best, lim, off, surface=stiction and surface, start_op=x0)
 
 

@@ -187,41 +187,47 @@ def polish_structure(obj: Objective, cand: Candidate, lim: Limits) -> Candidate:
     return best if best.sse < cand.sse else cand
 
 
-def kind_check(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig",
-               stiction: bool = True) -> Candidate:
+def other_kinds(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig",
+                stiction: bool = True) -> list[Candidate]:
     """The candidate's valve under the process kinds of the other family (an integrating process
     for a self-regulating candidate, FOPTD and SOPTD for an integrating one): each kind's full
-    structure grid and a structure polish, then, where it comes near, Nelder-Mead, a structure
-    polish and Nelder-Mead; the cheapest of all.
+    structure grid and a structure polish, then Nelder-Mead, a structure polish and Nelder-Mead;
+    those that come within `KIND_CHECK_MARGIN` of the candidate's cost, for the caller to finish
+    alongside it and keep the cheapest.
 
     Over a record shorter than its lag a self-regulating process integrates, and the searches,
     which pick the kind with the structures they try, can end in the wrong family: a level loop as
     a first-order lag of hours with its input lag read as dead time, a training span of a
     first-order loop as an integrator that misses the held-out part by many times PV's spread.
-    FOPTD against SOPTD is left to the searches, which try both on one grid: where the valve model
-    is itself wrong (an asymmetric or drifting valve), the cheaper of the two is often the one
-    further from the plant."""
+    Near-equals are finished, not compared here: which family wins can turn on the last polish.
+    A self-regulating model whose lag outgrows a quarter of the record (an integrator in all but
+    name) is not offered against an integrator. FOPTD against SOPTD is left to the searches,
+    which try both on one grid: where the valve model is itself wrong (an asymmetric valve fitted
+    as a symmetric one), the cheaper of the two is often the one further from the plant."""
     if lim.fixed or len(lim.kinds) < 2:
-        return cand
-    best = cand
+        return []
     integrating = cand.structure[0] == "integrating"
+    out = []
     for kind in lim.kinds:
         keys = [k for k in lim.process.keys if k[0] == kind]
         if (kind == "integrating") == integrating or not keys:
             continue
         alt = polish_structure(obj, best_structure(obj, cand.S_pct, cand.J_pct, cand.f0, lim.grid(keys)), lim)
-        if stiction and alt.sse < KIND_CHECK_MARGIN * best.sse:
-            # near enough at the other kind's valve to be worth refining (lags and valve co-adapt)
+        if alt.sse >= KIND_CHECK_MARGIN * cand.sse:
+            continue
+        if stiction:
             alt = nelder_mead(obj, alt, lim, cfg)
             alt = polish_structure(obj, alt, lim)
             alt = nelder_mead(obj, alt, lim, cfg)
-        if alt.sse < best.sse:
-            best = alt
-    return best
+        if integrating and max(alt.structure[1], alt.structure[2]) > 0.25 * lim.n * lim.ts_s:
+            continue
+        if alt.sse < KIND_CHECK_MARGIN * cand.sse:
+            out.append(alt)
+    return out
 
 
-#: `kind_check` refines another kind's structure when, at the candidate's valve, it costs less
-#: than this many times the candidate.
+#: `other_kinds` offers another kind's structure when it costs less than this many times the
+#: candidate.
 KIND_CHECK_MARGIN = 1.1
 
 
