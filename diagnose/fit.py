@@ -41,9 +41,9 @@ from .objective import (Candidate, Objective, ProcessGrid, burn_in, legendre_bas
 from .parallel import thread_map
 from .process_model import ProcessModel
 from .search import (NOISE_CANDIDATES, BandConfig, DenseConfig, GridConfig, Limits, ModelSpace,
-                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit, other_kinds,
-                     nelder_mead, noise_costs, noise_model, polish_structure, refine_many, resolve, search_windows,
-                     shape_bands, shape_profile, start_state, widest_window, zoom)
+                     PolishConfig, ZoomConfig, best_structure, coarse_structures, dense_grid, global_grid, linear_fit,
+                     nelder_mead, noise_costs, noise_model, other_kinds, polish_structure, refine_many, resolve,
+                     search_windows, shape_bands, shape_profile, start_state, widest_window, zoom)
 from .stiction_model import stiction_batch
 
 #: Noise prefilter time constant (samples) the automatic noise model starts from.
