@@ -172,21 +172,23 @@ def test_wrong_device_id_and_missing_register(mixed_server):
         asyncio.run(ModbusPoller(parse_modbus_config(tomllib.loads(text))).read_once())
 
 
-def test_server_restart_gives_a_gap_and_recovery(tmp_path):
+def _run_through_a_restart(n_loops, period_s, window_samples, timeout_s, reconnect_s, run_s, down_at_s, down_for_s,
+                           flush=True):
+    """Poll simulated loops while their server goes away mid-run and comes back: (stats, windows)."""
     port = free_port()
-    cfg = parse_modbus_config(tomllib.loads(default_config_text(port, 2, period_s=0.1, window_samples=1000,
-                                                                timeout_s=0.3)))
-    cfg = type(cfg)(**{**cfg.__dict__, "reconnect_min_s": 0.1, "reconnect_max_s": 0.4})
-    args = ["--port", str(port), "--loops", "2", "--ts", "0.1", "--samples", "600"]
+    cfg = parse_modbus_config(tomllib.loads(default_config_text(port, n_loops, period_s=period_s,
+                                                                window_samples=window_samples, timeout_s=timeout_s)))
+    cfg = type(cfg)(**{**cfg.__dict__, "reconnect_min_s": reconnect_s[0], "reconnect_max_s": reconnect_s[1]})
+    args = ["--port", str(port), "--loops", str(n_loops), "--ts", str(period_s), "--samples", "600"]
     p, _ = start_server(args)
     windows = []
     poller = ModbusPoller(cfg, on_window=windows.append, min_samples=5)
 
     async def scenario():
-        task = asyncio.ensure_future(poller.run(7.0))
-        await asyncio.sleep(2.0)
+        task = asyncio.ensure_future(poller.run(run_s, flush=flush))
+        await asyncio.sleep(down_at_s)
         stop(p)                                     # server goes away mid-run
-        await asyncio.sleep(1.5)
+        await asyncio.sleep(down_for_s)
         p2, _ = await asyncio.get_running_loop().run_in_executor(None, start_server, args)
         try:
             return await task, p2
@@ -196,6 +198,11 @@ def test_server_restart_gives_a_gap_and_recovery(tmp_path):
 
     stats, p2 = asyncio.run(scenario())
     stop(p2)
+    return stats, windows
+
+
+def test_server_restart_gives_a_gap_and_recovery(tmp_path):
+    stats, windows = _run_through_a_restart(2, 0.1, 1000, 0.3, (0.1, 0.4), 7.0, 2.0, 1.5)
     st = stats["SIM000"]
     assert st.failed > 5 and st.good > 30 and st.polls >= 60
     recs = [r for r in windows if r.name == "SIM000"]
@@ -209,29 +216,7 @@ def test_server_restart_gives_a_gap_and_recovery(tmp_path):
 def test_a_new_window_starts_when_the_data_come_back(tmp_path):
     # windows of 30 polls: the stretch after an outage runs to a full window of its own instead of
     # ending at the next fixed boundary (short of the half window the monitor diagnoses)
-    port = free_port()
-    cfg = parse_modbus_config(tomllib.loads(default_config_text(port, 1, period_s=0.05, window_samples=30,
-                                                                timeout_s=0.2)))
-    cfg = type(cfg)(**{**cfg.__dict__, "reconnect_min_s": 0.05, "reconnect_max_s": 0.2})
-    args = ["--port", str(port), "--loops", "1", "--ts", "0.05", "--samples", "600"]
-    p, _ = start_server(args)
-    windows = []
-    poller = ModbusPoller(cfg, on_window=windows.append, min_samples=5)
-
-    async def scenario():
-        task = asyncio.ensure_future(poller.run(6.0, flush=False))
-        await asyncio.sleep(1.2)
-        stop(p)
-        await asyncio.sleep(1.0)
-        p2, _ = await asyncio.get_running_loop().run_in_executor(None, start_server, args)
-        try:
-            return await task, p2
-        except BaseException:
-            stop(p2)
-            raise
-
-    stats, p2 = asyncio.run(scenario())
-    stop(p2)
+    _, windows = _run_through_a_restart(1, 0.05, 30, 0.2, (0.05, 0.2), 6.0, 1.2, 1.0, flush=False)
     cut = next(i for i, r in enumerate(windows) if any(f.code == "gap" for f in r.findings))
     after = windows[cut + 1:]
     assert after and after[0].meta["t_first_s"] > windows[cut].meta["t_last_s"]
