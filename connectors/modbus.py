@@ -619,14 +619,15 @@ class ModbusPoller:
                 self._buffers[lc.name] = _Buffer()
 
     def _emit(self, lc: LoopConfig, buf: _Buffer) -> None:
-        if self.on_error is not None and lc.name not in self._order_said:
+        order = _order_findings(lc, buf.v)
+        if order and self.on_error is not None and lc.name not in self._order_said:
             # said once per loop, from the whole window: garbage decodes to NaN now and then, which
             # cuts the window into pieces too short to carry the finding
-            for f in _order_findings(lc, buf.v):
-                self._order_said.add(lc.name)
+            self._order_said.add(lc.name)
+            for f in order:
                 self.on_error(lc.name, ModbusReadError(f.message, path=self.config.path))
         for rec in window_records(lc, buf.t, buf.v, self.config.period_s, self.min_samples,
-                                  source=self._source(lc)):
+                                  source=self._source(lc), order=order):
             self.stats[lc.name].windows += 1
             if self.on_window is None:
                 continue
@@ -675,8 +676,10 @@ class ModbusPoller:
 
 
 def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]], period_s: float,
-                   min_samples: int, *, source: str | None = None) -> list[LoopRecord]:
-    """Records from one window of polled samples: cut at every lost poll, none invented."""
+                   min_samples: int, *, source: str | None = None,
+                   order: list[Finding] | None = None) -> list[LoopRecord]:
+    """Records from one window of polled samples: cut at every lost poll, none invented. ``order``:
+    the window's `register_order` findings when the caller has them already."""
     from datetime import datetime, timezone
 
     from diagnose.quality import assess
@@ -690,7 +693,7 @@ def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]],
     lost = int(np.count_nonzero(~ok))
     tt = np.asarray(t, float)
     out = []
-    base: list[Finding] = _order_findings(lc, v)
+    base: list[Finding] = list(_order_findings(lc, v) if order is None else order)
     if lost:
         gaps = runs(~ok)
         base.append(Finding("gap", f"{lost} of {n} polls failed or were missed ({len(gaps)} outage(s)); the "

@@ -418,12 +418,12 @@ def fit_hammerstein(op_pct, pv, ts_s: float, *, train=None, stiction: bool = Tru
     if search.kind_check:
         finalists += other_kinds(obj, best, lim, search.polish, stiction)
     done = []
-    for best in finalists:
-        if stiction and best.S_pct > 0:
-            best = zoom(obj, best, lim, search.zoom)
+    for c in finalists:
+        if stiction and c.S_pct > 0:
+            c = zoom(obj, c, lim, search.zoom)
             if not lim.fixed:
-                best = nelder_mead(obj, best, lim, search.final)
-        done.append(best)
+                c = nelder_mead(obj, c, lim, search.final)
+        done.append(c)
     best = min(done, key=lambda c: c.sse)
     return finish(obj, best, lim, off, surface=stiction and surface, start_op=x0)
 

@@ -694,7 +694,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         method = "op_mv"
         mv = record.mv
         travel = float(np.percentile(op, 99.5) - np.percentile(op, 0.5))
-        if np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0]))) and travel < S_MIN_PCT:
+        still = np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0])))
+        if still and travel < S_MIN_PCT:
             # OP never asked for more than a band the verdict would not call stiction: a still
             # stem says nothing of the valve, so the verdict is OP/PV's
             method = "op_pv"
@@ -703,7 +704,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
                                   f"span, less than the {S_MIN_PCT:g} % band the verdict calls stiction: a "
                                   "healthy valve need not move either, so the stem says nothing and the "
                                   "verdict is judged from OP and PV"))
-        elif np.ptp(mv) <= 1e-9 * max(1.0, abs(float(mv[0]))):
+        elif still:
             mv_still = True
         else:
             valve_fit = fit_valve(op, mv, ts)
@@ -726,7 +727,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     ctest = None
     backlash_lr = None
     if mv_still:
-        S_lo = float(np.percentile(op, 99.5) - np.percentile(op, 0.5))
+        S_lo = travel
         warnings.append(_warn("valve_not_moving",
                               f"the stem position (MV) never moves while OP travels {S_lo:.3g} % of span: "
                               "the valve is stuck (or MV is not the stem position); S is at least that, "

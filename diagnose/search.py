@@ -191,9 +191,9 @@ def other_kinds(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig
                 stiction: bool = True) -> list[Candidate]:
     """The candidate's valve under the process kinds of the other family (an integrating process
     for a self-regulating candidate, FOPTD and SOPTD for an integrating one): each kind's full
-    structure grid and a structure polish, then Nelder-Mead, a structure polish and Nelder-Mead;
-    those that come within `KIND_CHECK_MARGIN` of the candidate's cost, for the caller to finish
-    alongside it and keep the cheapest.
+    structure grid and a structure polish, then `refine`; those that come within
+    `KIND_CHECK_MARGIN` of the candidate's cost, for the caller to finish alongside it and keep the
+    cheapest.
 
     Over a record shorter than its lag a self-regulating process integrates, and the searches,
     which pick the kind with the structures they try, can end in the wrong family: a level loop as
@@ -216,9 +216,7 @@ def other_kinds(obj: Objective, cand: Candidate, lim: Limits, cfg: "PolishConfig
         if alt.sse >= KIND_CHECK_MARGIN * cand.sse:
             continue
         if stiction:
-            alt = nelder_mead(obj, alt, lim, cfg)
-            alt = polish_structure(obj, alt, lim)
-            alt = nelder_mead(obj, alt, lim, cfg)
+            alt = refine(obj, alt, lim, cfg)
         if integrating and max(alt.structure[1], alt.structure[2]) > 0.25 * lim.n * lim.ts_s:
             continue
         if alt.sse < KIND_CHECK_MARGIN * cand.sse:

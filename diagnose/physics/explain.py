@@ -33,10 +33,10 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from .. import quality
 from ..controller import controller_action
 from ..errors import DataError, StictionWarning
 from ..parallel import thread_count, thread_map
-from .. import quality
 from ..plain import percent_change
 from ..record import LoopRecord
 from .baseline import Baseline, from_hammerstein, from_valve_fit, make_baseline
