@@ -215,7 +215,8 @@ def parse_modbus_config(data: Mapping[str, Any], path: str | None = None) -> Mod
     """A `ModbusConfig` from parsed TOML data (see the module docstring)."""
     try:
         return _parse_modbus_config(data, path)
-    except (TypeError, ValueError, AttributeError, KeyError) as exc:
+    except (TypeError, ValueError, OverflowError, AttributeError, KeyError) as exc:
+        # int(inf) is an OverflowError: a port or address of inf is a bad value like any other
         raise _err(f"bad value in the Modbus config ({type(exc).__name__}: {exc})", path) from None
 
 
@@ -236,7 +237,7 @@ def _parse_modbus_config(data: Mapping[str, Any], path: str | None) -> ModbusCon
         try:
             devices[name] = DeviceConfig(name, str(d["host"]), int(d.get("port", 502)), int(d.get("device_id", 1)),
                                          float(d["timeout_s"]) if "timeout_s" in d else None)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise _err(f"devices.{name}: {exc}", path) from None
         if not 1 <= devices[name].port <= 65535:
             raise _err(f"devices.{name}.port {devices[name].port} is outside 1..65535", path)

@@ -379,7 +379,7 @@ def test_binary_stream_and_cli_error(tmp_path, capsys):
     assert err.startswith("error: ") and "Traceback" not in err and "x.xlsx" in err
 
 
-@settings(max_examples=FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 @given(st.binary(max_size=600))
 def test_fuzz_bytes_only_connector_error(data):
     try:
@@ -395,7 +395,7 @@ _cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
                   st.text(max_size=6))
 
 
-@settings(max_examples=FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=FUZZ, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 @given(header=st.lists(st.sampled_from(["time", "OP", "PV", "SP", "FIC1.OP", "FIC1.PV", "Tag", "Value",
                                          "Timestamp", "date", "_time", "_value", "Quality", "x"]),
                        min_size=1, max_size=6),

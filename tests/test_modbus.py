@@ -302,7 +302,7 @@ def test_window_records_cut_at_lost_polls_without_inventing_values():
     assert recs[0].start == "1970-01-01T00:16:40Z"
 
 
-from hypothesis import given, settings  # noqa: E402
+from hypothesis import example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 _leaf = st.one_of(st.integers(-5, 70000), st.floats(allow_nan=True), st.text(max_size=5), st.booleans(),
@@ -311,7 +311,10 @@ _role = st.one_of(_leaf, st.dictionaries(st.sampled_from(["address", "type", "or
                                                           "range", "device_id"]), _leaf, max_size=5))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200, deadline=None, derandomize=True)
+@example({"period_s": 0, "timeout_s": 0, "devices": {"a": {"host": 0, "port": math.inf}}, "loops": {"L1": {}}})
+@example({"period_s": 1, "timeout_s": 1, "devices": {"a": {"host": "h"}},
+          "loops": {"L1": {"device": "a", "op": {"address": -math.inf}, "pv": 2}}})
 @given(st.fixed_dictionaries({
     "period_s": _leaf, "timeout_s": _leaf,
     "devices": st.dictionaries(st.sampled_from(["a", "b"]), st.dictionaries(
