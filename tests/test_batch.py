@@ -154,7 +154,8 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     db = tmp_path / "h.sqlite"
     with History(db) as h:
         for i, S in enumerate([1.0, 2.0]):
-            h.add_rows([row_from_stored({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}"},
+            h.add_rows([row_from_stored({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}",
+                                         "stiction": i == 1, "stiction_probability": 0.3 + 0.5 * i},
                                         run_at=f"2026-01-0{i + 1}T00:00:00+00:00")])   # runs of an older release
     logs = tmp_path / "logs"
     logs.mkdir()
@@ -164,6 +165,9 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     assert row["S_pct"] > 3.0 and row["degradation"] and "S grew" in row["degradation"]
     md = (tmp_path / "out" / "loops" / "FIC1" / "FIC1.md").read_text()
     assert "history.degradation" in md and "## History" in md
+    # the sticky FIC1 of this run makes two sticky runs of three
+    assert "Verdict over this loop's runs: stiction in 2 of the last 3 runs" in md
+    assert "| P(stiction) |" in md and "| 30 % |" in md
     assert "Degrading valves" in (tmp_path / "out" / "summary.md").read_text()
 
 

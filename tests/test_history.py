@@ -13,8 +13,8 @@ from diagnose.service import history as H
 from diagnose.service.cli import main
 
 
-def _res(loop: str, S: float, J: float = 1.0, h: str = "h", cls: str = "undershoot") -> dict:
-    return {"loop": loop, "S": S, "J": J, "S_interval": [S - 0.1, S + 0.1], "J_interval": [J - 0.1, J + 0.1],
+def _res(loop: str, S: float, J: float = 1.0, h: str = "h", cls: str = "undershoot", p: float = 0.9) -> dict:
+    return {"loop": loop, "stiction": p >= 0.5, "stiction_probability": p, "S": S, "J": J, "S_interval": [S - 0.1, S + 0.1], "J_interval": [J - 0.1, J + 0.1],
             "class": cls, "confidence": 0.9, "severity": {"score": 10.0 * S}, "tool_version": "t",
             "input_hash": h, "verdict": "v", "record": {"start": "2026-01-01T00:00:00+00:00"}}
 
@@ -91,7 +91,8 @@ def test_cli_prints_the_trend_and_warns(tmp_path, capsys):
     out = capsys.readouterr().out
     lines = out.splitlines()
     assert lines[0].startswith("FIC9: 3 run(s)")
-    assert [ln.split()[1] for ln in lines[2:5]] == ["1.00", "1.40", "2.10"]
+    assert [ln.split()[1:4] for ln in lines[2:5]] == [["90", "%", "1.00"], ["90", "%", "1.40"], ["90", "%", "2.10"]]
+    assert "Verdict: stiction in 3 of the last 3 runs, median probability 90 %" in out
     assert "WARNING: S grew" in out
     assert main(["history", "TIC2", "--db", str(db)]) == 0
     assert "WARNING" not in capsys.readouterr().out
@@ -114,7 +115,8 @@ def test_cli_limit_keeps_the_last_runs_and_refuses_less_than_one(tmp_path, capsy
     _fill(db, "FIC9", [1.0, 1.4, 2.1])
     assert main(["history", "FIC9", "--db", str(db), "--limit", "2"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [ln.split()[1] for ln in lines[2:]] == ["1.40", "2.10"]
+    assert [ln.split()[3] for ln in lines[2:4]] == ["1.40", "2.10"]
+    assert lines[4:] == ["Verdict: stiction in 2 of the last 2 runs, median probability 90 %"]
     for bad in ("0", "-1"):
         assert main(["history", "FIC9", "--db", str(db), "--limit", bad]) == 2
         captured = capsys.readouterr()
@@ -177,7 +179,7 @@ def test_a_version_1_database_is_read_and_migrated_in_place(tmp_path, capsys):
     assert main(["history", "FIC1", "--db", str(db)]) == 0   # read-only, before any migration
     assert "FIC1: 2 run(s)" in capsys.readouterr().out
     with H.History(db) as hist:
-        assert hist.conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "2"
+        assert hist.conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == str(H.SCHEMA_VERSION)
         rows = hist.runs("FIC1")
         assert [r["S_pct"] for r in rows] == [1.0, 1.3]   # by the records' ends, filled in
         assert rows[0]["data_end"] == "2026-01-11T00:00:00Z"
@@ -243,3 +245,33 @@ def test_cli_words_the_confidence_as_the_reports_do_and_gives_every_time_with_z(
         ("2026-01-10T00:00:00Z", "2026-01-11T00:00:00Z"), ("2026-02-09T23:00:00Z", "2026-02-10T23:00:00Z"),
         ("2026-03-10T00:00:00Z", "2026-03-11T00:00:00Z")]
     assert all(r["run_at"].endswith("Z") for r in runs)
+
+
+def test_persistence_counts_the_last_runs_that_stored_a_verdict():
+    rows = [{"stiction": s, "stiction_probability": p} for s, p in
+            [(1, 0.9), (0, 0.2), (None, None), (1, 0.8), (1, 0.7)]]
+    assert H.persistence(rows) == "stiction in 3 of the last 4 runs, median probability 75 %"
+    assert H.persistence(rows, runs=2) == "stiction in 2 of the last 2 runs, median probability 75 %"
+    assert H.persistence(rows[:2] + rows[2:3]) == "stiction in 1 of the last 2 runs, median probability 55 %"
+    assert H.persistence(rows[:1]) is None                 # one run says nothing of persistence
+
+
+def test_a_version_2_database_gains_the_verdict_columns_from_its_stored_results(tmp_path):
+    db = tmp_path / "old.sqlite"
+    import json
+    old_cols = [c for c in H._COLS if c not in ("stiction", "stiction_probability")]
+    ddl = H._DDL.replace("    stiction INTEGER,\n    stiction_probability REAL,\n", "")
+    assert "stiction INTEGER" not in ddl
+    con = sqlite3.connect(db)
+    con.executescript(ddl)
+    for i, p in enumerate((0.9, 0.3)):
+        row = H.row_from_stored(_res("OLD", 1.0, h=f"h{i}", p=p), run_at=f"2026-03-0{i + 1}T00:00:00+00:00")
+        row["result_json"] = json.dumps(_res("OLD", 1.0, h=f"h{i}", p=p))
+        con.execute(f"INSERT INTO runs ({', '.join(old_cols)}) VALUES ({', '.join('?' for _ in old_cols)})",
+                    [row[c] for c in old_cols])
+    con.commit()
+    con.close()
+    with H.History(db) as hist:      # opened for writing: migrated in place
+        rows = hist.runs("OLD")
+    assert [(r["stiction"], r["stiction_probability"]) for r in rows] == [(1, 0.9), (0, 0.3)]
+    assert H.persistence(rows) == "stiction in 1 of the last 2 runs, median probability 60 %"

@@ -19,6 +19,7 @@ import json
 import math
 import os
 import sqlite3
+import statistics
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
@@ -29,13 +30,16 @@ from ..plain import finite_or_none, percent
 if TYPE_CHECKING:
     from .pipeline import Diagnosis
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 #: A loop is "degrading" when S rose at each of the last `DEGRADE_RUNS` - 1 steps by at least
 #: `DEGRADE_STEP_PCT` and by at least `DEGRADE_TOTAL_PCT` in all (% of valve span).
 DEGRADE_RUNS = 3
 DEGRADE_STEP_PCT = 0.05
 DEGRADE_TOTAL_PCT = 0.3
+
+#: The verdict's persistence is counted over a loop's last `PERSIST_RUNS` runs (this one included).
+PERSIST_RUNS = 7
 
 _DDL = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -55,6 +59,8 @@ CREATE TABLE IF NOT EXISTS runs (
     severity REAL,
     oscillation_period_s REAL,
     verdict TEXT,
+    stiction INTEGER,
+    stiction_probability REAL,
     result_json TEXT,
     UNIQUE (loop, input_hash, tool_version)
 );
@@ -64,7 +70,7 @@ CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 
 _COLS = ("loop", "run_at", "data_start", "data_end", "source", "input_hash", "tool_version", "status", "class",
          "S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi", "confidence", "severity",
-         "oscillation_period_s", "verdict", "result_json")
+         "oscillation_period_s", "verdict", "stiction", "stiction_probability", "result_json")
 
 
 def default_db_path() -> Path:
@@ -156,8 +162,14 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "severity": finite_or_none(diag.severity.score),
         "oscillation_period_s": finite_or_none(ident.oscillation.period_s),
         "verdict": diag.verdict_text,
+        "stiction": int(bool(ident.stiction)),
+        "stiction_probability": finite_or_none(ident.stiction_probability),
         "result_json": json.dumps(diag.to_dict(), separators=(",", ":"), allow_nan=False),
     }
+
+
+def _flag(value: Any) -> int | None:
+    return int(value) if isinstance(value, bool) else None
 
 
 def _pair(value: Any) -> tuple[float | None, float | None]:
@@ -192,6 +204,8 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
         "severity": finite_or_none(sev.get("score")) if isinstance(sev, Mapping) else None,
         "oscillation_period_s": finite_or_none(osc.get("period_s")) if isinstance(osc, Mapping) else None,
         "verdict": error if status != "ok" else result.get("verdict"),
+        "stiction": _flag(result.get("stiction")) if status == "ok" else None,
+        "stiction_probability": finite_or_none(result.get("stiction_probability")) if status == "ok" else None,
         "result_json": json.dumps(result, separators=(",", ":"), allow_nan=False) if status == "ok" else None,
     }
 
@@ -234,7 +248,7 @@ class History:
     def _migrate(self) -> None:
         """Bring a database of an earlier schema up to this one, in place (inside the caller's
         transaction: all of it or nothing). Version 2 added ``data_end``, filled here from each
-        stored result."""
+        stored result; version 3 the verdict (``stiction``) and its probability, from the same."""
         cols = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         if "data_end" not in cols:
             self.conn.execute("ALTER TABLE runs ADD COLUMN data_end TEXT")
@@ -246,6 +260,20 @@ class History:
                     end = None
                 if end is not None:
                     self.conn.execute("UPDATE runs SET data_end = ? WHERE id = ?", (end, rid))
+        if "stiction" not in cols:
+            # version 3: the verdict and its probability as columns (the history's persistence)
+            self.conn.execute("ALTER TABLE runs ADD COLUMN stiction INTEGER")
+            self.conn.execute("ALTER TABLE runs ADD COLUMN stiction_probability REAL")
+            for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
+                                               ).fetchall():
+                try:
+                    res = json.loads(text)
+                except ValueError:
+                    continue
+                if isinstance(res, dict):
+                    self.conn.execute("UPDATE runs SET stiction = ?, stiction_probability = ? WHERE id = ?",
+                                      (_flag(res.get("stiction")), finite_or_none(res.get("stiction_probability")),
+                                       rid))
         self.conn.execute("CREATE INDEX IF NOT EXISTS runs_loop_end ON runs (loop, data_end)")
         self.conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
@@ -341,13 +369,29 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
     return None
 
 
+def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) -> str | None:
+    """How often the loop's last ``runs`` runs (oldest first) said stiction, or None with fewer than
+    two runs that stored a verdict.
+
+    One window can hold too little stick-slip for the fit to tell (docs/verdict.md, Limits): a
+    valve called sticky on most of its windows is a firmer finding than one window's probability.
+    """
+    seen = [r for r in rows if r.get("stiction") is not None][-runs:]
+    if len(seen) < 2:
+        return None
+    k = sum(bool(r["stiction"]) for r in seen)
+    ps = [float(r["stiction_probability"]) for r in seen if r.get("stiction_probability") is not None]
+    med = f", median probability {percent(statistics.median(ps))}" if ps else ""
+    return f"stiction in {k} of the last {len(seen)} runs{med}"
+
+
 def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
     """The trend table `stiction history LOOP` prints: one line per run, by the end of its record."""
     if not rows:
         return f"{loop}: no runs in the history\n"
     lines = [f"{loop}: {len(rows)} run(s)",
-             f"{'record end (UTC)':<20} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} {'conf':>6} "
-             f"{'sev':>4}  {'run (UTC)':<20}"]
+             f"{'record end (UTC)':<20} {'P(st.)':>6} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} "
+             f"{'conf':>6} {'sev':>4}  {'run (UTC)':<20}"]
     for r in rows:
         iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
               else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
@@ -356,8 +400,12 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
         conf = percent(r.get("confidence"))   # as the reports word it: a rounded "100%" reads as a certainty
         sev = "-" if r.get("severity") is None else f"{r['severity']:.0f}"
         end = str(r.get("data_end") or "-")[:19]
-        lines.append(f"{end:<20} {S:>6} {iv:>15} {J:>6} "
+        p = percent(r.get("stiction_probability"))
+        lines.append(f"{end:<20} {p:>6} {S:>6} {iv:>15} {J:>6} "
                      f"{str(r.get('class') or '-'):<12} {conf:>6} {sev:>4}  {str(r.get('run_at'))[:19]:<20}")
+    held = persistence(rows)
+    if held:
+        lines.append(f"Verdict: {held}")
     warn = degradation(rows)
     if warn:
         lines.append(f"WARNING: {warn}")

@@ -20,6 +20,7 @@ import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..plain import count, duration, number, percent, percent_change
+from .history import persistence
 
 if TYPE_CHECKING:
     from ..controller import ControllerAction
@@ -425,8 +426,15 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
         blocks.append(("h2", "History"))
         if degradation:
             blocks.append(("strong", degradation))
-        blocks.append(("table", ["Record end", "S %", "J %", "Class", "Confidence", "Run"],
-                       [[str(r.get("data_end") or "-")[:19], fmt(r.get("S_pct")), fmt(r.get("J_pct")),
+        this = {"stiction": int(bool(ident.stiction)), "stiction_probability": ident.stiction_probability}
+        held = persistence(list(history_rows) + [this])
+        if held:
+            blocks.append(("p", f"Verdict over this loop's runs: {held} (this run included). One window "
+                                "can hold too little stick-slip to tell; a valve called sticky on most "
+                                "of its windows is the firmer finding."))
+        blocks.append(("table", ["Record end", "P(stiction)", "S %", "J %", "Class", "Confidence", "Run"],
+                       [[str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")),
+                         fmt(r.get("S_pct")), fmt(r.get("J_pct")),
                          fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]]
                         for r in history_rows]))
         if "history" in figs:

@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..history import History, degradation, format_trend
+    from ..history import History, degradation, format_trend, persistence
 
     with History(args.db, readonly=True) as h:
         if args.loop is None:
@@ -44,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
             known = ", ".join(h.loops()[:10]) or "none"
             raise StictionError(f"no runs of loop {args.loop!r} in {h.path} (loops: {known})")
     if args.json:
-        print(json.dumps({"loop": args.loop, "runs": rows, "degradation": degradation(rows)}, indent=1))
+        print(json.dumps({"loop": args.loop, "runs": rows, "degradation": degradation(rows),
+                          "persistence": persistence(rows)}, indent=1))
     else:
         print(format_trend(args.loop, rows), end="")
     return 0
