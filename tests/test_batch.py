@@ -256,6 +256,36 @@ def test_two_exports_of_one_tag_keep_both_reports_and_one_history(plant, tmp_pat
         assert h.loops() == ["FIC1"] and len(h.runs("FIC1")) == 2
 
 
+def test_the_summary_names_the_file_each_loop_came_from(plant, tmp_path):
+    # three copies of one folder: the loops are FIC1, FIC1__FIC1 and FIC1__FIC1_<hash>, and only
+    # the file tells a reader of the summary which is which
+    copies = [tmp_path / "plant" / day for day in ("mon", "tue", "wed")]
+    for c in copies:
+        c.mkdir(parents=True)
+        shutil.copy(plant / "logs" / "FIC1.csv", c / "FIC1.csv")
+    res = B.run_batch(copies, tmp_path / "out", workers=1, explain=False, narx=False, db=tmp_path / "h.sqlite",
+                      progress=False)
+    assert res.n_failed == 0 and len({r["loop"] for r in res.rows}) == 3
+    out = tmp_path / "out"
+    truth = {}
+    for r in res.rows:   # each loop's own result says which file it read
+        src = json.loads((out / "loops" / r["loop"] / f"{r['loop']}.json").read_text())["record"]["source"]
+        truth[r["loop"]] = Path(src).relative_to(tmp_path / "plant").as_posix()
+    assert sorted(truth.values()) == ["mon/FIC1.csv", "tue/FIC1.csv", "wed/FIC1.csv"]
+    with open(out / "summary.csv", newline="") as fh:
+        assert {t["loop"]: t["file"] for t in csv.DictReader(fh)} == truth
+    assert {r["loop"]: r["file"] for r in json.loads((out / "summary.json").read_text())["loops"]} == truth
+    md = (out / "summary.md").read_text()
+    header = next(ln for ln in md.splitlines() if ln.startswith("| # | Loop"))
+    assert header.rstrip(" |").endswith("| File")
+    ranked = [ln for ln in md.splitlines() if ln.startswith("| ") and "](loops/" in ln]
+    assert {ln.split("|")[2].strip().split("]")[0].lstrip("["): ln.split("|")[-2].strip() for ln in ranked} == truth
+    text = subprocess.run(["pdftotext", "-layout", str(out / "summary.pdf"), "-"], capture_output=True, text=True,
+                          check=True).stdout
+    for loop, file in truth.items():   # each loop's row holds its file in the PDF too
+        assert any(loop + " " in ln and file in ln for ln in text.splitlines()), (loop, file)
+
+
 def test_a_tag_map_applies_where_it_matches_and_the_rest_is_auto_detected(plant, tmp_path):
     logs = tmp_path / "logs"
     logs.mkdir()

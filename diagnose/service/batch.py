@@ -154,6 +154,18 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
     return files, missing
 
 
+def shown_path(path: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> str:
+    """A file as the summary names it: its path from the folder that holds the input it was found
+    under (``copy2/FIC103.csv`` for input ``copy2/``), so that loops of files that share a name
+    (``FIC103``, ``FIC103__FIC103``) can be told apart, without the long absolute path."""
+    full = os.path.abspath(path)
+    for item in inputs:
+        top = os.path.abspath(item)
+        if full == top or full.startswith(top.rstrip(os.sep) + os.sep):
+            return Path(os.path.relpath(full, os.path.dirname(top) or top)).as_posix()
+    return Path(path).name
+
+
 def _file_digest(path: str | os.PathLike | None) -> str | None:
     if path is None:
         return None
@@ -894,13 +906,16 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
         raise DataError("no input files found (looked for " + ", ".join(INPUT_SUFFIXES) +
                         f" in {', '.join(map(str, inputs))})")
     workers = workers or usable_cores()
-    rows: list[dict[str, Any]] = list(missing)
+    rows: list[dict[str, Any]] = [dict(m, file=m["source"]) for m in missing]
     bar = Progress(len(files), stream=stream, enabled=progress)
     hist = History(db_path) if history else None
     run_at = utc_now()
 
     def collect(outcome: Mapping[str, Any], skipped_file: bool = False) -> None:
         frows = outcome["rows"]
+        shown = shown_path(outcome["path"], inputs)
+        for r in frows:  # set here, not in the worker: a row stored by an earlier run has none
+            r["file"] = shown
         skipped_files.extend(dict(d) for d in outcome.get("left_alone") or ())
         if hist is not None:
             hist.add_rows([dict(r["_history"], run_at=run_at)

@@ -38,6 +38,18 @@ def _figure_size_mm(png: bytes, epw: float) -> tuple[float, float]:
     return w_mm, w_mm * h_px / w_px
 
 
+def _one_line_widths(pdf, header: Sequence[str], rows: Sequence[Sequence[str]], padding: float) -> list[float]:
+    """Each column's width (mm) with every cell on one line (headers may wrap between words)."""
+    out = []
+    for j, h in enumerate(header):
+        pdf.set_font(style="B")   # the header row's face
+        words = [pdf.get_string_width(w) for w in latin1(str(h)).split()]
+        pdf.set_font(style="")
+        cells = [pdf.get_string_width(latin1(str(r[j]))) for r in rows if j < len(r)]
+        out.append(max(words + cells + [0.0]) + 2 * padding + 0.5)
+    return out
+
+
 def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, *,
            title: str | None = None) -> bytes:
     """Render blocks to PDF bytes; ``figures`` maps a figure block's name to its PNG bytes."""
@@ -92,6 +104,11 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
             # short headers ("Named") stay on one line; the last column, the sentence ("Why",
             # "Finding", "Value"), may take most of the width
             widths = [min(max(n, 8), 110 if j == len(lens) - 1 else 60) + 2 for j, n in enumerate(lens)]
+            fit = _one_line_widths(pdf, header, rows, padding=0.8)
+            if sum(fit) <= epw:
+                # every cell fits on one line: widths as measured, so a short column ("#", "S %")
+                # does not take the room a file name needs (counted characters broke it mid-word)
+                widths = fit
             with pdf.table(headings_style=head, line_height=3.9 if small else 4.4, text_align="LEFT", padding=0.8,
                            col_widths=tuple(widths)) as table:
                 r = table.row()

@@ -451,7 +451,7 @@ SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_
                    "J_pct", "J_lo", "J_hi", "sj_in_op_units", "stiction_probability", "confidence",
                    "oscillation_period_s",
                    "slow_cycle_period_s", "warnings",
-                   "data_quality_warnings", "degradation", "action", "report", "source", "error"]
+                   "data_quality_warnings", "degradation", "action", "report", "file", "source", "error"]
 
 
 #: What a failed summary row stands for (its ``scope``): an input path that could not be opened
@@ -519,9 +519,12 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
                       # as the loop's own report words them: a rounded "100%" reads as a certainty
                       percent(r.get("stiction_probability")), percent(r.get("confidence")),
                       osc,
-                      fmt(r.get("data_quality_warnings"), "d")])
+                      fmt(r.get("data_quality_warnings"), "d"),
+                      # which file the loop came from: two copies of one export give FIC103 and
+                      # FIC103__FIC103, told apart only by it (last: a path is the widest cell)
+                      fmt(r.get("file") or r.get("source"))])
     blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "P(stiction)", "Conf.", "Oscillation",
-                             "DQ warn."], table))
+                             "DQ warn.", "File"], table))
     if any(r.get("degradation") for r in ok):
         blocks.append(("h2", "Degrading valves"))
         blocks.append(("bullets", [f"{r['loop']}: {r['degradation']}" for r in ok if r.get("degradation")]))
@@ -531,8 +534,9 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         blocks.append(("bullets", [f"{r['loop']}: {r.get('action', '')}" for r in actions]))
     if bad:
         blocks.append(("h2", "Failed loops and files"))
-        blocks.append(("table", ["Loop", "Source", "Error"],
-                       [[fmt(r.get("loop")), fmt(r.get("source")), fmt(r.get("error"))] for r in bad]))
+        blocks.append(("table", ["Loop", "File", "Error"],
+                       [[fmt(r.get("loop")), fmt(r.get("file") or r.get("source")), fmt(r.get("error"))]
+                        for r in bad]))
     if skipped_files:
         blocks.append(("h2", "Files left alone"))
         blocks.append(("table", ["File", "Why"], [[fmt(f.get("path")), fmt(f.get("reason"))]
