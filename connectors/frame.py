@@ -24,6 +24,9 @@ from .textio import numbers
 from .timebase import localise, parse_times, zone_of
 
 LABEL = FRAME_LABEL
+#: The column name a reader's error carries when the times were the frame's index (the index has no
+#: column to name: its own name, or pandas' "index", reads as a column that is not there).
+INDEX = "<index>"
 FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",
                  "min_samples", "max_samples")
 
@@ -41,7 +44,7 @@ def _seconds(values: Any, tz: str | None, dst: str, column: str) -> tuple[np.nda
     us = np.array(idx.as_unit("us").asi8, dtype=np.int64)
     rows = np.flatnonzero(~idx.isna())
     out = np.full(len(idx), np.nan)
-    out[rows] = localise(us, rows, zone_of(tz), dst, LABEL, column, lambda k: None)
+    out[rows] = localise(us, rows, zone_of(tz), dst, LABEL, column, lambda k: k + 1)   # row k is "line" k + 1
     return out, True
 
 
@@ -73,7 +76,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
             raise DataError(f"no column named {options['ts']!r} for the time (columns: {', '.join(names)})")
         time_col = names.index(options["ts"])
     elif isinstance(df.index, (pd.DatetimeIndex, pd.TimedeltaIndex)):
-        t, absolute = _seconds(df.index, tz, dst, str(df.index.name or "index"))
+        t, absolute = _seconds(df.index, tz, dst, INDEX)
         tfmt, tzone = "index", _zone(df.index, tz)
     elif not options.get("ts_s"):
         time_col = next((j for j, n in enumerate(names) if role_of(n) == "time" or is_time_header(n)
@@ -111,7 +114,7 @@ def _in_frame(exc: ConnectorError) -> str:
     file's lines from 1 (the frame's rows are its lines), and a frame has no file to name."""
     if exc.path != LABEL:
         return str(exc)
-    where = [f"column {exc.column!r}"] if exc.column is not None else []
+    where = ["the frame's index" if exc.column == INDEX else f"column {exc.column!r}"] if exc.column is not None else []
     if exc.line is not None:
         where.append(f"row {exc.line - 1}")
     return (", ".join(where) + ": " if where else "") + exc.message

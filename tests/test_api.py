@@ -328,6 +328,25 @@ def test_a_frames_errors_name_python_keywords_and_rows_not_flags_and_lines(loop)
         assert "--" not in msg and "tag map" not in msg
 
 
+def test_a_clock_change_in_a_frames_index_names_the_index_and_the_row(loop):
+    # the index is no column: "column 'index'" sent users looking for one, and no row was given
+    _, _, df, _ = loop
+    autumn = pd.date_range("2025-10-26 01:58", periods=len(df), freq="1s")   # 02:00 Berlin is row 120
+    spring = pd.date_range("2025-03-30 01:59", periods=len(df), freq="1s")   # 02:00 does not exist: row 60
+    cases = [(df.set_index(autumn), r"^the frame's index, row 120: local time 2025-10-26 02:00:00 is ambiguous in "
+              r"Europe/Berlin \(DST change\); choose dst='earliest', 'latest' or 'infer' or give UTC times$"),
+             (df.set_index(autumn.rename("time")), r"^the frame's index, row 120: local time 2025-10-26 02:00:00 "),
+             (df.set_index(spring), r"^the frame's index, row 60: local time 2025-03-30 02:00:00 does not exist in "
+              r"Europe/Berlin \(DST change\); choose dst='earliest' or 'latest' or give UTC times$"),
+             # a column of datetimes is a column, now with its row too
+             (df.reset_index(drop=True).assign(stamp=autumn),
+              r"^column 'stamp', row 120: local time 2025-10-26 02:00:00 ")]
+    for frame, match in cases:
+        time = "stamp" if "stamp" in frame else None
+        with pytest.raises(diagnose.DataError, match=match):
+            diagnose.read_loops(frame, tz="Europe/Berlin", dst="raise", time=time)
+
+
 def test_a_files_errors_still_name_the_command_line_flags(tmp_path, capsys):
     rec = sticky_loop(3.0, 1.0, n=300, seed=1, name="FIC1")
     path = tmp_path / "nopv.csv"
