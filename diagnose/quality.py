@@ -14,7 +14,8 @@
 ``op_fraction``
     OP moves but stays within 0..1: logged as a fraction of span, not in %. Read as %, every valve
     movement looks a hundred times too small, so a sticky valve passes for a healthy one: a
-    ``warning`` telling the user to scale OP to % or to pass the right column.
+    ``warning`` telling the user to scale OP to % or to pass the right column, in the words of
+    where the record came from (``--op`` for a file, ``op=`` for a DataFrame or arrays).
 ``manual_mode``
     Samples in manual, from ``meta["manual_intervals"]`` set by a connector that read a mode column.
 ``frozen``
@@ -215,14 +216,32 @@ def op_saturation(op: np.ndarray) -> Finding | None:
                    {"frac_low": round(lo, 4), "frac_high": round(hi, 4)})
 
 
-def _op_fraction(op: np.ndarray) -> Finding | None:
+#: ``meta["format"]`` of a record read from a file (the layouts of `connectors.layouts`): its user
+#: gives options as command-line flags.
+FILE_FORMATS = ("wide", "long", "ragged", "influx", "dcs")
+
+
+def op_scale_advice(record: LoopRecord) -> str:
+    """How whoever made ``record`` gives OP in % of span: a flag for a file, a keyword for a
+    DataFrame or arrays (Python, where there is no ``--op``), the register map for a Modbus device."""
+    fmt = (record.meta or {}).get("format")
+    if fmt in FILE_FORMATS:
+        return "scale OP to % (multiply by 100) or pass the right column with --op"
+    if fmt == "dataframe":
+        return "scale OP's column to % (multiply by 100) or name the right column with op='COLUMN'"
+    if fmt == "modbus":
+        return "scale OP to % with range = [0, 1] on its register in the monitor's configuration"
+    return "scale OP to % (multiply by 100) before passing it as op="
+
+
+def _op_fraction(record: LoopRecord) -> Finding | None:
+    op = record.op
     lo, hi = float(np.min(op)), float(np.max(op))
     if lo < 0.0 or hi > 1.0 or hi - lo < FRACTION_MIN_MOVE:
         return None
     return Finding("op_fraction", f"OP stays within 0..1 ({lo:.3g} to {hi:.3g}): it looks logged as a fraction "
                    "of span, not in %, which makes every valve movement look 100 times too small and hides "
-                   "stiction; scale OP to % (multiply by 100) or pass the right column with --op", "warning",
-                   {"min": lo, "max": hi})
+                   f"stiction; {op_scale_advice(record)}", "warning", {"min": lo, "max": hi})
 
 
 def fraction_op_tracks_mv(op: np.ndarray, mv: np.ndarray) -> bool:
@@ -313,7 +332,7 @@ def assess(record: LoopRecord) -> tuple[Finding, ...]:
             f = check(role, x)
             if f is not None:
                 out.append(f)
-    f = _op_fraction(record.op)
+    f = _op_fraction(record)
     if f is not None:
         out.append(f)
     else:

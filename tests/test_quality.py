@@ -129,7 +129,8 @@ def test_op_logged_as_a_fraction_is_a_warning():
     frac = rec.replace(op=rec.op / 100.0, mv=None)
     found = [f for f in assess(frac) if f.code == "op_fraction"]
     assert len(found) == 1 and found[0].severity == "warning"
-    assert "scale OP to %" in found[0].message and "--op" in found[0].message
+    # arrays in Python: no command line to give --op on
+    assert "scale OP to %" in found[0].message and found[0].message.endswith("before passing it as op=")
     assert "op_saturation" not in codes(assess(frac))
     assert "op_fraction" not in codes(assess(rec))                       # OP in %
     still = frac.replace(op=np.full(frac.n, 0.5))
@@ -143,3 +144,29 @@ def test_op_fraction_reaches_the_diagnosis_warnings():
     diag = diagnose(rec.replace(op=rec.op / 100.0, mv=None), narx=False)
     assert "data_quality.op_fraction" in [w.code for w in diag.warnings]
     assert "data_quality.op_fraction" in [w["code"] for w in diag.to_dict()["warnings"]]
+
+
+def test_op_fraction_advice_fits_where_the_record_came_from(tmp_path, capsys):
+    # the same export read by the command (--op), and as the DataFrame pandas reads from it (op=)
+    import pandas as pd
+
+    import diagnose
+    from connectors.historian import write_wide
+    from diagnose.service.cli import main
+
+    rec = sticky_loop(4.0, 1.0, n=1500, seed=8, noise_std=0.03, load_walk_std=0.02, name="FIC9")
+    path = tmp_path / "FIC9.csv"
+    write_wide(rec.replace(op=rec.op / 100.0, mv=None), path)
+    assert main(["identify", str(path)]) == 0
+    (line,) = [ln for ln in capsys.readouterr().out.splitlines() if "[data_quality.op_fraction]" in ln]
+    assert line.endswith("scale OP to % (multiply by 100) or pass the right column with --op")
+    df = pd.read_csv(path, parse_dates=["time"], index_col="time")
+    frame = diagnose.identify(df, narx=False)
+    (w,) = [w for w in frame.warnings if w.code == "data_quality.op_fraction"]
+    assert w.message.endswith("scale OP's column to % (multiply by 100) or name the right column with op='COLUMN'")
+    assert "--op" not in w.message
+    # a record made from a frame that is already one loop says the same
+    back = diagnose.LoopRecord.from_frame(df.rename(columns=lambda c: c.split(".")[-1]))
+    (f,) = [f for f in assess(back) if f.code == "op_fraction"]
+    assert f.message.endswith("name the right column with op='COLUMN'")
+
