@@ -43,6 +43,9 @@ QUALITY_HEADERS = {"quality", "q", "status", "confidence", "qualitycode", "quali
 OPC_QUALITY_HEADERS = ("qualitydetail", "opcquality", "opc_quality")
 PI_FLAG_HEADERS = {"questionable", "substituted", "isquestionable", "issubstituted"}
 SKIP_HEADERS = {"id", "index", "row", "#", "no", "nr", "unnamed: 0", ""}
+#: A PHD (Uniformance) confidence column (0-100, 100 good) of a wide export: ``FIC101.PV Confidence``
+#: (``.Confidence``, ``_Conf``, ``(Confidence)``), or a bare ``Confidence`` right after its value column.
+_CONFIDENCE = re.compile(r"^(.*?)[\s._:-]*\(?(?:confidence|conf)(?:[\s_]*factor)?\)?$", re.I)
 _NEWLINE = re.compile(r"\r\n|\r|\n")
 _HEAD_LINES = 5000          # lines of the file's start looked at for headers and number formats
 
@@ -68,6 +71,7 @@ class Series:
     column: str | None = None
     cells: pd.Series | None = None
     units: str | None = None
+    quality_column: str | None = None    # the column whose codes made ``n_bad_quality`` gaps (wide layout)
 
 
 @dataclass
@@ -187,6 +191,26 @@ def _label_rows(header: list[str], first: list[tuple[int, list[str]]]) -> list[l
         if not values or any(_numeric_cell(c) or _time_cell(c) for c in cells if c):
             break
         out.append(cells)
+    return out
+
+
+def _confidence_columns(header: list[str], value_idx: list[int]) -> dict[int, int]:
+    """Value column -> its PHD confidence column, in a wide header. A column is one only when its
+    value column is there (named before the word, or right before a bare ``Confidence``); read as
+    a signal it was ignored, and a sample with no confidence passed for a good one."""
+    names = {j: strip_units(header[j])[0].strip().lower() for j in value_idx}
+    out: dict[int, int] = {}
+    for j in value_idx:
+        m = _CONFIDENCE.match(header[j].strip())
+        if not m:
+            continue
+        base = strip_units(m.group(1))[0].strip().lower()
+        if base:
+            owner = next((k for k in value_idx if k != j and names[k] == base), None)
+        else:
+            owner = j - 1 if j - 1 in names and not _CONFIDENCE.match(header[j - 1].strip()) else None
+        if owner is not None and owner not in out:
+            out[owner] = j
     return out
 
 
@@ -315,6 +339,8 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
                 pass
     value_idx = [j for j in range(len(header)) if j not in time_idx and lower[j] not in SKIP_HEADERS
                  and not (lower[j] in TIME_HEADERS and role_of(header[j]) in (None, "time"))]
+    confidence = _confidence_columns(header, value_idx)
+    value_idx = [j for j in value_idx if j not in confidence.values()]
     dec = _decimal_comma(rows, value_idx, d)
     frame = read_frame(src, sep=d, skiprows=skiprows or 0, width=len(header), decimal="," if dec else ".",
                        str_columns=tuple(time_idx) if dec or len(time_idx) == 2 else ())
@@ -335,11 +361,21 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
             tname = header[time_idx[0]]
         t, absolute, tfmt, tzone = _times(cells, lines, label, tname, options, dec)
     series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
-    for s in series:
+    schemes = set()
+    for j, s in zip(value_idx, series):
         s.units = units.get(s.name) or strip_units(s.name)[1]
+        if j in confidence:   # low confidence is bad quality, as a long export's quality column
+            good, scheme = quality_good(cols[confidence[j]], header[confidence[j]])
+            bad = ~good & np.isfinite(s.x)
+            s.x[bad] = np.nan
+            s.n_bad_quality, s.quality_column = int(np.count_nonzero(bad)), header[confidence[j]]
+            schemes.add(scheme)
     meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "time_zone": tzone,
             "time_columns": [header[j] for j in time_idx]}
+    if confidence:
+        meta["quality_scheme"] = "+".join(sorted(schemes))
+        meta["quality_columns"] = {header[v]: header[c] for v, c in confidence.items()}
     if labels:
         meta["label_rows"] = [cells[0] for cells in labels]
     if extra_meta:

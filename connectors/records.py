@@ -217,9 +217,10 @@ def _no_values(s: Series, table: Table | None = None) -> str | None:
     if s.n_bad_quality:
         meta = table.meta if table is not None else {}
         rule = _SCHEME_RULES.get(str(meta.get("quality_scheme")).split("+")[0])
-        if meta.get("quality_column") and rule:
+        column = s.quality_column or meta.get("quality_column")
+        if column and rule:
             # every row bad is more often a quality scheme read the wrong way than a dead tag
-            return (f"no value with good quality (column {meta['quality_column']!r} read {rule}); if the "
+            return (f"no value with good quality (column {column!r} read {rule}); if the "
                     "export's quality codes mean something else, delete that column")
         return "no value with good quality"
     if s.n_nonfinite:
@@ -280,7 +281,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     # the loop: OP's own shape can still be judged (diagnose.evidence.op_shape). A flat stand-in
     # PV on OP's samples marks it unusable for the diagnosis, and a finding says why.
     pv_s, op_s = spec.roles["pv"], spec.roles["op"]
-    pv_dead = _no_values(pv_s) if _no_values(op_s) is None else None
+    pv_dead = _no_values(pv_s, table) if _no_values(op_s) is None else None
     if pv_dead is not None:
         findings.append(Finding("pv_missing", f"PV column {pv_s.name!r} has {pv_dead}: the loop is judged "
                                 "from OP alone", "warning", {"column": pv_s.name}))
@@ -669,7 +670,7 @@ def merge_specs(specs: list[LoopSpec]) -> list[LoopSpec]:
                                           b.n_text + s.n_text, b.n_nonfinite + s.n_nonfinite,
                                           b.n_bad_quality + s.n_bad_quality, b.n_blank + s.n_blank,
                                           (b.examples + s.examples)[:4], b.first_line, b.column,
-                                          None)
+                                          None, quality_column=b.quality_column or s.quality_column)
             continue
         if key in out:
             key = f"{sp.name}@{os.path.basename(sp.table.label) if sp.table else len(order)}"

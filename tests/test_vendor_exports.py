@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,45 @@ def test_a_text_row_under_the_header_that_is_data_is_not_skipped(tmp_path):
     (rec,) = read_records(f)
     assert rec.start == "2024-03-01T08:00:05Z" and rec.n == 119 and "label_rows" not in rec.meta
     assert bad_values(rec)["pv"]["text"] == 1 and bad_values(rec)["op"]["text"] == 1
+
+
+def test_phd_confidence_columns_are_the_quality_of_the_values_beside_them(tmp_path):
+    # read as signals they were ignored, and a sample PHD could not vouch for passed for a good one
+    path = DATA / "phd_confidence_wide.csv"
+    lines = path.read_text().splitlines()
+    pv_in_file = np.array([float(ln.split(",")[1]) for ln in lines[3:]])
+    (rec,) = read_records(path)
+    assert rec.name == "FIC801" and rec.n == 120 and rec.ts_s == 5.0 and rec.start == "2024-03-01T08:00:00Z"
+    assert rec.meta["columns"] == {"pv": "FIC801.PV", "op": "FIC801.OP", "sp": "FIC801.SP"}
+    assert rec.meta["quality_scheme"] == "phd_confidence" and rec.units["pv"] == "m3/h"
+    assert rec.meta["quality_columns"]["FIC801.PV"] == "FIC801.PV Confidence"
+    bad = bad_values(rec)
+    assert set(bad) == {"pv"} and bad["pv"]["bad_quality"] == 2 and bad["pv"]["text"] == 0
+    # confidence 0 and 30: gaps, filled between their neighbours; 50 and up: the value as written
+    np.testing.assert_allclose(rec.pv[40:42], np.interp([40, 41], [39, 42], pv_in_file[[39, 42]]))
+    assert abs(rec.pv[40] - pv_in_file[40]) > 1e-3
+    np.testing.assert_array_equal(np.delete(rec.pv, [40, 41]), np.delete(pv_in_file, [40, 41]))
+    # the same export with a bare "Confidence" after each value column
+    bare = tmp_path / "phd_bare.csv"
+    head = ",".join("Confidence" if "Confidence" in h else h for h in lines[0].split(","))
+    bare.write_text("\n".join([head] + lines[1:]) + "\n")
+    (rec2,) = read_records(bare)
+    np.testing.assert_array_equal(rec2.pv, rec.pv)
+    assert bad_values(rec2)["pv"]["bad_quality"] == 2 and rec2.meta["columns"] == rec.meta["columns"]
+    # no sample with good confidence: OP's is an error, PV's a finding, each naming the confidence
+    # column and how it was read
+    def zero(column):
+        f = tmp_path / f"phd_dead_{column}.csv"
+        f.write_text("\n".join(lines[:3] + [",".join("0" if j == column else c for j, c in enumerate(ln.split(",")))
+                                            for ln in lines[3:]]) + "\n")
+        return f
+
+    rule = r"no value with good quality \(column 'FIC801\.{} Confidence' read as PHD confidence, good at 50-100\)"
+    with pytest.raises(ConnectorError, match=r"OP column has " + rule.format("OP")):
+        read_records(zero(4))
+    (dead_pv,) = read_records(zero(2))
+    (f,) = [f for f in dead_pv.findings if f.code == "pv_missing"]
+    assert re.search(rule.format("PV"), f.message) and f.message.endswith("the loop is judged from OP alone")
 
 
 def test_ip21_trend_columns_are_a_long_layout():

@@ -147,6 +147,18 @@ def vendors() -> None:
         t = t0 + timedelta(seconds=5 * k)
         rows.append(f"{t:%d-%b-%y %H:%M:%S},{pv[k]:.3f},{op[k]:.3f},20.000")
     (HERE / "aspen_units_rows.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
+    # Honeywell Uniformance PHD, read into Excel with the tags' confidence (0-100, 100 good) in the
+    # column after each value, description and units rows under the header, PHD's dd-MMM-yy times;
+    # a sample the PHD could not vouch for keeps a value, with its confidence low
+    rows = ["Timestamp,FIC801.PV,FIC801.PV Confidence,FIC801.OP,FIC801.OP Confidence,FIC801.SP,"
+            "FIC801.SP Confidence",
+            ",Feed flow,,Feed valve output,,Feed flow setpoint,",
+            "Units,m3/h,%,%,%,m3/h,%"]
+    for k in range(op.size):
+        t = t0 + timedelta(seconds=5 * k)
+        conf_pv = {40: 0, 41: 30, 42: 50}.get(k, 100)      # 50 is still good
+        rows.append(f"{t:%d-%b-%y %H:%M:%S},{pv[k]:.3f},{conf_pv},{op[k]:.3f},100,20.000,100")
+    (HERE / "phd_confidence_wide.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
     # Aspen InfoPlus.21 SQLplus query on the history repeat area, saved as CSV: IP_TREND_* columns,
     # IP.21's upper-case month names, a text quality status
     rows = ["NAME,IP_TREND_TIME,IP_TREND_VALUE,IP_TREND_QSTATUS"]
