@@ -20,7 +20,7 @@ from diagnose.record import LoopRecord
 
 FILE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".prn")
 OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "fmt", "format", "tags", "tz", "dst",
-           "loop", "max_gap_s", "min_samples", "max_samples", "progress")
+           "dayfirst", "loop", "max_gap_s", "min_samples", "max_samples", "progress")
 
 
 def list_sources(path: str | os.PathLike) -> list[str]:
@@ -39,9 +39,10 @@ def list_sources(path: str | os.PathLike) -> list[str]:
 
 
 def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str | None = None,
-               dst: str | None = None, op: str | None = None, pv: str | None = None, sp: str | None = None,
-               mv: str | None = None, mode: str | None = None, time: str | None = None,
-               ts: str | None = None, ts_s: float | None = None, name: str | None = None, fmt: str | None = None,
+               dst: str | None = None, dayfirst: bool | None = None, op: str | None = None,
+               pv: str | None = None, sp: str | None = None, mv: str | None = None, mode: str | None = None,
+               time: str | None = None, ts: str | None = None, ts_s: float | None = None, name: str | None = None,
+               fmt: str | None = None,
                loop: str | None = None, max_gap_s: float | None = None, min_samples: int | None = None,
                max_samples: int | None = None, progress: Any = None) -> list[LoopRecord]:
     """Read every loop in a historian export (file, folder of files, or file object) into records.
@@ -55,6 +56,10 @@ def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str
         Time zone of naive timestamps (IANA name or ``+hh:mm``; default UTC).
     dst : {"infer", "earliest", "latest", "raise"}
         Policy for ambiguous/missing local times at DST changes (default ``infer``).
+    dayfirst : bool, optional
+        Dates such as ``05/03/2026`` are day first (True: 5 March) or month first (False: 3 May).
+        Default: decided from the dates (a field above 12, else the reading whose dates lie closer
+        together, else the custom of the separator, with a ``date_order`` warning).
     op, pv, sp, mv, mode : str, optional
         Column (tag) names that override the naming rule; OP/PV given -> one loop.
     time : str, optional
@@ -91,9 +96,9 @@ def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str
     diagnose.errors.ConnectorError
         One line naming the file (line, column) and the problem.
     """
-    options = {k: v for k, v in dict(tags=tags, tz=tz, dst=dst, op=op, pv=pv, sp=sp, mv=mv, mode=mode, time=time, ts=ts,
-                                     ts_s=ts_s, name=name, fmt=fmt, loop=loop, max_gap_s=max_gap_s,
-                                     min_samples=min_samples, max_samples=max_samples,
+    options = {k: v for k, v in dict(tags=tags, tz=tz, dst=dst, dayfirst=dayfirst, op=op, pv=pv, sp=sp, mv=mv,
+                                     mode=mode, time=time, ts=ts, ts_s=ts_s, name=name, fmt=fmt, loop=loop,
+                                     max_gap_s=max_gap_s, min_samples=min_samples, max_samples=max_samples,
                                      progress=progress).items() if v is not None}
     return read_records(source, **options)
 

@@ -27,8 +27,8 @@ LABEL = FRAME_LABEL
 #: The column name a reader's error carries when the times were the frame's index (the index has no
 #: column to name: its own name, or pandas' "index", reads as a column that is not there).
 INDEX = "<index>"
-FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "loop", "max_gap_s",
-                 "min_samples", "max_samples")
+FRAME_OPTIONS = ("op", "pv", "sp", "mv", "mode", "time", "ts", "ts_s", "name", "tz", "dst", "dayfirst", "loop",
+                 "max_gap_s", "min_samples", "max_samples")
 
 
 def _seconds(values: Any, tz: str | None, dst: str, column: str) -> tuple[np.ndarray, bool]:
@@ -71,6 +71,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
     absolute = False
     tfmt = tzone = None
     time_col = None
+    guessed = None
     if options.get("ts"):
         if options["ts"] not in names:
             raise DataError(f"no column named {options['ts']!r} for the time (columns: {', '.join(names)})")
@@ -89,8 +90,10 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         else:
             values = col.to_numpy()
             pt = parse_times(values if values.dtype.kind in "fiu" else values.astype(object), tz=tz, dst=dst,
-                             label=LABEL, column=names[time_col], lines=np.arange(len(df)) + 1)
+                             label=LABEL, column=names[time_col], lines=np.arange(len(df)) + 1,
+                             dayfirst=options.get("dayfirst"))
             t, absolute, tfmt, tzone = pt.seconds, pt.absolute, pt.fmt, pt.tz
+            guessed = pt.order_guessed and dict(pt.order_guessed, column=names[time_col])
     series = []
     for j, name in enumerate(names):
         if j == time_col:
@@ -106,6 +109,8 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
                              cells=num.text))
     meta = {"format": "dataframe", "time_format": tfmt, "time_zone": tzone,
             "time_columns": [names[time_col]] if time_col is not None else []}
+    if guessed:
+        meta["date_order_guessed"] = guessed
     return Table(series, LABEL, absolute, meta, raw_columns=names)
 
 

@@ -256,11 +256,15 @@ def _decimal_comma(rows: list[list[str]], cols: list[int], delimiter: str) -> bo
 
 
 def _times(cells: Any, lines: np.ndarray, label: str, column: str, options: dict,
-           decimal_comma: bool = False) -> tuple[np.ndarray, bool, str, str | None]:
+           decimal_comma: bool = False, notes: dict | None = None) -> tuple[np.ndarray, bool, str, str | None]:
+    """A time column read with the file's options; ``notes`` (the table's meta) gets
+    ``date_order_guessed`` when the dates read alike day first and month first."""
     if decimal_comma:   # the file's decimal comma holds for a time column of numbers too
         cells = comma_times(_text(cells)) or cells
     pt = parse_times(cells, tz=options.get("tz"), dst=options.get("dst", "infer"), label=label,
-                     column=column, lines=lines)
+                     column=column, lines=lines, dayfirst=options.get("dayfirst"))
+    if pt.order_guessed is not None and notes is not None:
+        notes.setdefault("date_order_guessed", dict(pt.order_guessed, column=column))
     return pt.seconds, pt.absolute, pt.fmt, pt.tz
 
 
@@ -351,6 +355,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
     t = None
     absolute = False
     tfmt = tzone = None
+    notes: dict[str, Any] = {}
     if time_idx:
         if len(time_idx) == 2:
             cells = [f"{a.strip()} {b.strip()}".strip()
@@ -359,7 +364,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
         else:
             cells = cols[time_idx[0]]
             tname = header[time_idx[0]]
-        t, absolute, tfmt, tzone = _times(cells, lines, label, tname, options, dec)
+        t, absolute, tfmt, tzone = _times(cells, lines, label, tname, options, dec, notes)
     series = [_series(header[j], t, cols[j], dec, int(lines[0])) for j in value_idx]
     schemes = set()
     for j, s in zip(value_idx, series):
@@ -372,7 +377,7 @@ def parse_wide(src: Source, options: dict, *, header: list[str] | None = None, h
             schemes.add(scheme)
     meta = {"format": fmt, "delimiter": delimiter_name(d), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "time_zone": tzone,
-            "time_columns": [header[j] for j in time_idx]}
+            "time_columns": [header[j] for j in time_idx], **notes}
     if confidence:
         meta["quality_scheme"] = "+".join(sorted(schemes))
         meta["quality_columns"] = {header[v]: header[c] for v, c in confidence.items()}
@@ -434,7 +439,8 @@ def parse_long(src: Source, options: dict) -> Table:
         tcells = [f"{a.strip()} {b.strip()}" for a, b in zip(_text(cols[time_j[0]]), _text(cols[time_j[1]]))]
     else:
         tcells = cols[time_j[0]]
-    t, absolute, tfmt, tzone = _times(tcells, lines, label, header[time_j[0]], options, dec)
+    notes: dict[str, Any] = {}
+    t, absolute, tfmt, tzone = _times(tcells, lines, label, header[time_j[0]], options, dec, notes)
     num = numbers(cols[val_j], dec)
     finite = np.isfinite(num.values)
     bad_q = np.zeros(len(frame), bool)
@@ -476,7 +482,7 @@ def parse_long(src: Source, options: dict) -> Table:
                              cells=cells))
     meta = {"format": "long", "delimiter": delimiter_name(head.delimiter), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "time_zone": tzone, "quality_scheme": scheme,
-            "quality_column": header[q_j] if q_j is not None else None}
+            "quality_column": header[q_j] if q_j is not None else None, **notes}
     return Table(series, label, absolute, meta, raw_columns=header)
 
 
@@ -503,6 +509,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
     series: list[Series] = []
     absolute = False
     tfmt = tzone = None
+    notes: dict[str, Any] = {}
     j = 0
     while j < len(header):
         if not is_time_header(header[j]) or j + 1 >= len(header):
@@ -522,7 +529,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
             tl = lines[keep]
             vcells = np.array(_text(cols[j + 1]), dtype=object)[keep]
             dec = _decimal_comma([[c] for c in vcells[:: max(1, keep.size // 100)][:100]], [0], head.delimiter)
-            tt, absolute, tfmt, tzone = _times([tcells[k] for k in keep], tl, label, header[j], options, dec)
+            tt, absolute, tfmt, tzone = _times([tcells[k] for k in keep], tl, label, header[j], options, dec, notes)
             num = numbers(vcells, dec)
             series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                                  n_blank=num.n_blank, examples=num.examples, first_line=int(tl[0]),
@@ -532,7 +539,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
         raise ConnectorError("no timestamp/value column pairs found for the ragged layout", path=label,
                              line=head.header_lines[0] + 1)
     meta = {"format": "ragged", "delimiter": delimiter_name(head.delimiter), "encoding": src.encoding,
-            "bom": src.bom, "time_format": tfmt, "time_zone": tzone}
+            "bom": src.bom, "time_format": tfmt, "time_zone": tzone, **notes}
     return Table(series, label, absolute, meta, raw_columns=[s.name for s in series])
 
 
@@ -596,17 +603,18 @@ def parse_influx(src: Source, options: dict) -> Table:
         raise ConnectorError("InfluxDB CSV without data rows", path=label)
     series = []
     absolute, tfmt, tzone = True, None, None
+    notes: dict[str, Any] = {}
     for name, parts in groups.items():
         tc = np.concatenate([p[0] for p in parts])
         vc = np.concatenate([p[1] for p in parts])
         rows = np.concatenate([p[2] for p in parts])
-        tt, absolute, tfmt, tzone = _times(tc, line[rows], label, "_time", options)
+        tt, absolute, tfmt, tzone = _times(tc, line[rows], label, "_time", options, notes=notes)
         num = numbers(vc)
         series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                              n_blank=num.n_blank, examples=num.examples, first_line=int(line[rows[0]]),
                              column=name))
     meta = {"format": "influx", "delimiter": "comma", "encoding": src.encoding, "bom": src.bom,
-            "time_format": tfmt, "time_zone": tzone}
+            "time_format": tfmt, "time_zone": tzone, **notes}
     return Table(series, label, absolute, meta, raw_columns=list(groups))
 
 

@@ -247,6 +247,26 @@ def _bad_finding(role: str, s: Series, n_rows: int) -> Finding | None:
                     "bad_quality": s.n_bad_quality, "examples": list(s.examples[:3]), "frac": round(frac, 4)})
 
 
+def _date_order_finding(guess: dict, label: str | None) -> Finding:
+    """The dates read alike day first and month first (``05/03/2026`` ... on one day): how they were
+    read, and the option that says which it is. A guess, not a fact, so a warning: read the
+    wrong way a loop's record is put on another day (or months away from its neighbours)."""
+    day_first = guess["read"] == "day first"
+    other = "month" if day_first else "day"
+    if label == FRAME_LABEL:
+        where, what = f"the frame's time column {guess.get('column')!r}", "column"
+        fix = f"dayfirst={not day_first}"
+    else:
+        where, what = str(label), "file"
+        fix = ("--monthfirst" if day_first else "--dayfirst") + f" (dayfirst={not day_first} in Python)"
+    return Finding("date_order", f"{where}: the date order is ambiguous: in dates such as {guess['example']!r} "
+                   "every day and month is 12 or less, and the two readings span the same time, so the "
+                   f"{what} cannot say which comes first; they were read {guess['read']} ({guess['date']}); "
+                   f"if the {other} comes first, give {fix}", "warning",
+                   {"read": guess["read"], "example": guess["example"], "date": guess["date"],
+                    "source": None if label == FRAME_LABEL else label, "option": fix})
+
+
 #: Share of rows sharing their time stamp above which the stamps are taken as truncated. A file
 #: joined from overlapping exports or a few repeated rows stays far below it; seconds dropped
 #: from data sampled every 50 s or faster put at least a third of the rows in shared stamps
@@ -342,6 +362,9 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
             f"{option('--tz', label)} with the plant's time zone (e.g. {option('--tz', label, 'Europe/Berlin')}) "
             "to read them in order",
             "warning", {"after": at}))
+    guess = table.meta.get("date_order_guessed") if table is not None else None
+    if guess:
+        findings.append(_date_order_finding(guess, label))
     ts_s = float(ts_opt) if ts_opt else (table.ts_s if table and table.ts_s else None)
     jitter = None
     if ts_s is None:

@@ -6,7 +6,8 @@
   ``27-Nov-2024 23:59:00``, US ``11/27/2024 11:59:00 PM``, European ``27.11.2024 23:59``,
   ``2024/11/27 23:59:00``, compact ``20241127 235900``), epoch seconds or milliseconds, Excel
   serial days. The format is chosen once from a sample of the column (day-first vs month-first
-  decided by any field above 12) and applied to every row.
+  decided by any field above 12, else by the closer dates, else by custom and reported as a
+  guess; ``dayfirst`` overrides) and applied to every row.
 * Naive calendar times are local times in ``tz`` (an IANA name; default UTC), localised with
   `pandas.Series.dt.tz_localize`. The DST policy for the repeated autumn hour and the missing
   spring hour is ``dst``:
@@ -70,20 +71,27 @@ class ParsedTimes:
     absolute: bool
     fmt: str
     tz: str | None
+    #: When the dates read both day first and month first alike (every field 12 or less, the same
+    #: span either way) and no ``dayfirst`` was given: how they were read (``read``: "month first"
+    #: or "day first"), the first stamp (``example``) and its date as read (``date``). Else None.
+    order_guessed: dict | None = None
 
 
 def _fail(msg: str, label: str | None, line: int | None, column: str | None) -> ConnectorError:
     return ConnectorError(msg, path=label, line=line, column=column)
 
 
-def _choose_format(samples: list[str]) -> str:
-    """The strptime format (or ``"iso"``) that reads every sample."""
+def _choose_format(samples: list[str], dayfirst: bool | None = None) -> tuple[str, bool]:
+    """The strptime format (or ``"iso"``) that reads every sample, and whether its date order was a
+    guess: the samples read alike day first and month first (``dayfirst`` given: never a guess;
+    it is a preference, and dates that read only one way are read that way)."""
     first = samples[0]
     try:
         datetime.fromisoformat(first)
-        return "iso"
+        return "iso", False
     except ValueError:
         pass
+    guessed = False
     candidates: list[str] = []
     for pattern, fmts in _VENDOR_FORMATS:
         if re.match(pattern, first):
@@ -92,24 +100,33 @@ def _choose_format(samples: list[str]) -> str:
     if m:
         sep = first[m.end(1)]
         yfmt = "%Y" if len(m.group(3)) == 4 else "%y"
-        dayfirst = monthfirst = False
+        day_above_12 = month_above_12 = False
         for s in samples:
             mm = _SLASH.match(s)
             if mm:
                 if int(mm.group(1)) > 12:
-                    dayfirst = True
+                    day_above_12 = True
                 if int(mm.group(2)) > 12:
-                    monthfirst = True
+                    month_above_12 = True
         orders = [f"%m{sep}%d{sep}{yfmt}", f"%d{sep}%m{sep}{yfmt}"]
-        if dayfirst and not monthfirst:
+        if dayfirst is not None:
+            if dayfirst:
+                orders.reverse()
+        elif day_above_12 and not month_above_12:
             orders.reverse()
-        elif not monthfirst:
+        elif not month_above_12:
             # No field above 12 (an export of the 1st to the 12th of a month): the reading whose
             # dates lie closer together, not a calendar order: 01/03 .. 09/03 read month-first
             # spreads nine days over nine months. Equal spans keep the locale's custom: day
             # first after dots (German) and dashes (Dutch), month first after slashes (US).
             default = orders[1 if sep in ".-" else 0]
+            spans = [_date_span(samples, f) for f in orders]
             orders.sort(key=lambda f: (_date_span(samples, f), f != default))
+            # a guess the user must hear of (a one-day UK export reads as US), unless day and
+            # month are equal in every date (either reading is the same) or the dates are
+            # dotted: day first wherever dots are written
+            guessed = (spans[0] == spans[1] and spans[0] != math.inf and sep != "."
+                       and any(mm.group(1) != mm.group(2) for mm in map(_SLASH.match, samples) if mm))
         for date_fmt in orders:
             candidates.extend(f"{date_fmt} {tp}" for tp in _TIME_PARTS)
             candidates.append(date_fmt)
@@ -117,7 +134,7 @@ def _choose_format(samples: list[str]) -> str:
         try:
             for s in samples:
                 datetime.strptime(s, fmt)
-            return fmt
+            return fmt, guessed
         except ValueError:
             continue
     raise ValueError(first)
@@ -169,7 +186,8 @@ def _cells(col: Any) -> list[str]:
 
 
 def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label: str | None = None,
-                column: str | None = None, lines: Sequence[int] | None = None) -> ParsedTimes:
+                column: str | None = None, lines: Sequence[int] | None = None,
+                dayfirst: bool | None = None) -> ParsedTimes:
     """Read a column of timestamps.
 
     Parameters
@@ -182,6 +200,9 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
         Policy for ambiguous / missing local times (see the module docstring).
     label, column, lines
         File name, column name and the file line of each row, for error messages.
+    dayfirst : bool, optional
+        Dates such as ``05/03/2026`` are day first (True) or month first (False). Default: decided
+        from the column (`ParsedTimes.order_guessed` says when it could not be).
 
     Returns
     -------
@@ -190,6 +211,8 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
     """
     if dst not in DST_POLICIES:
         raise ConnectorError(f"dst policy must be one of {', '.join(DST_POLICIES)}, not {dst!r}")
+    if dayfirst not in (None, True, False):
+        raise ConnectorError(f"dayfirst must be True, False or None, not {dayfirst!r}")
     if isinstance(texts, pd.Series):
         texts = texts.to_numpy()
     if isinstance(texts, np.ndarray) and texts.dtype.kind in "fiu":
@@ -222,7 +245,7 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
         raise _fail("timestamp column is empty", label, None, column)
     samples = [_norm(norm[k]) for k in sample_idx]
     try:
-        fmt = _choose_format(samples)
+        fmt, guessed = _choose_format(samples, dayfirst)
     except ValueError as exc:
         k = next((k for k, c in zip(sample_idx, samples) if c == str(exc)), sample_idx[0])
         raise _fail(f"cannot read timestamp {cells[k].strip()[:40]!r}: not ISO 8601 or a known vendor format; "
@@ -256,11 +279,16 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
         k = int(nonblank[np.flatnonzero(aware[nonblank] != first)[0]])
         raise _fail("timestamps mix times with and without a UTC offset", label, line_of(k), column)
     out = np.full(len(norm), np.nan)
+    order = None
+    if guessed:
+        k = int(nonblank[0])
+        order = {"read": "day first" if fmt.startswith("%d") else "month first", "example": str(cells[k]).strip(),
+                 "date": (_EPOCH + timedelta(microseconds=int(us[k]))).date().isoformat()}
     if aware[nonblank[0]]:
         out[nonblank] = us[nonblank] / 1e6
-        return ParsedTimes(out, True, fmt, "offset")
+        return ParsedTimes(out, True, fmt, "offset", order)
     out[nonblank] = localise(us, nonblank, zone, dst, label, column, line_of)
-    return ParsedTimes(out, True, fmt, tz or "UTC")
+    return ParsedTimes(out, True, fmt, tz or "UTC", order)
 
 
 def _float_cells(cells: list[str]) -> np.ndarray | None:

@@ -13,6 +13,9 @@ Options mean the same everywhere (docs/api.md has the table):
   finds them (docs/connectors.md), the stem position included;
 * ``time``: the time column (``--time``); ``ts_s``: the sample period in seconds (``--ts-s``);
 * ``tz``: the time zone of naive times (``--tz``), ``dst``: the policy at clock changes (``--dst``);
+* ``dayfirst``: dates such as ``05/03/2026`` are day first (True, ``--dayfirst``) or month first
+  (False, ``--monthfirst``); by default the dates decide, and a ``date_order`` warning says when
+  they cannot;
 * ``loop``: which loop of a file or frame that holds several (``--loop``);
 * ``tags``: a tag map (``--tags``); ``format``: the file layout (``--format``);
 * ``max_samples``: samples kept per loop, the newest (``--max-samples``; 0 keeps all).
@@ -37,7 +40,8 @@ if TYPE_CHECKING:
     from .physics import Explanation
 
 #: The read options every front-door function and file command takes.
-READ_OPTIONS = ("op", "pv", "sp", "mv", "time", "ts_s", "tz", "dst", "loop", "tags", "format", "max_samples")
+READ_OPTIONS = ("op", "pv", "sp", "mv", "time", "ts_s", "tz", "dst", "dayfirst", "loop", "tags", "format",
+                "max_samples")
 _FRAME_ONLY_NOT = ("tags", "format")
 
 
@@ -86,6 +90,10 @@ def check_read_options(options: Mapping[str, Any]) -> dict[str, Any]:
             raise DataError(f"max_samples={n!r} (--max-samples): give a whole number of samples, 0 or more "
                             "(0 keeps all)")
         opts["max_samples"] = int(n)
+    dayfirst = opts.get("dayfirst")
+    if dayfirst is not None and not isinstance(dayfirst, bool):
+        raise DataError(f"dayfirst={dayfirst!r} (--dayfirst/--monthfirst): give True (day first), False "
+                        "(month first) or None (decided from the dates)")
     dst = opts.get("dst")
     if dst is not None and dst not in DST_POLICIES:
         raise DataError(f"dst={dst!r} (--dst): use one of {', '.join(DST_POLICIES)}")
@@ -101,7 +109,7 @@ def check_read_options(options: Mapping[str, Any]) -> dict[str, Any]:
 def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *, op: str | None = None,
                pv: str | None = None, sp: str | None = None, mv: str | None = None, time: str | None = None,
                ts_s: float | None = None, tz: str | None = None, dst: str | None = None,
-               loop: str | None = None, tags: Any = None, format: str | None = None,
+               dayfirst: bool | None = None, loop: str | None = None, tags: Any = None, format: str | None = None,
                max_samples: int | None = None, max_gap_s: float | None = None,
                min_samples: int | None = None, progress: Any = None) -> list[LoopRecord]:
     """Every loop in a historian export, a folder of them, or a pandas DataFrame, as records.
@@ -126,6 +134,9 @@ def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *,
         Time zone of naive times (IANA name or ``+hh:mm``; default UTC).
     dst : {"infer", "earliest", "latest", "raise"}, optional
         Ambiguous or missing local times at clock changes (default ``infer``).
+    dayfirst : bool, optional
+        Dates such as ``05/03/2026`` are day first (True: 5 March) or month first (False: 3 May);
+        by default the dates decide, and a ``date_order`` warning says when they cannot.
     loop : str, optional
         Keep only this loop.
     tags : path or mapping, optional
@@ -148,7 +159,7 @@ def read_loops(data: str | os.PathLike | IO[Any] | pd.DataFrame | LoopRecord, *,
         One line naming the file (line, column) or frame column and what is wrong.
     """
     _check_data(data)
-    given = dict(op=op, pv=pv, sp=sp, mv=mv, time=time, ts_s=ts_s, tz=tz, dst=dst, loop=loop,
+    given = dict(op=op, pv=pv, sp=sp, mv=mv, time=time, ts_s=ts_s, tz=tz, dst=dst, dayfirst=dayfirst, loop=loop,
                  max_samples=max_samples, max_gap_s=max_gap_s, min_samples=min_samples)
     opts: dict[str, Any] = check_read_options({k: v for k, v in given.items() if v is not None})
     if isinstance(data, LoopRecord):
@@ -216,8 +227,8 @@ def load(data: Any, verb: str = "identified", **options: Any) -> tuple[LoopRecor
 def identify(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | None = None,
              pv: str | None = None, sp: str | None = None, mv: str | None = None, ts_s: float | None = None,
              loop: str | None = None, tz: str | None = None, time: str | None = None, dst: str | None = None,
-             tags: Any = None, format: str | None = None, max_samples: int | None = None,
-             narx: bool = True) -> Identification:
+             dayfirst: bool | None = None, tags: Any = None, format: str | None = None,
+             max_samples: int | None = None, narx: bool = True) -> Identification:
     """Identify stiction in one loop: verdict, S and J (% of valve span), class, evidence, process.
 
     The same as ``stiction identify FILE``: the record is read as the command reads it (the stem
@@ -231,7 +242,7 @@ def identify(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | N
         A historian export, a DataFrame (a `DatetimeIndex`, a time column, or evenly spaced rows
         with ``ts_s``), or a record. A file or frame with several loops needs ``loop``; of a loop
         split at long gaps the longest segment is identified (a ``segments`` warning says so).
-    op, pv, sp, mv, ts_s, loop, tz, time, dst, tags, format, max_samples
+    op, pv, sp, mv, ts_s, loop, tz, time, dst, dayfirst, tags, format, max_samples
         Reading options, as in `read_loops` (they do not apply to a LoopRecord).
     narx : bool
         Select the NARX-SP bank model (``result.narx``); False leaves it None.
@@ -248,7 +259,7 @@ def identify(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | N
     from .identification import identify as identify_record
 
     rec, notes = load(data, "identified", op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, loop=loop, tz=tz, time=time,
-                      dst=dst, tags=tags, format=format, max_samples=max_samples)
+                      dst=dst, dayfirst=dayfirst, tags=tags, format=format, max_samples=max_samples)
     ident = identify_record(rec)
     warnings = notes + ident.warnings
     selection = None
@@ -267,9 +278,9 @@ def identify(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | N
 def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | None = None,
             pv: str | None = None, sp: str | None = None, mv: str | None = None, ts_s: float | None = None,
             loop: str | None = None, tz: str | None = None, time: str | None = None, dst: str | None = None,
-            tags: Any = None, format: str | None = None, max_samples: int | None = None,
-            target: str = "auto", train_fraction: float = 0.65, hypotheses: Sequence[str] | None = None,
-            min_reduction: float = 0.10) -> Explanation:
+            dayfirst: bool | None = None, tags: Any = None, format: str | None = None,
+            max_samples: int | None = None, target: str = "auto", train_fraction: float = 0.65,
+            hypotheses: Sequence[str] | None = None, min_reduction: float = 0.10) -> Explanation:
     """Locate where the identified model and the record disagree and name the missing physics.
 
     The same as ``stiction explain FILE``: the record is read as `identify` reads it and passed to
@@ -277,7 +288,7 @@ def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | No
 
     Parameters
     ----------
-    data, op, pv, sp, mv, ts_s, loop, tz, time, dst, tags, format, max_samples
+    data, op, pv, sp, mv, ts_s, loop, tz, time, dst, dayfirst, tags, format, max_samples
         As in `identify`.
     target : {"auto", "pv", "mv"}
         ``auto``: OP -> PV, plus OP -> MV for valve-side effects when MV is recorded; ``pv``: OP/PV
@@ -312,7 +323,7 @@ def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | No
         # one name, or the command's comma-separated list: a bare string would be read letter by letter
         hypotheses = [h.strip() for h in hypotheses.split(",") if h.strip()]
     rec, notes = load(data, "explained", op=op, pv=pv, sp=sp, mv=mv, ts_s=ts_s, loop=loop, tz=tz, time=time,
-                      dst=dst, tags=tags, format=format, max_samples=max_samples)
+                      dst=dst, dayfirst=dayfirst, tags=tags, format=format, max_samples=max_samples)
     result = explain_record(rec, target=target, train_fraction=train_fraction,
                             hypotheses=None if hypotheses is None else list(hypotheses), min_reduction=min_reduction)
     if not notes:

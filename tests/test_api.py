@@ -194,8 +194,8 @@ def test_a_result_shows_itself_in_a_notebook(loop):
 def test_same_options_on_every_file_command():
     from diagnose.service.cli import build_parser
 
-    shared = {"--op", "--pv", "--sp", "--mv", "--time", "--ts-s", "--tz", "--dst", "--format", "--tags", "--loop",
-              "--max-samples"}
+    shared = {"--op", "--pv", "--sp", "--mv", "--time", "--ts-s", "--tz", "--dst", "--dayfirst", "--monthfirst",
+              "--format", "--tags", "--loop", "--max-samples"}
     for command in ("identify", "explain", "batch"):
         parser = build_parser(command)
         sub = next(a for a in parser._actions if a.dest == "command").choices[command]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 import re
 from pathlib import Path
 
@@ -131,6 +132,52 @@ def test_month_first_dates_without_a_day_above_12_stay_month_first(tmp_path):
     assert rec.meta["time_format"] == "%m/%d/%Y %H:%M" and rec.start == "2024-03-01T00:00:00Z" and rec.n == 120
 
 
+def test_a_one_day_export_that_reads_both_ways_says_so_and_dayfirst_decides(tmp_path, capsys):
+    # 05/03/2026 all morning: 5 March or 3 May? Read month first as before, but no longer silently
+    import pandas as pd
+
+    import diagnose
+    from diagnose.service.cli import main
+
+    path = DATA / "excel_uk_one_day.csv"
+    (rec,) = read_records(path)
+    assert rec.start == "2026-05-03T08:00:00Z" and rec.n == 120 and rec.ts_s == 5.0   # the reading is unchanged
+    (f,) = [f for f in rec.findings if f.code == "date_order"]
+    assert f.severity == "warning" and f.message.startswith(f"{path}: the date order is ambiguous")
+    assert "'05/03/2026 08:00:00'" in f.message and "read month first (2026-05-03)" in f.message
+    assert f.message.endswith("if the day comes first, give --dayfirst (dayfirst=True in Python)")
+    (uk,) = read_records(path, dayfirst=True)
+    assert uk.start == "2026-03-05T08:00:00Z" and not [f for f in uk.findings if f.code == "date_order"]
+    np.testing.assert_array_equal(uk.pv, rec.pv)
+    (us,) = read_records(path, dayfirst=False)
+    assert us.start == rec.start and not [f for f in us.findings if f.code == "date_order"]
+    # the command shows it, and takes --dayfirst
+    assert main(["identify", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert f"warning [data_quality.date_order]: {path}: the date order is ambiguous" in out
+    assert main(["identify", str(path), "--dayfirst", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "data_quality.date_order" not in {w["code"] for w in doc["warnings"]}
+    assert "date_order" not in {f["code"] for f in doc["data_quality"]}
+    # the frame pandas reads from the file: the keyword, not the flag
+    df = pd.read_csv(path)
+    (fr,) = diagnose.read_loops(df)
+    (g,) = [f for f in fr.findings if f.code == "date_order"]
+    assert g.message.startswith("the frame's time column 'Date': the date order is ambiguous")
+    assert g.message.endswith("give dayfirst=True") and "--" not in g.message
+    assert diagnose.read_loops(df, dayfirst=True)[0].start == "2026-03-05T08:00:00Z"
+    with pytest.raises(diagnose.DataError, match=r"^dayfirst='yes' \(--dayfirst/--monthfirst\): give True"):
+        diagnose.read_loops(df, dayfirst="yes")
+    # what the file does decide stays quiet: dotted dates are day first wherever written, and a
+    # day equal to its month reads the same either way
+    lines = path.read_text().splitlines()
+    for name, date in (("dotted.csv", "05.03.2026"), ("same.csv", "05/05/2026")):
+        p = tmp_path / name
+        p.write_text("\n".join([lines[0]] + [date + ln[10:] for ln in lines[1:]]) + "\n")
+        (r,) = read_records(p)
+        assert r.n == 120 and not [f for f in r.findings if f.code == "date_order"], name
+
+
 def test_seven_digit_fractions_with_a_12_hour_clock():
     # .NET's "M/d/yyyy h:mm:ss.fffffff tt": 100 ms data across noon
     rng = np.random.default_rng(5)
@@ -142,7 +189,9 @@ def test_seven_digit_fractions_with_a_12_hour_clock():
         rows.append(f"3/1/2024 {h % 12 or 12}:{m:02d}:{rest // 1000:02d}.{rest % 1000:03d}0000 {'AM' if h < 12 else 'PM'},"
                     f"{20 + rng.normal():.3f},{50 + rng.normal():.3f}")
     (rec,) = read_records(io.StringIO("\n".join(rows) + "\n"))
-    assert rec.start == "2024-03-01T11:59:50Z" and rec.ts_s == 0.1 and rec.n == 200 and not rec.findings
+    assert rec.start == "2024-03-01T11:59:50Z" and rec.ts_s == 0.1 and rec.n == 200
+    # one day, 3/1: 3 January reads as well (a 12-hour clock is written day first too, en-AU)
+    assert [(f.code, f.data["read"]) for f in rec.findings] == [("date_order", "month first")]
 
 
 def test_units_in_brackets_after_the_column_name(tmp_path):

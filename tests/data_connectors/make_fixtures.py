@@ -176,6 +176,13 @@ def vendors() -> None:
         t = datetime(2024, 3, 1) + timedelta(hours=2 * k)
         rows.append(f"{t:%d/%m/%Y %H:%M},{pv[k]:.3f},{op[k]:.3f}")
     (HERE / "excel_uk_dmy.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
+    # the same UK locale with seconds, one morning of 5 March 2026: no field above 12 and a single
+    # day, so nothing in the file tells 5 March from 3 May
+    rows = ["Date,FIC503.PV,FIC503.OP"]
+    for k in range(op.size):
+        t = datetime(2026, 3, 5, 8, 0, 0) + timedelta(seconds=5 * k)
+        rows.append(f"{t:%d/%m/%Y %H:%M:%S},{pv[k]:.3f},{op[k]:.3f}")
+    (HERE / "excel_uk_one_day.csv").write_text("\r\n".join(rows) + "\r\n", encoding="utf-8")
     # Excel in a Dutch locale: d-m-yyyy h:mm, semicolons, decimal commas
     rows = ["Datum;FIC502.PV;FIC502.OP"]
     for k in range(op.size):

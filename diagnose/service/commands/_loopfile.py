@@ -37,6 +37,12 @@ def add_read_arguments(p: argparse.ArgumentParser, verb: str, *, tags: bool = Tr
                                                 "Europe/Berlin, or +hh:mm; default UTC)")
     g.add_argument("--dst", choices=("infer", "earliest", "latest", "raise"), default=None,
                    help="local times at clock changes (default infer)")
+    order = g.add_mutually_exclusive_group()
+    order.add_argument("--dayfirst", dest="dayfirst", action="store_const", const=True, default=None,
+                       help="dates such as 05/03/2026 are day first (5 March; default: the dates decide, "
+                            "and a date_order warning says when they cannot)")
+    order.add_argument("--monthfirst", dest="dayfirst", action="store_const", const=False,
+                       help="dates such as 05/03/2026 are month first (3 May)")
     g.add_argument("--format", dest="fmt", metavar="LAYOUT", choices=FORMATS,
                    help="file layout: " + ", ".join(FORMATS) + " (default auto)")
     if tags:
@@ -58,7 +64,7 @@ def read_options(args: argparse.Namespace) -> dict[str, Any]:
     """The reading options given on the command line, by their Python names (`diagnose.api`
     functions and `connectors.read_records` take them as they are)."""
     opts: dict[str, Any] = {}
-    for key in ("op", "pv", "sp", "mv", "time", "tz", "dst", "tags", "loop", "max_samples"):
+    for key in ("op", "pv", "sp", "mv", "time", "tz", "dst", "dayfirst", "tags", "loop", "max_samples"):
         v = getattr(args, key, None)
         if v is not None:
             opts[key] = v
