@@ -269,6 +269,9 @@ def test_severity_ranks_by_the_probability_of_stiction_then_its_size():
     dq = _diag(S_pct=0.5, p=0.9, warnings=[Note("data_quality.gap", "g")]).severity.score
     assert big > small > unsure > watch > healthy == 0
     assert dq == pytest.approx(small + 5.0)
+    # an ambiguous date order dates the record but leaves its samples as they are
+    dated = _diag(S_pct=0.5, p=0.9, warnings=[Note("data_quality.date_order", "d")]).severity.score
+    assert dated == pytest.approx(small)
     # without a probability (an older result) a sticky verdict's confidence stands in for it
     assert _diag(S_pct=5.0, confidence=0.9).severity.score == pytest.approx(big)
 

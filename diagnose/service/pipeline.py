@@ -259,6 +259,10 @@ def sj_unit(ident: Identification) -> str:
     return "% of valve span" if ident.op_in_percent else "in OP's own units (OP is not in % of span)"
 
 
+#: data-quality warnings the severity does not count
+_UNSCORED_FINDINGS = frozenset({"data_quality.date_order"})
+
+
 def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
     """Rank score on a 0-100 scale (the parts add up to at most 90) from the probability of
     stiction, its size, oscillation and data quality.
@@ -270,7 +274,7 @@ def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
     * oscillation: up to 25 points when the loop oscillates (a slow cycle does not count),
       ``25 * clip(r / 2, 0.5, 1)`` with r Thornhill's regularity (a regular oscillation has r > 1);
     * data quality: 5 points per data-quality warning, at most 15 (a loop whose data cannot be
-      trusted needs someone to look at it too).
+      trusted needs someone to look at it too); an ambiguous date order is not counted.
 
     Whether the selected NARX-SP model is robust at this (S, J) adds nothing: it says how well the
     tool's model bank covers the valve, not how bad the valve is.
@@ -285,7 +289,8 @@ def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
         osc_pts = 25.0 * min(max(ident.oscillation.regularity / 2.0, 0.5), 1.0)
     else:
         osc_pts = 0.0
-    dq = sum(1 for w in warnings if w.code.startswith("data_quality."))
+    # an ambiguous date order dates the record (the history's order), it does not spoil the samples
+    dq = sum(1 for w in warnings if w.code.startswith("data_quality.") and w.code not in _UNSCORED_FINDINGS)
     dq_pts = min(5.0 * dq, 15.0)
     score = size + osc_pts + dq_pts
     # to the 0.1 every report shows: loops that look tied are tied, and the ranking orders them by S
