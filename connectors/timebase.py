@@ -395,7 +395,8 @@ def localise(wall_us: np.ndarray, rows: np.ndarray, zone, dst: str, label, colum
     if ok.all():
         return sec
     # the repeated and the missing hour: our policy, in file order (reversed for newest-first files)
-    descending = wall.size > 1 and wall[-1] < wall[0]
+    # most steps decide, not the end points: a record within the repeated hour ends earlier than it starts
+    descending = np.count_nonzero(np.diff(wall) < 0) > np.count_nonzero(np.diff(wall) > 0)
     order = np.arange(wall.size)[::-1] if descending else np.arange(wall.size)
     normal_seen = np.cumsum(ok[order])
     in_second_pass, last_wall, last_seen = False, None, None

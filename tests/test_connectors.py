@@ -195,6 +195,23 @@ def test_clock_back_is_said_only_of_naive_times_that_repeat_a_stretch(tmp_path):
     assert "clock_back" not in codes(rec)
 
 
+@pytest.mark.parametrize("newest_first", [False, True])
+def test_a_record_within_the_repeated_hour_is_read_in_one_piece(tmp_path, newest_first):
+    # 02:30-02:59 summer time, then 02:00-02:19 winter time: the last stamp is earlier than the
+    # first, yet the file runs oldest first; read with --tz it is 50 minutes without a gap
+    rng = np.random.default_rng(5)
+    wall = np.datetime64("2026-10-25T02:30:00") + np.arange(0, 1800, 10).astype("timedelta64[s]")
+    wall = np.concatenate((wall, wall[:120] - np.timedelta64(1800, "s")))
+    stamps = np.datetime_as_string(wall[::-1] if newest_first else wall, unit="s")
+    _stamped_csv(tmp_path / "fic7.csv", stamps, rng)
+    (rec,) = read_records(tmp_path / "fic7.csv", tz="Europe/Berlin")
+    assert rec.n == 300 and rec.ts_s == 10.0 and "segment" not in codes(rec)
+    assert rec.start == "2026-10-25T00:30:00Z"
+    line = 301 if newest_first else 2            # the first ambiguous time in file order
+    with pytest.raises(ConnectorError, match=rf"fic7\.csv:{line} \(column 'time'\): local time 2026-10-25 02:30:00 is ambiguous"):
+        read_records(tmp_path / "fic7.csv", tz="Europe/Berlin", dst="raise")
+
+
 def test_dst_spring_forward_gap_is_shifted():
     pt = parse_times(["2024-03-31 01:59:00", "2024-03-31 02:30:00", "2024-03-31 03:01:00"], tz="Europe/Berlin")
     d = np.diff(pt.seconds)
