@@ -619,7 +619,7 @@ def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warning
     osc = oscillation_context(op, ts)
     warnings.append(_warn("pv_unusable",
                           f"PV is unusable ({reason}): the verdict is judged from OP's shape alone and is "
-                          "less certain; S and J need a usable PV or the stem position"))
+                          "less certain; S and J need a usable PV, even where the stem position is recorded"))
     if integrating is None and _LEVEL_TAG.search(record.name or ""):
         integrating = True
     evidence = run_all(op, record.pv, ts, sp=record.sp, integrating=integrating)

@@ -166,5 +166,8 @@ def test_an_export_whose_pv_is_all_bad_is_judged_from_op_alone(tmp_path, capsys)
     codes = [w["code"] for w in d["warnings"]]
     assert d["method"] == "op_only" and d["S"] is None
     assert "data_quality.pv_missing" in codes and "pv_unusable" in codes and "mv_unused" in codes
+    # the advice agrees with mv_unused: the recorded stem cannot stand in for PV
+    said = next(w["message"] for w in d["warnings"] if w["code"] == "pv_unusable")
+    assert "S and J need a usable PV" in said and "PV or the stem position" not in said
     assert not any(c == "data_quality.frozen" for c in codes)      # the stand-in PV is not assessed
     assert d["confidence"] <= 0.75
