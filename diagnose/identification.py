@@ -464,8 +464,12 @@ def _warn(code: str, message: str) -> Note:
 
 def _check(record: LoopRecord) -> None:
     if record.n < MIN_SAMPLES:
+        # a record cut short by max_samples is not a short export: name the option to raise
+        cut = next((f for f in record.findings if f.code == "window"), None)
+        fix = (f"max_samples (--max-samples) kept only the newest of its {cut.data['samples']}; give "
+               f"{MIN_SAMPLES} or more, or 0 to keep every sample" if cut else "give a longer record")
         raise DataError(f"loop {record.name!r} has {record.n} samples; identification needs at least "
-                        f"{MIN_SAMPLES} (give a longer record)")
+                        f"{MIN_SAMPLES} ({fix})")
     if np.ptp(record.op) <= 0:
         raise DataError(f"loop {record.name!r}: OP is constant ({record.op[0]:g}) over the whole record; "
                         "the controller never moved the valve, so stiction cannot be identified "

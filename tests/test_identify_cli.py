@@ -83,6 +83,14 @@ def test_a_too_short_record_names_the_file(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith(f"error: {path}: loop 'FIC9' has 20 samples")
 
 
+def test_too_few_samples_kept_by_max_samples_names_the_option(sticky_csv, capsys):
+    # 1500 samples in the file: the record is short because --max-samples cut it, not the export
+    assert main(["identify", str(sticky_csv), "--max-samples", "30"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {sticky_csv}: loop 'FIC7' has 30 samples")
+    assert "--max-samples" in err[0] and "of its 1500" in err[0] and "longer record" not in err[0]
+
+
 def test_missing_file_is_a_one_line_error(tmp_path, capsys):
     assert main(["identify", str(tmp_path / "nope.csv")]) == 1
     err = capsys.readouterr().err
