@@ -87,6 +87,9 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     ("--noise", "-1", "0 or more"), ("--load", "-0.5", "0 or more"), ("--noise", "nan", "0 or more"),
     ("--n", "10", "50 or more"), ("--ts-s", "0", "more than 0 seconds"), ("--delay-s", "-1", "0 seconds or more"),
     ("--tau-s", "-2", "0 seconds or more"), ("--gain", "0", "other than 0"),
+    # a controller that never moves OP (or fills it with NaN), or silently loses its integral action
+    ("--kc", "0", "other than 0"), ("--kc", "nan", "other than 0"), ("--ti-s", "0", "more than 0 seconds"),
+    ("--ti-s", "-5", "more than 0 seconds"), ("--ti-s", "nan", "more than 0 seconds"),
 ])
 def test_simulate_refuses_a_bad_flag_value_as_a_usage_error_naming_the_flag(tmp_path, capsys, flag, value, says):
     from diagnose.objective import MIN_SAMPLES

@@ -27,16 +27,23 @@ INTEGRATING_BALANCE_PCT = 51.0
 _samples = whole_number(MIN_SAMPLES, f"{MIN_SAMPLES} or more samples (identify needs at least {MIN_SAMPLES})")
 
 
-def _gain(text: str) -> float:
-    # a zero gain has no controller tuning (SIMC divides by it): a traceback, not a loop
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number; give a process gain other than 0") from None
-    if not math.isfinite(v) or v == 0:
-        raise argparse.ArgumentTypeError(f"{text}: give a process gain other than 0 (negative: a "
-                                         "reverse-acting process)")
-    return v
+def _nonzero(what: str, note: str):
+    """A finite number other than 0: ``what`` names it, ``note`` says what its sign means."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number; give {what} other than 0") from None
+        if not math.isfinite(v) or v == 0:
+            raise argparse.ArgumentTypeError(f"{text}: give {what} other than 0 ({note})")
+        return v
+    return parse
+
+
+# a zero process gain has no controller tuning (SIMC divides by it): a traceback, not a loop
+_gain = _nonzero("a process gain", "negative: a reverse-acting process")
+# a zero controller gain never moves OP, a non-finite one fills it with NaN: files identify refuses
+_kc = _nonzero("a controller gain", "with the sign of the process gain")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -63,8 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--load", type=number(0.0, what="a load step std of 0 or more PV units (0: no load)"),
                    default=0.01, help="random-walk load increment std, PV units (default %(default)s)")
     p.add_argument("--f0", type=int, choices=[-1, 1], default=1, help="valve's starting direction")
-    p.add_argument("--kc", type=float, default=None, help="controller gain (default: SIMC tuning)")
-    p.add_argument("--ti-s", type=float, default=None, help="integral time, seconds (default: SIMC)")
+    p.add_argument("--kc", type=_kc, default=None, help="controller gain (default: SIMC tuning)")
+    p.add_argument("--ti-s", type=number(0.0, above=True, what="an integral time of more than 0 seconds"),
+                   default=None, help="integral time, seconds (default: SIMC)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--name", default="SIM", help="loop name (tag prefix of the columns)")
     p.add_argument("--out", required=True, help="output CSV file")
