@@ -392,8 +392,13 @@ def test_loop_names_the_loop_exactly_as_identify_does(tmp_path, capsys):
         capsys.readouterr()
         assert main(["identify", str(path), "--loop", want, "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["loop"] == want
-    assert main(["batch", str(path), "--out", str(tmp_path / "out_x"), "--loop", "Fic7", *common]) == 0
-    assert "left alone: 1 file(s), no loop named 'Fic7': plant.csv" in capsys.readouterr().out
+    # a loop that no file holds is an error, as in identify: a nightly job must not pass diagnosing nothing
+    assert main(["batch", str(path), "--out", str(tmp_path / "out_x"), "--loop", "Fic7", *common]) == 1
+    cap = capsys.readouterr()
+    assert "left alone: 1 file(s), no loop named 'Fic7': plant.csv" in cap.out
+    assert cap.err.splitlines() == [f"error: no file read holds a loop named 'Fic7'; the loops each file holds "
+                                    f"are listed in {tmp_path / 'out_x' / 'summary.md'}"]
+    assert "(loops: FIC7, fic7)" in (tmp_path / "out_x" / "summary.md").read_text()
 
 
 def test_a_tag_without_pv_is_listed_as_left_alone(tmp_path, capsys):

@@ -94,4 +94,9 @@ def run(args: argparse.Namespace) -> int:
                     read_options=read_options(args), explain=explain_mode(args.explain), narx=args.narx, pdf=args.pdf,
                     db=args.db, history=not args.no_history, progress=not args.quiet)
     report(res)
+    if args.loop and res.counts["loops"] == 0:
+        # a --loop that no file holds is a typo or the wrong folder, not a night with nothing to do
+        print(f"error: no file read holds a loop named {args.loop!r}; the loops each file holds are listed "
+              f"in {res.summary_md}", file=sys.stderr)
+        return 1
     return 1 if res.n_failed else 0
