@@ -108,6 +108,13 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert main(["history", "NOPE", "--db", str(db)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: no runs of loop 'NOPE'") and "FIC9" in err and "Traceback" not in err
+    # --db given a folder, reading or writing: named as one, not sqlite's "disk I/O error"
+    for argv in (["history", "--db", str(tmp_path)],
+                 ["batch", str(tmp_path / "none.csv"), "--out", str(tmp_path / "out"), "--db", str(tmp_path)]):
+        assert main(argv) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"error: {tmp_path}: is a folder; --db takes the database file (for example "
+                       f"{tmp_path / 'history.sqlite'})"]
 
 
 def test_cli_limit_keeps_the_last_runs_and_refuses_less_than_one(tmp_path, capsys):

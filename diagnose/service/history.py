@@ -223,6 +223,9 @@ class History:
 
     def __init__(self, path: str | os.PathLike | None = None, *, readonly: bool = False) -> None:
         self.path = Path(path) if path is not None else default_db_path()
+        if self.path.is_dir():  # sqlite says only "disk I/O error" of a folder
+            raise StictionError(f"{self.path}: is a folder; --db takes the database file (for example "
+                                f"{self.path / 'history.sqlite'})")
         try:
             if readonly:
                 if not self.path.exists():
