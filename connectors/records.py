@@ -63,6 +63,8 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
     by_name = {s.name: s for s in table.series}
     by_lower = {s.name.lower(): s for s in table.series}
     overrides = {r: options.get(r) for r in ("op", "pv", "sp", "mv", "mode") if options.get(r)}
+    if isinstance(options.get("ts"), str):
+        _check_time_column(options["ts"], overrides, table.label)
     if tagmap is not None and not overrides:
         specs = []
         for lm in tagmap.loops.values():
@@ -147,6 +149,21 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
     if len(specs) == 1 and options.get("name"):
         specs[0].name = str(options["name"])
     return specs
+
+
+def _check_time_column(col: str, overrides: dict, label: str | None) -> None:
+    """A signal given as the time vanishes from the loop: say so, not "no PV column found" (or
+    nothing at all, for a stem position read as time stamps)."""
+    opt = option("--time", label)
+    given = next((r for r, c in overrides.items() if str(c).lower() == col.lower()), None)
+    if given is not None:
+        raise ConnectorError(f"column {col!r} is given for both the time ({opt}) and {given.upper()}; "
+                             "each role needs its own column", path=label)
+    role = role_of(col)
+    if role not in (None, "time"):
+        raise ConnectorError(f"column {col!r} given as the time ({opt}) is named as a loop's {role.upper()}; "
+                             f"give the time column, or leave {opt} out to find it by its name or content",
+                             path=label)
 
 
 def _claim(roles: dict[str, Series], role: str, s: Series, label: str | None) -> None:

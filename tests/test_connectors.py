@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -193,6 +194,25 @@ def test_clock_back_is_said_only_of_naive_times_that_repeat_a_stretch(tmp_path):
     assert said == {"swapped_Z.csv": False, "swapped.csv": False, "overlap_Z.csv": False, "overlap.csv": True}
     (rec,) = read_records(tmp_path / "overlap.csv", tz="Europe/Berlin")   # read in its zone: no DST in January
     assert "clock_back" not in codes(rec)
+
+
+def test_a_signal_given_as_the_time_column_is_named(tmp_path):
+    # it vanished from the loop: "no PV column found (columns: ..., FIC7.PV)", or a stem position
+    # read as time stamps was diagnosed without a word
+    rng = np.random.default_rng(4)
+    stamps = np.datetime_as_string(np.datetime64("2026-01-01T00:00:00") + np.arange(300).astype("timedelta64[s]"))
+    _stamped_csv(tmp_path / "fic7.csv", stamps, rng)
+    text = (tmp_path / "fic7.csv").read_text().splitlines()
+    (tmp_path / "fic7.csv").write_text("\n".join([text[0] + ",FIC7.POS"] + [f"{r},{50 + i % 7}" for i, r in
+                                                                         enumerate(text[1:])]) + "\n")
+    for col, role in (("FIC7.PV", "PV"), ("FIC7.POS", "MV")):
+        with pytest.raises(ConnectorError, match=rf"fic7\.csv: column '{re.escape(col)}' given as the time "
+                                                 rf"\(--time\) is named as a loop's {role}; give the time column"):
+            read_records(tmp_path / "fic7.csv", time=col)
+    with pytest.raises(ConnectorError, match=r"column 'FIC7.OP' is given for both the time \(--time\) and OP"):
+        read_records(tmp_path / "fic7.csv", time="FIC7.OP", op="FIC7.OP")
+    (rec,) = read_records(tmp_path / "fic7.csv", time="time")
+    assert rec.n == 300 and rec.mv is not None
 
 
 @pytest.mark.parametrize("newest_first", [False, True])
