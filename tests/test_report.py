@@ -119,6 +119,22 @@ def test_phase_plot_gets_an_op_mv_panel_only_with_mv(sticky_diag):
     assert sticky_diag.record.mv is not None and w1 > 1.5 * w2
 
 
+def test_the_fit_row_names_the_signal_the_fit_reproduced(sticky_diag):
+    from diagnose.service.commands.identify import summary
+
+    # a stem that moved: the OP -> MV fit; one that never moved: the OP -> PV fit, though the method
+    # is op_mv (the report called PV's RMSE the stem's, in % of span)
+    rec = sticky_diag.record
+    stuck = pipeline.diagnose(rec.replace(mv=np.full(rec.n, 50.0)), narx=False)
+    assert sticky_diag.identification.method == stuck.identification.method == "op_mv"
+    assert stuck.identification.valve_not_moving and stuck.identification.valve_fit is None
+    for diag, row, line in ((sticky_diag, "stem position (MV): RMSE", "of MV from OP, % of span"),
+                            (stuck, "PV: RMSE", "of PV from OP")):
+        fit = dict(report._detail_rows(diag))["Fit of the model (free-run simulation)"]
+        assert fit.startswith(row)
+        assert f"(free-run simulation {line})" in summary(diag.identification)
+
+
 def test_error_surface_needs_a_fit(sticky_diag):
     assert figures.surface(sticky_diag) is not None
     ident = sticky_diag.identification

@@ -292,7 +292,7 @@ def _detail_rows(diag: Diagnosis) -> list[list[str]]:
     sev = diag.severity
     if ident.rmse is None:
         fit = "-"
-    elif ident.method == "op_mv":
+    elif ident.valve_fit is not None:  # not method: a stem that never moved leaves the OP -> PV fit
         fit = f"stem position (MV): RMSE {number(ident.rmse)} % of span, R2 {fmt(ident.r2, '.3f')}"
     else:
         unit = diag.record.units.get("pv") or "PV units"

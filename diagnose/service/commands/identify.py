@@ -59,7 +59,9 @@ def summary(ident: Identification) -> str:
         lines.append(f"  process: {p.kind}, gain {number(p.gain)}, tau {duration(p.tau_s)}{extra}, "
                      f"dead time {duration(p.delay_s)}")
     if ident.rmse is not None and ident.r2 is not None:
-        lines.append(f"  fit: rmse {number(ident.rmse)}, r2 {ident.r2:.3f} (free-run simulation)")
+        # a recorded stem that moved is fitted OP -> MV: that rmse is in % of span, not PV units
+        of = "MV from OP, % of span" if ident.valve_fit is not None else "PV from OP"
+        lines.append(f"  fit: rmse {number(ident.rmse)}, r2 {ident.r2:.3f} (free-run simulation of {of})")
     osc = ident.oscillation
     if ident.slow_cycle:
         lines.append(f"  slow cycle: period {duration(osc.period_s)} (a daily or shift pattern, not a loop "
