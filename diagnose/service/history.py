@@ -412,4 +412,4 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
     warn = degradation(rows)
     if warn:
         lines.append(f"WARNING: {warn}")
-    return "\n".join(lines) + "\n"
+    return "\n".join(ln.rstrip() for ln in lines) + "\n"
