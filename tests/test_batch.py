@@ -168,6 +168,13 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     # the sticky FIC1 of this run makes two sticky runs of three
     assert "Verdict over this loop's runs: stiction in 2 of the last 3 runs" in md
     assert "| P(stiction) |" in md and "| 30 % |" in md
+    assert row["sticky_runs"] == [2, 3]
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    assert " (2/3 runs) |" in summary and "k said stiction" in summary
+    import csv
+    with open(tmp_path / "out" / "summary.csv", newline="") as fh:
+        assert next(csv.DictReader(fh))["sticky_runs"] == "2/3"
+    assert json.loads((tmp_path / "out" / "loops" / "FIC1" / "FIC1.json").read_text())["sticky_runs"] == [2, 3]
     assert "Degrading valves" in (tmp_path / "out" / "summary.md").read_text()
 
 

@@ -243,6 +243,7 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "warnings": len(diag.warnings),
         "data_quality_warnings": sum(1 for w in diag.warnings if w.code.startswith("data_quality.")),
         "degradation": diag.degradation,
+        "sticky_runs": None if diag.sticky_runs is None else list(diag.sticky_runs),
         "action": diag.action,
         "report": report,
         "source": diag.record.source,
@@ -363,7 +364,7 @@ def write_loop_outputs(cfg: BatchConfig, diag: Diagnosis, loop_id: str, *,
 def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> dict[str, Any]:
     """Diagnose one record and write its outputs; a summary row (``status`` ok or failed) with the
     loop's history row under ``_history``."""
-    from .history import degradation as degrade, end_of_record, previous_runs, row_from_diagnosis
+    from .history import degradation as degrade, end_of_record, previous_runs, row_from_diagnosis, sticky_runs
     from .pipeline import diagnose
 
     loop_id = _choose_loop_id(cfg, record, path)
@@ -380,7 +381,10 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
                 if end is None or not r.get("data_end") or r["data_end"] < end]
         warn = degrade(hist + [{"run_at": "this run", "data_end": end,
                                 "S_pct": diag.identification.S_pct}]) if hist else None
-        diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn)
+        held = sticky_runs(hist + [{"stiction": int(bool(diag.identification.stiction)),
+                                    "stiction_probability": diag.identification.stiction_probability}])
+        diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn,
+                       sticky_runs=None if held is None else held[:2])
         report, diag = write_loop_outputs(cfg, diag, loop_id, history_rows=hist)
         row = loop_row(diag, report)
         row["_history"] = row_from_diagnosis(diag, input_hash=ih)
@@ -822,6 +826,15 @@ def rank(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     return ok + bad
 
 
+def _csv_cell(value: Any) -> Any:
+    # sticky_runs (k, m) reads as "k/m", as in the summary's table
+    if value is None:
+        return ""
+    if isinstance(value, (list, tuple)):
+        return "/".join(str(v) for v in value)
+    return value
+
+
 def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool = True,
                   meta: Mapping[str, Any] | None = None,
                   skipped_files: Sequence[Mapping[str, Any]] = ()) -> None:
@@ -833,7 +846,7 @@ def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool
     w = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in SUMMARY_COLUMNS})
+        w.writerow({k: _csv_cell(r.get(k)) for k in SUMMARY_COLUMNS})
     atomic_write(out_dir / "summary.csv", buf.getvalue())
     clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     t = tally(rows)

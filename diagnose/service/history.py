@@ -372,9 +372,9 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
     return None
 
 
-def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) -> str | None:
-    """How often the loop's last ``runs`` runs (oldest first) said stiction, or None with fewer than
-    two runs that stored a verdict.
+def sticky_runs(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) -> tuple[int, int, float | None] | None:
+    """(runs that said stiction, runs counted, their median probability) over the loop's last
+    ``runs`` runs that stored a verdict (rows oldest first); None with fewer than two.
 
     One window can hold too little stick-slip for the fit to tell (docs/verdict.md, Limits): a
     valve called sticky on most of its windows is a firmer finding than one window's probability.
@@ -382,10 +382,17 @@ def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) 
     seen = [r for r in rows if r.get("stiction") is not None][-runs:]
     if len(seen) < 2:
         return None
-    k = sum(bool(r["stiction"]) for r in seen)
     ps = [float(r["stiction_probability"]) for r in seen if r.get("stiction_probability") is not None]
-    med = f", median probability {percent(statistics.median(ps))}" if ps else ""
-    return f"stiction in {k} of the last {len(seen)} runs{med}"
+    return sum(bool(r["stiction"]) for r in seen), len(seen), statistics.median(ps) if ps else None
+
+
+def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) -> str | None:
+    """`sticky_runs` in words: "stiction in 5 of the last 7 runs, median probability 84 %"."""
+    got = sticky_runs(rows, runs=runs)
+    if got is None:
+        return None
+    k, m, med = got
+    return f"stiction in {k} of the last {m} runs" + ("" if med is None else f", median probability {percent(med)}")
 
 
 def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:

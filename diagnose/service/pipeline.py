@@ -162,6 +162,9 @@ class Diagnosis:
     loop_id, input_hash, window, degradation : str or None
         Set by the batch and the monitor: the report name, the input hash the result is filed
         under, the monitor window, and the history's degradation warning.
+    sticky_runs : (int, int) or None
+        Set by the batch from the history: how many of the loop's last runs (this one included)
+        said stiction, and how many were counted (`diagnose.service.history.sticky_runs`).
     """
 
     record: LoopRecord
@@ -179,6 +182,7 @@ class Diagnosis:
     input_hash: str | None = None
     window: str | None = None
     degradation: str | None = None
+    sticky_runs: tuple[int, int] | None = None
 
     @property
     def loop(self) -> str:
@@ -225,6 +229,8 @@ class Diagnosis:
             value = getattr(self, key)
             if value is not None:
                 d[key] = value
+        if self.sticky_runs is not None:
+            d["sticky_runs"] = list(self.sticky_runs)
         return d
 
     # ------------------------------------------------------------------ notebooks

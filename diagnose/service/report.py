@@ -362,6 +362,13 @@ def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
     return blocks
 
 
+def _runs_note(runs: Any) -> str:
+    """" (5/7 runs)" beside the probability: how many of the loop's last runs said stiction."""
+    if isinstance(runs, (list, tuple)) and len(runs) == 2:
+        return f" ({runs[0]}/{runs[1]} runs)"
+    return ""
+
+
 def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
                 history_rows: Sequence[Mapping[str, Any]] | None = None,
                 degradation: str | None = None) -> list[Block]:
@@ -448,8 +455,8 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
 
 
 SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_pct", "S_lo", "S_hi",
-                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "stiction_probability", "confidence",
-                   "oscillation_period_s",
+                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "stiction_probability", "sticky_runs",
+                   "confidence", "oscillation_period_s",
                    "slow_cycle_period_s", "warnings",
                    "data_quality_warnings", "degradation", "action", "report", "file", "source", "error"]
 
@@ -502,6 +509,10 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
                         "50), oscillation (25) and data-quality warnings (15), so likely sticky valves "
                         "rank first; equal severities are ordered by S. Slow cycles (periods of hours: "
                         "daily or shift patterns of the plant) are not loop oscillations and add nothing."))
+    if any(r.get("sticky_runs") for r in ok):
+        blocks.append(("p", "Beside P(stiction), (k/m runs): of the loop's last m runs in the history, this one "
+                            "included, k said stiction. One window can hold too little stick-slip to tell; "
+                            "a valve called sticky run after run is the firmer finding."))
     blocks.append(("h2", "Loops ranked by severity"))
     table = []
     for r in ok:
@@ -517,7 +528,8 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".1f"), fmt(r.get("class")),
                       fmt(r.get("S_pct")) + op_units + rising, fmt(r.get("J_pct")) + op_units,
                       # as the loop's own report words them: a rounded "100%" reads as a certainty
-                      percent(r.get("stiction_probability")), percent(r.get("confidence")),
+                      percent(r.get("stiction_probability")) + _runs_note(r.get("sticky_runs")),
+                      percent(r.get("confidence")),
                       osc,
                       fmt(r.get("data_quality_warnings"), "d"),
                       # which file the loop came from: two copies of one export give FIC103 and
