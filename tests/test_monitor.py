@@ -105,6 +105,7 @@ def test_monitor_diagnoses_windows_survives_a_device_restart_and_serves_metrics(
         assert len(h.runs("SIM000")) >= 2 and len(h.runs("SIM001")) >= 2
     m = state["metrics"]
     assert 'stiction_s_pct{loop="SIM001"}' in m and 'stiction_polls_total{loop="SIM000"}' in m
+    assert 'stiction_probability{loop="SIM001"}' in m
     assert _outage_counted(m)  # the outage was seen
 
 
@@ -350,3 +351,33 @@ def test_ticks_missed_just_after_a_reconnection_are_not_a_second_outage(tmp_path
     text = log.getvalue()
     assert mon.stats.outages == 1 and mon.stats.reconnects == 1, text
     assert text.count("outage") == 1 and text.count("reconnected") == 1, text
+
+
+@pytest.mark.parametrize("history", [False, True])
+def test_each_window_line_says_how_many_of_the_loops_last_windows_showed_stiction(tmp_path, history):
+    import io
+    from concurrent.futures import Future
+    from dataclasses import replace
+
+    from diagnose.service.monitor import Monitor
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(free_port(), 1, period_s=0.1, window_samples=150))
+    log = io.StringIO()
+    mon = Monitor(cfg, tmp_path / "out", history=history, db=tmp_path / "h.sqlite", log=log, workers=0)
+    loop = dict(n=2000, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02, load_walk_std=0.01, seed=1, name="SIM000")
+    sticky = diagnose(sticky_loop(4.0, 1.5, **loop).replace(mv=None), explain=False, narx=False)
+    healthy = diagnose(sticky_loop(0.0, 0.0, **loop).replace(mv=None), explain=False, narx=False)
+    assert sticky.identification.stiction and not healthy.identification.stiction
+    for i, d in enumerate((sticky, healthy, sticky)):
+        fut: Future = Future()
+        fut.set_result(replace(d, loop_id="SIM000", window=f"w{i}", input_hash=f"window:w{i}"))
+        mon._done("SIM000", fut)
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 3 and "[stiction" not in lines[0]      # one window says nothing of persistence
+    assert lines[1].endswith("[stiction in 1 of the last 2 windows]")
+    assert lines[2].endswith("[stiction in 2 of the last 3 windows]")
+    if mon.history is not None:
+        mon.history.close()

@@ -1,7 +1,9 @@
 """Optional Prometheus metrics for `stiction monitor` (needs ``prometheus-client``).
 
 Per loop: ``stiction_s_pct``, ``stiction_j_pct``, ``stiction_severity``, ``stiction_confidence``,
-``stiction_detected`` (1/0) from the latest window, ``stiction_windows_total{status}``; from the
+``stiction_detected`` (1/0), ``stiction_probability`` from the latest window,
+``stiction_sticky_share`` (the share of the loop's last windows, at most 7, that showed stiction),
+``stiction_windows_total{status}``; from the
 poller (read when Prometheus scrapes, nothing per poll): ``stiction_polls_total``,
 ``stiction_polls_failed_total``, ``stiction_polls_missed_total``. Served on 127.0.0.1 unless
 another address is given.
@@ -44,6 +46,9 @@ class Metrics:
         self.severity = g("stiction_severity", "Severity score 0-100 of the latest window")
         self.confidence = g("stiction_confidence", "Confidence in the latest verdict, 0-1")
         self.detected = g("stiction_detected", "1 when the latest window shows stiction")
+        self.probability = g("stiction_probability", "Probability of stiction of the latest window, 0-1")
+        self.sticky_share = g("stiction_sticky_share",
+                              "Share of the loop's last windows (at most 7) that showed stiction, 0-1")
         self.windows = Counter("stiction_windows", "Windows diagnosed", ["loop", "status"], registry=self.registry)
 
         class _PollCollector:
@@ -66,11 +71,14 @@ class Metrics:
         self._server = server[0] if isinstance(server, tuple) else server
         self.port = self._server.server_port if self._server is not None else port
 
-    def observe(self, loop: str, diag: Diagnosis) -> None:
-        """Update the gauges from one window's diagnosis."""
+    def observe(self, loop: str, diag: Diagnosis, sticky_runs: tuple[int, int, Any] | None = None) -> None:
+        """Update the gauges from one window's diagnosis (``sticky_runs``: the loop's last windows
+        that showed stiction and how many were counted, `diagnose.service.history.sticky_runs`)."""
         ident = diag.identification
+        share = None if not sticky_runs else sticky_runs[0] / sticky_runs[1]
         for gauge, value in ((self.S, ident.S_pct), (self.J, ident.J_pct), (self.confidence, ident.confidence),
-                             (self.severity, diag.severity.score)):
+                             (self.severity, diag.severity.score), (self.probability, ident.stiction_probability),
+                             (self.sticky_share, share)):
             if value is not None:
                 gauge.labels(loop).set(float(value))
         self.detected.labels(loop).set(1.0 if ident.stiction else 0.0)

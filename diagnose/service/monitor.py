@@ -20,6 +20,7 @@ import os
 import signal
 import sys
 import time
+from collections import deque
 from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable, TextIO
 from ..errors import DataError, StictionError
 from ..parallel import cores_per_worker
 from ..plain import duration
+from .history import PERSIST_RUNS, history_loop, sticky_runs
 
 if TYPE_CHECKING:
     from ..record import LoopRecord
@@ -207,6 +209,9 @@ class Monitor:
         self.poller = ModbusPoller(self.config, on_window=self._on_window, window_samples=self.window_samples,
                                    on_sample=self._on_sample, on_error=self._on_read_error)
         self._said: set[tuple[str, str]] = set()
+        # each loop's last verdicts, for the persistence said beside each window (without a history
+        # database: this run's windows only)
+        self._recent: dict[str, deque] = {}
         self.history = None
         if history:
             from .history import History
@@ -333,9 +338,16 @@ class Monitor:
         loop = res.loop_id or name
         if self.history is not None:
             self.history.add(res)
+            recent = self.history.runs(history_loop(res.identification.loop), limit=PERSIST_RUNS)
+        else:
+            recent = self._recent.setdefault(loop, deque(maxlen=PERSIST_RUNS))
+            recent.append({"stiction": int(bool(res.identification.stiction)),
+                           "stiction_probability": res.identification.stiction_probability})
+        held = sticky_runs(list(recent))
         if self.metrics is not None:
-            self.metrics.observe(loop, res)
-        print(f"{loop} {res.window}: {res.verdict_text}", file=self.log, flush=True)
+            self.metrics.observe(loop, res, held)
+        said = "" if held is None else f" [stiction in {held[0]} of the last {held[1]} windows]"
+        print(f"{loop} {res.window}: {res.verdict_text}{said}", file=self.log, flush=True)
         if self.on_result is not None:
             self.on_result(res)
 
