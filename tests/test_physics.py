@@ -519,6 +519,20 @@ def test_a_healthy_sample_loop_is_left_alone_without_an_unexplained_warning():
     assert "-0 %" not in ex.explanation
 
 
+def test_a_noise_free_stem_keeps_its_exact_reference():
+    # FIC103: a sticky valve whose recorded stem is exactly the two-parameter model of OP. The exact
+    # plain valve must stay the valve stage's reference (the searches' scores have a rounding floor
+    # far above its error: a refit that looks a hair better there predicts the stem worse), and
+    # its held-out prediction is the fit itself, not an average over sets the data rule out
+    import diagnose
+
+    (rec,) = diagnose.read_loops(Path(__file__).resolve().parents[1] / "sample_logs" / "FIC103.csv")
+    ex = explain(rec)
+    (valve,) = [o for o in ex.mismatch.other_stages if o.stage == "valve"]
+    assert valve.baseline_rmse < 1e-9 and valve.reference_rmse < 1e-9
+    assert ex.missing_physics is None
+
+
 def test_explain_rejects_what_it_cannot_use():
     rec, _ = concealed_loop("none", 1, n=200)
     with pytest.raises(DataError, match="at least"):

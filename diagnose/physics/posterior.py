@@ -40,6 +40,8 @@ from .model import Stage, Structure, predict, stems, train_sse, with_times
 EXPLORE_WIDTHS = (0.3, 1.0, 3.0)
 #: adaptive importance-sampling rounds
 ADAPT_ROUNDS = 8
+#: a training RMS at or below this fraction of the target's spread is an exact fit (rounding only)
+EXACT_FIT = 1e-9
 
 
 @dataclass(frozen=True)
@@ -186,6 +188,13 @@ def predictive_mean(stage: Stage, struct: Structure, n_eff: float, *, seed: int 
         Importance-sampling rounds, each proposal fitted to the previous round's weighted draws
         (a ridge of equally good fits is followed further each round).
     """
+    point = predict(stage, struct)[0]
+    e = (stage.y - point)[stage.train]
+    if e.size and float(np.sqrt(np.mean(e * e))) <= EXACT_FIT * (float(np.std(stage.y[stage.train])) or 1.0):
+        # a model that reproduces the training part to rounding (a noise-free stem) has no cloud of
+        # equally good sets around it: the searches' scores there are the compiled least squares'
+        # own rounding floor, which would spread the draws over sets the data rule out
+        return PredictiveMean(y_hat=point, n_distinct=1, ess=1.0)
     rng = np.random.default_rng(seed)
     names, p0, sc = _free_parameters(struct, stage)
     k = len(p0)
