@@ -68,10 +68,14 @@ def number(value: Any, digits: int = 3, none: str = "-") -> str:
 
 def percent_change(fraction: Any, none: str = "-") -> str:
     """A relative change as a signed percentage: ``-0.05`` -> ``"-5 %"`` (a fall), ``0.05`` ->
-    ``"+5 %"`` (a rise). The sign is the direction of the change, everywhere it is printed."""
+    ``"+5 %"`` (a rise). The sign is the direction of the change, everywhere it is printed; a rise
+    of more than ten times reads ``"> +999 %"``."""
     v = finite_or_none(fraction)
     if v is None:
         return none
+    if v > 10.0:
+        # many times worse (against an exact reference, a noise-free stem): the digits say nothing
+        return "> +999 %"
     r = int(round(100.0 * v))           # an int: no "-0 %" for a change that rounds to nothing
     return "0 %" if r == 0 else f"{r:+d} %"
 
