@@ -11,11 +11,12 @@ import signal
 import subprocess
 import sys
 import time
+from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
 
-from connectors.historian import write_wide
+from connectors.historian import format_wide, write_wide
 from diagnose.service import batch as B
 from diagnose.service.cli import main
 from diagnose.service.history import History, row_from_stored
@@ -25,11 +26,15 @@ from diagnose.simulate import sticky_loop
 LOOPS = [("FIC1", 5.0, 2.0), ("FIC2", 1.5, 0.5), ("FIC3", 0.0, 0.0)]
 
 
-def _write_loops(folder: Path, loops=LOOPS, n: int = 2000) -> None:
+def _write_loops(folder: Path, loops=LOOPS, n: int = 2000, start=None) -> None:
+    """Simulated exports (start: a UTC datetime for their first sample, else 2026-01-01)."""
     folder.mkdir(parents=True, exist_ok=True)
     for i, (name, S, J) in enumerate(loops):
         rec = sticky_loop(S, J, n=n, noise_std=0.03, load_walk_std=0.02, seed=10 + i, name=name)
-        write_wide(rec.replace(mv=None), folder / f"{name}.csv")
+        if start is None:
+            write_wide(rec.replace(mv=None), folder / f"{name}.csv")
+        else:
+            (folder / f"{name}.csv").write_text(format_wide(rec.replace(mv=None), start=start))
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +119,11 @@ def test_rerun_skips_what_is_done_and_redoes_what_changed(first_run, plant):
     redone = sorted(r["loop"] for r in third.rows if r["status"] == "ok" and not r.get("skipped"))
     assert redone == ["FIC2", "FIC3"]
     with History(plant / "h.sqlite") as h:
-        assert len(h.runs("FIC1")) == 1 and len(h.runs("FIC2")) == 2 and len(h.runs("FIC3")) == 1
+        assert len(h.runs("FIC1")) == 1 and len(h.runs("FIC3")) == 1
+        # FIC2's changed export covers the same span: both results are stored, the trend counts the
+        # record once, by its latest run
+        assert h.conn.execute("SELECT count(*) FROM runs WHERE loop = 'FIC2'").fetchone()[0] == 2
+        assert [r["S_pct"] > 2.0 for r in h.runs("FIC2")] == [True]
 
 
 def test_a_result_stored_without_its_summary_row_is_diagnosed_again(first_run, plant):
@@ -245,7 +254,7 @@ def test_two_exports_of_one_tag_keep_both_reports_and_one_history(plant, tmp_pat
     (logs / "jan").mkdir(parents=True)
     (logs / "feb").mkdir()
     (logs / "jan" / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
-    _write_loops(logs / "feb", [("FIC1", 2.5, 0.5)])
+    _write_loops(logs / "feb", [("FIC1", 2.5, 0.5)], start=datetime(2026, 2, 1, tzinfo=timezone.utc))
     kw = dict(explain=False, narx=False, pdf=False, db=tmp_path / "h.sqlite", progress=False)
     first = B.run_batch([logs], tmp_path / "out", workers=2, **kw)
     names = {r["source"]: r["loop"] for r in first.rows}

@@ -282,3 +282,51 @@ def test_a_version_2_database_gains_the_verdict_columns_from_its_stored_results(
         rows = hist.runs("OLD")
     assert [(r["stiction"], r["stiction_probability"]) for r in rows] == [(1, 0.9), (0, 0.3)]
     assert H.persistence(rows) == "stiction in 1 of the last 2 runs, median probability 60 %"
+
+
+def test_a_corrected_export_rerun_counts_its_record_once(tmp_path, capsys):
+    """A night's export edited and re-run makes a new input hash for the same record: the trend,
+    its persistence and its degradation count that record once (by its latest run), as the
+    summary and the report do, instead of two runs of one night."""
+    import json
+
+    import pandas as pd
+
+    from datetime import datetime, timezone
+
+    from connectors.historian import format_wide
+    from diagnose.simulate import sticky_loop
+
+    db = tmp_path / "h.sqlite"
+    nights = []
+    for night, S in enumerate((0.0, 3.0), start=1):   # healthy, then sticky
+        folder = tmp_path / f"night{night}"
+        folder.mkdir()
+        rec = sticky_loop(S, 1.0 if S else 0.0, n=1000, noise_std=0.03, load_walk_std=0.02, seed=40 + night,
+                          name="FIC7")
+        start = datetime(2026, 3, night, 22, tzinfo=timezone.utc)
+        (folder / "FIC7.csv").write_text(format_wide(rec.replace(mv=None), start=start))
+        nights.append(folder)
+    args = lambda folder: ["batch", str(folder), "--out", str(tmp_path / "out" / folder.name), "--workers", "1",
+                           "--no-pdf", "--no-narx", "--quiet", "--db", str(db)]
+    for folder in nights:
+        assert main(args(folder)) == 0
+    path = nights[1] / "FIC7.csv"                      # a corrected export of night 2
+    df = pd.read_csv(path)
+    df.loc[500, "FIC7.PV"] += 0.05
+    df.to_csv(path, index=False)
+    assert main(args(nights[1])) == 0
+    capsys.readouterr()
+    summary = json.loads((tmp_path / "out" / "night2" / "summary.json").read_text())
+    assert summary["loops"][0]["sticky_runs"] == [1, 2] and not summary["loops"][0]["skipped"]
+    with H.History(db) as h:
+        assert h.conn.execute("SELECT count(*) FROM runs WHERE loop = 'FIC7'").fetchone()[0] == 3  # all kept
+        rows = h.runs("FIC7")
+    assert [r["data_end"][:10] for r in rows] == ["2026-03-01", "2026-03-02"]
+    assert main(["history", "FIC7", "--db", str(db)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("FIC7: 2 run(s)")
+    assert "Verdict: stiction in 1 of the last 2 runs" in out
+    assert main(["history", "FIC7", "--db", str(db), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert len(got["runs"]) == 2 and got["persistence"].startswith("stiction in 1 of the last 2 runs")

@@ -311,11 +311,22 @@ class History:
     def runs(self, loop: str, *, limit: int | None = None, status: str | None = "ok",
              with_result: bool = False) -> list[dict[str, Any]]:
         """Runs of one loop in the order of their records' ends (runs of records without a time in
-        the order they ran), oldest first; the last ``limit`` when given."""
+        the order they ran), oldest first; the last ``limit`` when given.
+
+        A record diagnosed again (the same loop, start and end: an export corrected and re-run, or
+        re-diagnosed by a later release) counts once, by its latest run; the earlier rows stay in
+        the database but would otherwise count one record twice in the trend, its persistence and
+        its degradation."""
         cols = [c if c in self._columns else f"NULL AS {c}" for c in _COLS if with_result or c != "result_json"]
         where = "loop = ?" + (" AND status = ?" if status else "")
         args: list[Any] = [loop] + ([status] if status else [])
         end = "COALESCE(data_end, run_at)" if "data_end" in self._columns else "run_at"
+        if "data_end" in self._columns:
+            where += (" AND NOT (data_start IS NOT NULL AND data_end IS NOT NULL AND EXISTS ("
+                      "SELECT 1 FROM runs AS later WHERE later.loop = runs.loop"
+                      + (" AND later.status = runs.status" if status else "") +
+                      " AND later.data_start = runs.data_start AND later.data_end = runs.data_end"
+                      " AND (later.run_at > runs.run_at OR (later.run_at = runs.run_at AND later.id > runs.id))))")
         sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY {end} DESC, run_at DESC, id DESC"
         if limit:
             sql += f" LIMIT {int(limit)}"
