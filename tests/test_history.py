@@ -122,8 +122,23 @@ def test_cli_limit_keeps_the_last_runs_and_refuses_less_than_one(tmp_path, capsy
     _fill(db, "FIC9", [1.0, 1.4, 2.1])
     assert main(["history", "FIC9", "--db", str(db), "--limit", "2"]) == 0
     lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "FIC9: 3 run(s), the last 2 shown"
     assert [ln.split()[3] for ln in lines[2:4]] == ["1.40", "2.10"]
-    assert lines[4:] == ["Verdict: stiction in 2 of the last 2 runs, median probability 90 %"]
+    # the verdict's persistence and the degradation are the loop's, not the rows shown: the
+    # summary and the report say 3 of 3 and "degrading" whatever --limit shows
+    assert lines[4] == "Verdict: stiction in 3 of the last 3 runs, median probability 90 %"
+    assert lines[5].startswith("WARNING: S grew over the last 3 runs, from 1.00 % to 2.10 %") and len(lines) == 6
+    assert main(["history", "FIC9", "--db", str(db), "--limit", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "FIC9: 3 run(s), the last 1 shown" and len(lines) == 5
+    assert lines[3].startswith("Verdict: stiction in 3 of the last 3 runs") and lines[4].startswith("WARNING: S grew")
+    assert main(["history", "FIC9", "--db", str(db), "--limit", "1", "--json"]) == 0
+    import json
+    got = json.loads(capsys.readouterr().out)
+    assert got["n_runs"] == 3 and [r["S_pct"] for r in got["runs"]] == [2.1]
+    assert got["persistence"].startswith("stiction in 3 of the last 3 runs") and "S grew" in got["degradation"]
+    assert main(["history", "FIC9", "--db", str(db), "--limit", "5"]) == 0
+    assert capsys.readouterr().out.startswith("FIC9: 3 run(s)\n")
     for bad in ("0", "-1"):
         assert main(["history", "FIC9", "--db", str(db), "--limit", bad]) == 2
         captured = capsys.readouterr()

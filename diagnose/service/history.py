@@ -406,14 +406,19 @@ def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) 
     return f"stiction in {k} of the last {m} runs" + ("" if med is None else f", median probability {percent(med)}")
 
 
-def format_trend(loop: str, rows: Sequence[Mapping[str, Any]]) -> str:
-    """The trend table `stiction history LOOP` prints: one line per run, by the end of its record."""
+def format_trend(loop: str, rows: Sequence[Mapping[str, Any]], *, limit: int | None = None) -> str:
+    """The trend table `stiction history LOOP` prints: one line per run, by the end of its record.
+
+    ``limit`` shows only the last runs; the persistence and the degradation are still judged on
+    all of ``rows`` (the loop's last 7 and 3 runs), as the reports and the summary judge them."""
     if not rows:
         return f"{loop}: no runs in the history\n"
-    lines = [f"{loop}: {len(rows)} run(s)",
+    shown = list(rows)[-limit:] if limit else list(rows)
+    head = f"{loop}: {len(rows)} run(s)" + (f", the last {len(shown)} shown" if len(shown) < len(rows) else "")
+    lines = [head,
              f"{'record end (UTC)':<20} {'P(st.)':>6} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} "
              f"{'conf':>6} {'sev':>4}  {'run (UTC)':<20}"]
-    for r in rows:
+    for r in shown:
         iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
               else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
         S = "-" if r.get("S_pct") is None else f"{r['S_pct']:.2f}"

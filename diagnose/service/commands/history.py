@@ -12,7 +12,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("loop", nargs="?", default=None, help="loop name (omit to list the loops)")
     p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
                                               "or ~/.local/share/stiction/history.sqlite)")
-    p.add_argument("--limit", type=whole_number(1, "1 or more"), default=None, metavar="N", help="only the last N runs (N >= 1)")
+    p.add_argument("--limit", type=whole_number(1, "1 or more"), default=None, metavar="N", help="show only the last N runs (N >= 1); the verdict's persistence and the degradation "
+                        "still count the earlier ones")
     p.add_argument("--json", action="store_true", help="print the runs as JSON")
 
 
@@ -31,21 +32,23 @@ def run(args: argparse.Namespace) -> int:
                     s = f"S {last[0]['S_pct']:.2f} %" if last and last[0].get("S_pct") is not None else ""
                     print(f"  {name:<30} {s}")
             return 0
-        rows = h.runs(args.loop, limit=args.limit)
+        # every run: the persistence (last 7) and the degradation (last 3) do not depend on --limit
+        rows = h.runs(args.loop)
         if not rows:  # runs are filed under the file-safe tag ("FIC 101/A" -> "FIC_101_A")
             from ..batch import safe_name
 
             if safe_name(args.loop) != args.loop:
                 args.loop = safe_name(args.loop)
-                rows = h.runs(args.loop, limit=args.limit)
+                rows = h.runs(args.loop)
         if not rows and args.loop not in h.loops():
             from ...errors import StictionError
 
             known = ", ".join(h.loops()[:10]) or "none"
             raise StictionError(f"no runs of loop {args.loop!r} in {h.path} (loops: {known})")
     if args.json:
-        print(json.dumps({"loop": args.loop, "runs": rows, "degradation": degradation(rows),
+        shown = rows[-args.limit:] if args.limit else rows
+        print(json.dumps({"loop": args.loop, "n_runs": len(rows), "runs": shown, "degradation": degradation(rows),
                           "persistence": persistence(rows)}, indent=1))
     else:
-        print(format_trend(args.loop, rows), end="")
+        print(format_trend(args.loop, rows, limit=args.limit), end="")
     return 0
