@@ -92,8 +92,14 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
         raise
 
 
-def format_wide(record: LoopRecord, *, start: datetime = EPOCH) -> str:
-    """A record as wide CSV text: ``time,<loop>.OP,<loop>.PV[,<loop>.SP][,MV]``."""
+def format_wide(record: LoopRecord, *, start: datetime | None = None) -> str:
+    """A record as wide CSV text: ``time,<loop>.OP,<loop>.PV[,<loop>.SP][,MV]``, in UTC from
+    ``start``, else from the record's own start, else from `EPOCH`."""
+    if start is None:
+        start = EPOCH
+        if record.start:
+            start = datetime.fromisoformat(str(record.start).replace("Z", "+00:00"))
+            start = start.replace(tzinfo=timezone.utc) if start.tzinfo is None else start.astimezone(timezone.utc)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     roles = [("op", f"{record.name}.OP"), ("pv", f"{record.name}.PV")]

@@ -51,6 +51,36 @@ def test_simulate_writes_a_loop_with_the_true_mv(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().err
 
 
+def test_simulate_start_sets_the_time_column_so_nightly_exports_make_a_history(tmp_path, capsys):
+    # every simulated export began at 2026-01-01T00:00:00Z: a week of "nightly" files were one record
+    # seven times over (the same start and end), so the batch found no earlier run for any of them
+    nights = []
+    for night in (1, 2):
+        out = tmp_path / f"night{night}" / "FIC9.csv"
+        out.parent.mkdir()
+        assert main(["simulate", "--S", "3", "--J", "1", "--n", "600", "--seed", str(night), "--name", "FIC9",
+                     "--start", f"2026-03-0{night}T22:00:00", "--out", str(out)]) == 0
+        nights.append(out)
+    first = nights[0].read_text().splitlines()
+    assert first[1].startswith("2026-03-01T22:00:00Z,") and first[-1].startswith("2026-03-01T22:09:59Z,")
+    assert read_wide(nights[1]).start == "2026-03-02T22:00:00Z"
+    out = tmp_path / "offset.csv"   # an offset is converted to UTC
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", "600", "--start", "2026-03-01T23:00:00+01:00",
+                 "--out", str(out)]) == 0
+    assert out.read_text().splitlines()[1].startswith("2026-03-01T22:00:00Z,")
+    capsys.readouterr()
+    assert main(["simulate", "--S", "3", "--J", "1", "--start", "yesterday", "--out", str(tmp_path / "z.csv")]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.startswith("stiction simulate: error: argument --start: 'yesterday': give an ISO 8601 time")
+    assert not (tmp_path / "z.csv").exists()
+    db = tmp_path / "h.sqlite"
+    for night in nights:
+        assert main(["batch", str(night.parent), "--out", str(night.parent / "out"), "--workers", "1",
+                     "--no-pdf", "--no-narx", "--quiet", "--db", str(db)]) == 0
+    summary = (nights[1].parent / "out" / "summary.md").read_text()
+    assert "(2/2 runs)" in summary
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_simulate_integrating_defaults_give_a_sticking_and_slipping_level(tmp_path, seed):
     # with the level balanced exactly where the stuck valve started, the stem never moved (POS

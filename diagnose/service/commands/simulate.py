@@ -40,6 +40,19 @@ def _nonzero(what: str, note: str):
     return parse
 
 
+def _start(text: str) -> str:
+    """``--start``: an ISO 8601 time (UTC unless it carries an offset) as ``...Z``."""
+    from datetime import datetime, timezone
+
+    try:
+        t = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give an ISO 8601 time such as 2026-03-01T22:00:00Z "
+                                         "(UTC unless it carries an offset)") from None
+    t = t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+    return t.isoformat().replace("+00:00", "Z")
+
+
 # a zero process gain has no controller tuning (SIMC divides by it): a traceback, not a loop
 _gain = _nonzero("a process gain", "negative: a reverse-acting process")
 # a zero controller gain never moves OP, a non-finite one fills it with NaN: files identify refuses
@@ -75,6 +88,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    default=None, help="integral time, seconds (default: SIMC)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--name", default="SIM", help="loop name (tag prefix of the columns)")
+    p.add_argument("--start", type=_start, default=None, metavar="TIME",
+                   help="time of the first sample, ISO 8601, UTC unless it carries an offset (default "
+                        "2026-01-01T00:00:00Z; give each night's export its own to build a history)")
     p.add_argument("--out", required=True, help="output CSV file")
 
 
@@ -96,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
                       load_walk_std=args.load, f0=args.f0, seed=args.seed, name=args.name,
                       Kc=args.kc, Ti_s=args.ti_s,
                       u_balance_pct=INTEGRATING_BALANCE_PCT if args.process == "integrating" else None)
+    if args.start is not None:
+        rec = rec.replace(start=args.start)
     write_wide(rec, args.out)
     print(f"wrote {args.out}: {rec.n} samples at {rec.ts_s:g} s, S={args.S:g} %, J={args.J:g} %",
           file=sys.stderr)
