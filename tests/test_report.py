@@ -618,3 +618,19 @@ def test_evidence_summary_agrees_in_number():
     assert "Of the 4 tests" in two_each and "2 say stiction, 0 say no stiction and 2 are undecided." in two_each
     assert report.evidence_summary(ident("stiction")).startswith("Of the 1 test that could judge this record, "
                                                                  "1 says stiction")
+
+
+def test_the_action_weighs_how_often_the_loops_last_runs_said_stiction():
+    quiet = (False, None, 0.0)
+    small = _diag(S_pct=0.5, J_pct=0.2, p=0.8, oscillation=quiet).identification
+    none = _diag(stiction=False, S_pct=0.0, J_pct=0.0, p=0.2, cls="none", oscillation=(True, 100.0, 2.5)).identification
+    # one window, or a loop rarely called sticky: the watch list, as before
+    for runs in (None, (1, 2), (1, 4)):
+        assert "watch list and compare with the next nightly run" in pipeline.recommended_action(small, (), runs)
+    assert "the valve is not the cause" in pipeline.recommended_action(none, (), (1, 5))
+    # a habit of at least half of three or more runs: a stroke test, and no "not the cause"
+    habit = pipeline.recommended_action(small, (), (5, 7))
+    assert "called sticky in 5 of its last 7 runs" in habit and "stroke-tested" in habit
+    calm = pipeline.recommended_action(none, (), (3, 6))
+    assert "shows no stiction, but the loop was called sticky in 3 of its last 6 runs" in calm
+    assert "not the cause" not in calm

@@ -365,7 +365,7 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
     """Diagnose one record and write its outputs; a summary row (``status`` ok or failed) with the
     loop's history row under ``_history``."""
     from .history import degradation as degrade, end_of_record, previous_runs, row_from_diagnosis, sticky_runs
-    from .pipeline import diagnose
+    from .pipeline import diagnose, recommended_action
 
     loop_id = _choose_loop_id(cfg, record, path)
     ih = input_hash(digest, cfg.options_key(), record.name, record.meta.get("segment"))
@@ -383,8 +383,9 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
                                 "S_pct": diag.identification.S_pct}]) if hist else None
         held = sticky_runs(hist + [{"stiction": int(bool(diag.identification.stiction)),
                                     "stiction_probability": diag.identification.stiction_probability}])
-        diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn,
-                       sticky_runs=None if held is None else held[:2])
+        runs = None if held is None else held[:2]
+        diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn, sticky_runs=runs,
+                       action=recommended_action(diag.identification, diag.warnings, runs))
         report, diag = write_loop_outputs(cfg, diag, loop_id, history_rows=hist)
         row = loop_row(diag, report)
         row["_history"] = row_from_diagnosis(diag, input_hash=ih)

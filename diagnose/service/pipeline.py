@@ -329,8 +329,11 @@ def verdict_text(ident: Identification, warnings: Sequence[Note] = ()) -> str:
     return f"{word}{minor}: {size}, class {ident.cls}{sure}."
 
 
-def recommended_action(ident: Identification, warnings: Sequence[Note] = ()) -> str:
-    """A plain-words next step, from the verdict, size, oscillation and data quality."""
+def recommended_action(ident: Identification, warnings: Sequence[Note] = (),
+                       sticky_runs: tuple[int, int] | None = None) -> str:
+    """A plain-words next step, from the verdict, size, oscillation and data quality, and (in the
+    batch) how many of the loop's last runs said stiction (``sticky_runs``: k of m, this run
+    included)."""
     from ..plain import duration
 
     S = ident.S_pct or 0.0
@@ -341,6 +344,10 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = ()) -> 
     period = f" with a period of {duration(period_s)}" if period_s else ""
     pct = ident.op_in_percent
     span = " % of its span" if pct else " (in OP's own units: OP is not in % of span)"
+    # a valve called sticky on at least half of three or more recent runs: a habit, not one window
+    habit = None
+    if sticky_runs is not None and sticky_runs[1] >= 3 and 2 * sticky_runs[0] >= sticky_runs[1]:
+        habit = f"the loop was called sticky in {sticky_runs[0]} of its last {sticky_runs[1]} runs"
     parts: list[str] = []
     if "data_quality.compression" in codes:
         parts.append("The historian data look compressed, which can fake stiction: export the "
@@ -360,9 +367,15 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = ()) -> 
             parts.append(f"Until then the stick-slip cycle{period} can be eased by reducing the "
                          "controller's integral action (longer integral time) or by a stiction "
                          "compensator; do not simply raise the gain.")
+    elif ident.stiction and habit:
+        parts.append(f"Stiction is small or uncertain in this run (S about {S:.1f}{span}), but {habit}: "
+                     "have the valve stroke-tested at the next opportunity.")
     elif ident.stiction:
         parts.append(f"Stiction is small or uncertain (S about {S:.1f}{span}): keep the loop on "
                      "the watch list and compare with the next nightly run before acting.")
+    elif habit:
+        parts.append(f"This run shows no stiction, but {habit}: keep the valve on the watch list (one "
+                     "window can hold too little stick-slip to tell).")
     elif ident.loop_oscillates:
         parts.append(f"The loop oscillates{period} but the valve is not the cause: check the "
                      "controller tuning and look for an oscillating disturbance upstream.")
