@@ -81,9 +81,12 @@ class TimeVaryingFriction(PhysicsHypothesis):
                       for y0 in y0s]
         sse = train_sse(stage, cands)
         # the cost is rough (the valve's initial state and every slip's timing): the best few
-        # distinct drifts each get their initial state fitted
+        # distinct drifts each get their initial state fitted. Distinct in J/S too: scored from the
+        # reference's start, the reference's own J/S tops every cell of (S, rate), while the true
+        # J/S, whose start state differs, only shows its lead once that state is fitted
         tops = best_distinct(cands, sse, lambda c: (round(math.log(max(c.S_up_pct, 1e-3)) / 0.06),
-                                                     round(c.dS_pct_per_s * T / max(c.S_up_pct, 1e-9) / 0.06)), 4)
+                                                     round(c.dS_pct_per_s * T / max(c.S_up_pct, 1e-9) / 0.06),
+                                                     round(c.J_up_pct / max(c.S_up_pct, 1e-9), 1)), 8)
         cands = []
         for c in tops:
             c, _ = fit_initial_state(stage, c)
