@@ -345,3 +345,18 @@ def test_a_corrected_export_rerun_counts_its_record_once(tmp_path, capsys):
     assert main(["history", "FIC7", "--db", str(db), "--json"]) == 0
     got = json.loads(capsys.readouterr().out)
     assert len(got["runs"]) == 2 and got["persistence"].startswith("stiction in 1 of the last 2 runs")
+
+
+def test_the_loop_list_and_the_json_say_the_verdict_in_words(tmp_path, capsys):
+    import json
+
+    db = tmp_path / "h.sqlite"
+    with H.History(db) as hist:
+        hist.add_rows([H.row_from_stored(_res("FIC1", 2.5, h="a", p=0.9)),
+                       H.row_from_stored(_res("TIC2", 0.0, J=0.0, h="b", cls="none", p=0.1))])
+    assert main(["history", "--db", str(db)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(ln.split() == ["FIC1", "S", "2.50", "%"] for ln in lines)
+    assert any(ln.split() == ["TIC2", "no", "stiction"] for ln in lines)   # not "S 0.00 %"
+    assert main(["history", "TIC2", "--db", str(db), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["runs"][0]["stiction"] is False

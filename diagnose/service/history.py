@@ -335,6 +335,8 @@ class History:
         for r in rows:   # one form whatever release wrote the row
             for key in ("run_at", "data_start", "data_end"):
                 r[key] = utc_text(r[key])
+            if r.get("stiction") is not None:
+                r["stiction"] = bool(r["stiction"])   # stored as 0/1: the JSON says true/false
         return rows
 
     def loops(self) -> list[str]:

@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                               "$STICTION_HOME/history.sqlite or ~/.local/share/stiction/history.sqlite)")
     from .batch import add_explain_argument
 
-    add_explain_argument(p, "off", "the default here; it takes 5-40 s per loop")
+    add_explain_argument(p, "off", "it takes 5-40 s per loop")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -29,8 +29,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{len(loops)} loop(s) in {h.path}:")
                 for name in loops:
                     last = h.runs(name, limit=1)
-                    s = f"S {last[0]['S_pct']:.2f} %" if last and last[0].get("S_pct") is not None else ""
-                    print(f"  {name:<30} {s}")
+                    print(f"  {name:<30} {_last_verdict(last[0]) if last else ''}".rstrip())
             return 0
         # every run: the persistence (last 7) and the degradation (last 3) do not depend on --limit
         rows = h.runs(args.loop)
@@ -52,3 +51,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_trend(args.loop, rows, limit=args.limit), end="")
     return 0
+
+
+def _last_verdict(row: dict) -> str:
+    """The last run in a few words: "S 2.24 %" when it said stiction, "no stiction" when it did
+    not (an S of 0.00 % read as a size), S alone for rows of releases that stored no verdict."""
+    if row.get("stiction") is not None and not row["stiction"]:
+        return "no stiction"
+    return f"S {row['S_pct']:.2f} %" if row.get("S_pct") is not None else ""
