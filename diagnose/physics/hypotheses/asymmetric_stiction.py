@@ -31,14 +31,16 @@ class AsymmetricStiction(PhysicsHypothesis):
         starts = [reference] + _coarse_asym_starts(stage, reference)
         # a global (S_open, S_close, J ratios) grid with the reference's dynamics is cheap (one
         # compiled pass over the grid); from OP/PV the coarse grid's one J/S for both sides can
-        # miss the basin, which a J/S of its own on each side reaches
+        # miss the basin, which a J/S of its own on each side reaches. The basin is a few per cent
+        # wide in S on each side and the grid steps 7 %: its best 8 points each start a scan (the
+        # best two can both sit beside another basin)
         g_s = S * np.exp(np.arange(math.log(0.3), math.log(1.9), math.log1p(0.07)))
         y0s = y0_options(stage, reference)
         g = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * ru, J_dn_pct=sd * rd, f0=f, **y0)
              for su in g_s for sd in g_s for ru in (0.1, 0.4, 0.7, 1.0) for rd in (0.1, 0.4, 0.7, 1.0)
              for f in (1, -1) for y0 in y0s]
         gs = train_sse(stage, g)
-        starts += best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 2)
+        starts += best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 8)
         results = []
         for st in starts:
             b = self._scan(stage, st, S, wide)
