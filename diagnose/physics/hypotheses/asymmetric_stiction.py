@@ -40,12 +40,17 @@ class AsymmetricStiction(PhysicsHypothesis):
              for su in g_s for sd in g_s for ru in (0.1, 0.4, 0.7, 1.0) for rd in (0.1, 0.4, 0.7, 1.0)
              for f in (1, -1) for y0 in y0s]
         gs = train_sse(stage, g)
-        starts += best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 8)
+        grid_starts = best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 8)
+        n_first = len(starts) + 2
+        starts += grid_starts
         results = []
         for st in starts:
             b = self._scan(stage, st, S, wide)
             results.append((best_of(stage, [b])[1], b))
         best = min(results, key=lambda t: t[0])[1]
+        # the best scan of the reference, the coarse grid and the global grid's best two also gets
+        # polished from OP/PV: the best scan of all need not polish to the best fit
+        first = min(results[:n_first], key=lambda t: t[0])[1]
         if stage.name == "valve":
             # OP -> MV: the cost is sharp in S on both sides and the scans step S by 1-2 %, so a
             # scan's result is no measure of its basin: every one is polished, and the best scan
@@ -56,7 +61,7 @@ class AsymmetricStiction(PhysicsHypothesis):
             # unpolished scan can train worse than the plain reference and be refused although the
             # asymmetry is there. A polished fit trains better but need not extrapolate better, so
             # this is no net gain on every record (docs/missing-physics.md)
-            best = self._polish(stage, best)
+            best = best_of(stage, [self._polish(stage, b) for b in {id(best): best, id(first): first}.values()])[0]
         return best
 
     def _polish(self, stage, best, again=False):
