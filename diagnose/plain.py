@@ -73,7 +73,7 @@ def percent_change(fraction: Any, none: str = "-") -> str:
     v = finite_or_none(fraction)
     if v is None:
         return none
-    if v > 10.0:
+    if v >= 9.995:
         # many times worse (against an exact reference, a noise-free stem): the digits say nothing
         return "> +999 %"
     r = int(round(100.0 * v))           # an int: no "-0 %" for a change that rounds to nothing
