@@ -364,7 +364,8 @@ def write_loop_outputs(cfg: BatchConfig, diag: Diagnosis, loop_id: str, *,
 def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> dict[str, Any]:
     """Diagnose one record and write its outputs; a summary row (``status`` ok or failed) with the
     loop's history row under ``_history``."""
-    from .history import degradation as degrade, end_of_record, previous_runs, row_from_diagnosis, sticky_runs
+    from .history import (degradation as degrade, end_of_record, previous_runs, row_from_diagnosis, sticky_runs,
+                          verdict_of)
     from .pipeline import diagnose, recommended_action
 
     loop_id = _choose_loop_id(cfg, record, path)
@@ -381,8 +382,7 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
                 if end is None or not r.get("data_end") or r["data_end"] < end]
         warn = degrade(hist + [{"run_at": "this run", "data_end": end,
                                 "S_pct": diag.identification.S_pct}]) if hist else None
-        held = sticky_runs(hist + [{"stiction": int(bool(diag.identification.stiction)),
-                                    "stiction_probability": diag.identification.stiction_probability}])
+        held = sticky_runs(hist + [verdict_of(diag.identification)])
         runs = None if held is None else held[:2]
         diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn, sticky_runs=runs,
                        action=recommended_action(diag.identification, diag.warnings, runs))

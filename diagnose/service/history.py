@@ -162,10 +162,15 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "severity": finite_or_none(diag.severity.score),
         "oscillation_period_s": finite_or_none(ident.oscillation.period_s),
         "verdict": diag.verdict_text,
-        "stiction": int(bool(ident.stiction)),
-        "stiction_probability": finite_or_none(ident.stiction_probability),
+        **verdict_of(ident),
         "result_json": json.dumps(diag.to_dict(), separators=(",", ":"), allow_nan=False),
     }
+
+
+def verdict_of(ident: Any) -> dict[str, Any]:
+    """An identification's verdict as the history stores it (the columns `sticky_runs` counts):
+    a loop's runs so far plus this one make its persistence."""
+    return {"stiction": int(bool(ident.stiction)), "stiction_probability": finite_or_none(ident.stiction_probability)}
 
 
 def _flag(value: Any) -> int | None:

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable, TextIO
 from ..errors import DataError, StictionError
 from ..parallel import cores_per_worker
 from ..plain import duration
-from .history import PERSIST_RUNS, history_loop, sticky_runs
+from .history import PERSIST_RUNS, history_loop, sticky_runs, verdict_of
 
 if TYPE_CHECKING:
     from ..record import LoopRecord
@@ -341,8 +341,7 @@ class Monitor:
             recent = self.history.runs(history_loop(res.identification.loop), limit=PERSIST_RUNS)
         else:
             recent = self._recent.setdefault(loop, deque(maxlen=PERSIST_RUNS))
-            recent.append({"stiction": int(bool(res.identification.stiction)),
-                           "stiction_probability": res.identification.stiction_probability})
+            recent.append(verdict_of(res.identification))
         held = sticky_runs(list(recent))
         if self.metrics is not None:
             self.metrics.observe(loop, res, held)

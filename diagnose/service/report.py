@@ -20,7 +20,7 @@ import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..plain import count, duration, number, percent, percent_change
-from .history import persistence
+from .history import persistence, verdict_of
 
 if TYPE_CHECKING:
     from ..controller import ControllerAction
@@ -433,8 +433,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
         blocks.append(("h2", "History"))
         if degradation:
             blocks.append(("strong", degradation))
-        this = {"stiction": int(bool(ident.stiction)), "stiction_probability": ident.stiction_probability}
-        held = persistence(list(history_rows) + [this])
+        held = persistence(list(history_rows) + [verdict_of(ident)])
         if held:
             blocks.append(("p", f"Verdict over this loop's runs: {held} (this run included). One window "
                                 "can hold too little stick-slip to tell; a valve called sticky on most "

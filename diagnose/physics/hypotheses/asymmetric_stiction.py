@@ -61,7 +61,7 @@ class AsymmetricStiction(PhysicsHypothesis):
             # unpolished scan can train worse than the plain reference and be refused although the
             # asymmetry is there. A polished fit trains better but need not extrapolate better, so
             # this is no net gain on every record (docs/missing-physics.md)
-            best = best_of(stage, [self._polish(stage, b) for b in {id(best): best, id(first): first}.values()])[0]
+            best = best_of(stage, [self._polish(stage, b) for b in ([best] if first is best else [best, first])])[0]
         return best
 
     def _polish(self, stage, best, again=False):
