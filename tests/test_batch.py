@@ -644,3 +644,16 @@ def test_workers_share_the_cores_between_their_threads(plant, tmp_path, monkeypa
     B.run_batch([logs], tmp_path / "out", workers=workers, scheduler=scheduler, history=False, progress=False)
     want = 1 if scheduler and scheduler != "local" else 4 // min(workers, 3)
     assert seen == [want] * 3
+
+
+def test_a_missing_input_folder_is_a_one_line_error_and_writes_no_summary(tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["batch", str(tmp_path / "nope"), "--out", str(out), "--workers", "1", "--no-history", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1
+    assert err == [f"error: {tmp_path / 'nope'}: no such file or folder"]
+    assert not (out / "summary.json").exists() and not (out / "summary.md").exists()
+    # as an empty folder is
+    (tmp_path / "empty").mkdir()
+    assert main(["batch", str(tmp_path / "empty"), "--out", str(out), "--quiet", "--no-history"]) == 1
+    assert capsys.readouterr().err.startswith("error: no input files found")
