@@ -657,3 +657,22 @@ def test_a_missing_input_folder_is_a_one_line_error_and_writes_no_summary(tmp_pa
     (tmp_path / "empty").mkdir()
     assert main(["batch", str(tmp_path / "empty"), "--out", str(out), "--quiet", "--no-history"]) == 1
     assert capsys.readouterr().err.startswith("error: no input files found")
+
+
+def test_the_summary_bullets_name_the_file_each_loop_came_from():
+    from diagnose.service.report import summary_blocks, to_markdown
+
+    # two exports of one tag, both sticky and degrading: only the file tells the bullets apart
+    rows = [{"loop": loop, "status": "ok", "rank": i + 1, "severity": 60.0, "sticky": True, "S_pct": 3.0,
+             "J_pct": 1.0, "degradation": "S grew from 1.00 % to 3.00 %", "action": "Schedule valve maintenance.",
+             "file": file, "source": f"/plant/{file}"}
+            for i, (loop, file) in enumerate([("FIC1", "mon/FIC1.csv"), ("FIC1__FIC1", "tue/FIC1.csv")])]
+    md = to_markdown(summary_blocks(rows))
+    bullets = [ln for ln in md.splitlines() if ln.startswith("- ")]
+    assert bullets == ["- FIC1 (mon/FIC1.csv): S grew from 1.00 % to 3.00 %",
+                       "- FIC1__FIC1 (tue/FIC1.csv): S grew from 1.00 % to 3.00 %",
+                       "- FIC1 (mon/FIC1.csv): Schedule valve maintenance.",
+                       "- FIC1__FIC1 (tue/FIC1.csv): Schedule valve maintenance."]
+    # a row of a batch without a shown file (an earlier release) names its source
+    md = to_markdown(summary_blocks([dict(rows[0], file=None)]))
+    assert "- FIC1 (/plant/mon/FIC1.csv): Schedule valve maintenance." in md.splitlines()

@@ -486,6 +486,13 @@ def not_read(t: Mapping[str, int]) -> list[str]:
     return out
 
 
+def _loop_and_file(row: Mapping[str, Any]) -> str:
+    """A loop as a bullet of the summary names it: with the file it came from, as the table's
+    ``File`` column does (two exports of one tag are otherwise two bullets of one name)."""
+    where = row.get("file") or row.get("source")
+    return f"{row['loop']} ({where})" if where else str(row["loop"])
+
+
 def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant stiction summary",
                    generated_at: str | None = None, tool_version: str | None = None,
                    links: bool = True, skipped_files: Sequence[Mapping[str, Any]] = ()) -> list[Block]:
@@ -538,11 +545,11 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
                              "DQ warn.", "File"], table))
     if any(r.get("degradation") for r in ok):
         blocks.append(("h2", "Degrading valves"))
-        blocks.append(("bullets", [f"{r['loop']}: {r['degradation']}" for r in ok if r.get("degradation")]))
+        blocks.append(("bullets", [f"{_loop_and_file(r)}: {r['degradation']}" for r in ok if r.get("degradation")]))
     actions = [r for r in ok if r.get("sticky")]
     if actions:
         blocks.append(("h2", "Recommended actions"))
-        blocks.append(("bullets", [f"{r['loop']}: {r.get('action', '')}" for r in actions]))
+        blocks.append(("bullets", [f"{_loop_and_file(r)}: {r.get('action', '')}" for r in actions]))
     if bad:
         blocks.append(("h2", "Failed loops and files"))
         blocks.append(("table", ["Loop", "File", "Error"],
