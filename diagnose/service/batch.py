@@ -899,14 +899,6 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise DataError(f"{out}: is a file; --out must be a folder (the reports and the summary go into it)")
-    skipped_files: list[dict[str, Any]] = []
-    files, missing = discover(inputs, exclude=[out], skipped=skipped_files)
-    if not files:
-        # nothing to diagnose: a one-line error, as for an empty folder, and no summary of nothing
-        if missing:
-            raise DataError("; ".join(m["error"] for m in missing))
-        raise DataError("no input files found (looked for " + ", ".join(INPUT_SUFFIXES) +
-                        f" in {', '.join(map(str, inputs))})")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -922,10 +914,20 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
 
     cfg = BatchConfig(out_dir=str(out), read_options=check_read_options(read_options or {}), tags=tags, explain=explain,
                       narx=narx, pdf=pdf, db=str(db_path) if history else None)
+    skipped_files: list[dict[str, Any]] = []
+    files, missing = discover(inputs, exclude=[out], skipped=skipped_files)
     workers = workers or usable_cores()
     rows: list[dict[str, Any]] = [dict(m, file=m["source"]) for m in missing]
     bar = Progress(len(files), stream=stream, enabled=progress)
-    hist = History(db_path) if history else None
+    hist = History(db_path) if history else None   # a bad --db is said first, as for any input
+    if not files:
+        # nothing to diagnose: a one-line error, as for an empty folder, and no summary of nothing
+        if hist is not None:
+            hist.close()
+        if missing:
+            raise DataError("; ".join(m["error"] for m in missing))
+        raise DataError("no input files found (looked for " + ", ".join(INPUT_SUFFIXES) +
+                        f" in {', '.join(map(str, inputs))})")
     run_at = utc_now()
 
     def collect(outcome: Mapping[str, Any], skipped_file: bool = False) -> None:
