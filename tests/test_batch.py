@@ -676,3 +676,33 @@ def test_the_summary_bullets_name_the_file_each_loop_came_from():
     # a row of a batch without a shown file (an earlier release) names its source
     md = to_markdown(summary_blocks([dict(rows[0], file=None)]))
     assert "- FIC1 (/plant/mon/FIC1.csv): Schedule valve maintenance." in md.splitlines()
+
+
+def test_healthy_loops_have_no_s_or_j_in_the_summary_and_history_shows_none(first_run, plant, capsys):
+    out, res = first_run
+    healthy = {r["loop"] for r in res.rows if r["status"] == "ok" and not r["sticky"]}
+    sticky = {r["loop"] for r in res.rows if r["status"] == "ok" and r["sticky"]}
+    assert "FIC3" in healthy and "FIC1" in sticky
+    size = ("S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi")
+    with open(out / "summary.csv", newline="") as fh:
+        csv_rows = {r["loop"]: r for r in csv.DictReader(fh)}
+    json_rows = {r["loop"]: r for r in json.loads((out / "summary.json").read_text())["loops"]}
+    for loop in healthy:
+        assert [csv_rows[loop][k] for k in size] == [""] * 6
+        assert [json_rows[loop][k] for k in size] == [None] * 6
+    for loop in sticky:
+        assert float(csv_rows[loop]["S_pct"]) > 1.0 and json_rows[loop]["S_lo"] is not None
+    # the history keeps the full result as stored; what `stiction history` prints shows no size
+    with History(plant / "h.sqlite") as h:
+        stored = h.runs("FIC3")[-1]
+    assert stored["stiction"] == 0 and stored["S_pct"] is not None
+
+    def size_cells(loop):   # the S %, S interval and J % cells of the loop's run
+        assert main(["history", loop, "--db", str(plant / "h.sqlite")]) == 0
+        head, line = capsys.readouterr().out.splitlines()[1:3]
+        return line[head.index("P(st.)") + len("P(st.)"):head.index("class")].split()
+
+    assert size_cells("FIC3") == ["-", "-", "-"]
+    assert float(size_cells("FIC1")[0]) > 3.0
+    assert main(["history", "FIC3", "--db", str(plant / "h.sqlite"), "--json"]) == 0
+    assert [r["S_pct"] for r in json.loads(capsys.readouterr().out)["runs"]] == [None]

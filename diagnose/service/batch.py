@@ -224,7 +224,12 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
     def r4(v: float | None) -> float | None:
         return None if v is None else round(float(v), 4)
 
-    si, ji = ident.S_interval_pct, ident.J_interval_pct
+    # S, J and their intervals are a size of the stiction found (docs/verdict.md): none for a loop
+    # whose verdict is not stiction, where a 0.00 would read as a measured clean valve
+    sized = bool(ident.stiction)
+    si = ident.S_interval_pct if sized else None
+    ji = ident.J_interval_pct if sized else None
+    S, J = (ident.S_pct, ident.J_pct) if sized else (None, None)
     period = ident.oscillation.period_s
     return {
         "loop": diag.loop_id or ident.loop,
@@ -233,8 +238,8 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "verdict": diag.verdict_text,
         "class": ident.cls,
         "sticky": bool(ident.stiction),
-        "S_pct": r4(ident.S_pct), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
-        "J_pct": r4(ident.J_pct), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
+        "S_pct": r4(S), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
+        "J_pct": r4(J), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
         "stiction_probability": r4(ident.stiction_probability),
         "confidence": r4(ident.confidence),
         "oscillation_period_s": r4(period) if ident.loop_oscillates else None,
@@ -260,9 +265,11 @@ def stored_row(stored: Mapping[str, Any]) -> dict[str, Any] | None:
     row = stored.get("summary")
     if not isinstance(row, Mapping):
         return None
-    from .history import row_from_stored
+    from .history import SIZE_COLUMNS, row_from_stored
 
     out = dict(row, skipped=True)
+    if not out.get("sticky"):  # a row written before healthy loops' S/J were left empty
+        out.update(dict.fromkeys(SIZE_COLUMNS))
     out["_history"] = row_from_stored(stored)
     return out
 

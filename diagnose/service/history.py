@@ -413,6 +413,20 @@ def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) 
     return f"stiction in {k} of the last {m} runs" + ("" if med is None else f", median probability {percent(med)}")
 
 
+#: A run's columns that size the stiction it found (`shown_run` leaves them out of runs without).
+SIZE_COLUMNS = ("S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi")
+
+
+def shown_run(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored run as `stiction history` shows it: S, J and their intervals only when the run said
+    stiction (docs/verdict.md), as the summary gives them. The database keeps them as stored;
+    rows of releases that stored no verdict (``stiction`` None) show them as before."""
+    out = dict(row)
+    if out.get("stiction") is not None and not out["stiction"]:
+        out.update(dict.fromkeys(SIZE_COLUMNS))
+    return out
+
+
 def format_trend(loop: str, rows: Sequence[Mapping[str, Any]], *, limit: int | None = None) -> str:
     """The trend table `stiction history LOOP` prints: one line per run, by the end of its record.
 
@@ -425,7 +439,7 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]], *, limit: int | N
     lines = [head,
              f"{'record end (UTC)':<20} {'P(st.)':>6} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} "
              f"{'conf':>6} {'sev':>4}  {'run (UTC)':<20}"]
-    for r in shown:
+    for r in map(shown_run, shown):
         iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
               else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
         S = "-" if r.get("S_pct") is None else f"{r['S_pct']:.2f}"

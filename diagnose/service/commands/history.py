@@ -18,7 +18,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..history import History, degradation, format_trend, persistence
+    from ..history import History, degradation, format_trend, persistence, shown_run
 
     with History(args.db, readonly=True) as h:
         if args.loop is None:
@@ -45,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
             known = ", ".join(h.loops()[:10]) or "none"
             raise StictionError(f"no runs of loop {args.loop!r} in {h.path} (loops: {known})")
     if args.json:
-        shown = rows[-args.limit:] if args.limit else rows
+        # S and J as the trend shows them (only for runs that said stiction); the database keeps all
+        shown = [shown_run(r) for r in (rows[-args.limit:] if args.limit else rows)]
         print(json.dumps({"loop": args.loop, "n_runs": len(rows), "runs": shown, "degradation": degradation(rows),
                           "persistence": persistence(rows)}, indent=1))
     else:
