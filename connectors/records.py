@@ -695,6 +695,18 @@ def _window(usable: list[tuple[int, int]], max_samples: int, min_samples: int, t
     return _Window(kept, finding, message)
 
 
+def _joined_units(loop: str, role: str, b: Series, s: Series, base: LoopSpec, sp: LoopSpec) -> str | None:
+    """The units of a signal joined from two files (header brackets or a units row): the one both
+    give, or the one a file gives; units that differ are an error naming both files, since values
+    in m3/h and l/s joined into one record would read as a step that the valve never made."""
+    if b.units and s.units and b.units.strip().lower() != s.units.strip().lower():
+        first = base.table.label if base.table else "?"
+        raise ConnectorError(f"loop {loop}: its {role.upper()} is in {b.units!r} in {first} (column {b.column!r}) "
+                             f"but in {s.units!r} in {sp.table.label} (column {s.column!r}); the files cannot be "
+                             "joined into one record: convert one of them, or read the files one by one")
+    return b.units or s.units
+
+
 def merge_specs(specs: list[LoopSpec]) -> list[LoopSpec]:
     """Join the same loop found in several files (absolute times only) into one spec."""
     out: dict[str, LoopSpec] = {}
@@ -710,7 +722,8 @@ def merge_specs(specs: list[LoopSpec]) -> list[LoopSpec]:
                                           b.n_text + s.n_text, b.n_nonfinite + s.n_nonfinite,
                                           b.n_bad_quality + s.n_bad_quality, b.n_blank + s.n_blank,
                                           (b.examples + s.examples)[:4], b.first_line, b.column,
-                                          None, quality_column=b.quality_column or s.quality_column)
+                                          None, units=_joined_units(sp.name, role, b, s, base, sp),
+                                          quality_column=b.quality_column or s.quality_column)
             continue
         if key in out:
             key = f"{sp.name}@{os.path.basename(sp.table.label) if sp.table else len(order)}"

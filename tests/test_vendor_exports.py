@@ -223,3 +223,33 @@ def test_scada_tag_names_with_an_underscore_before_the_role(tmp_path):
     (rec,) = read_records(f)
     assert rec.name == "FIC_301" and rec.n == 120
     assert rec.meta["columns"] == {"pv": "FIC_301_PV", "op": "FIC_301_OP", "sp": "FIC_301_SP"}
+
+
+def _bracket_day(path, day: int, pv_units: str, seed: int, units_row: bool = False) -> None:
+    """One day's export of FIC101 with its units in the header's brackets (or in a units row)."""
+    rng = np.random.default_rng(seed)
+    head = ["Time,FIC101.PV [%s],FIC101.OP [%%]" % pv_units]
+    if units_row:
+        head = ["Time,FIC101.PV,FIC101.OP", f"Units,{pv_units},%"]
+    rows = [f"2024-03-{day:02d} 08:{k // 60:02d}:{k % 60:02d},{20 + np.sin(k / 9) + 0.1 * rng.normal():.3f},"
+            f"{50 + 3 * np.cos(k / 9):.3f}" for k in range(0, 600, 5)]
+    path.write_text("\n".join(head + rows) + "\n")
+
+
+@pytest.mark.parametrize("units_row", [False, True])
+def test_a_loop_joined_from_several_files_keeps_its_units(tmp_path, units_row):
+    for day in (1, 2):
+        _bracket_day(tmp_path / f"day{day}.csv", day, "m3/h", seed=day, units_row=units_row)
+    (rec,) = [r for r in read_records(tmp_path) if r.meta.get("segment", 0) == 0]
+    assert rec.name == "FIC101" and rec.units["pv"] == "m3/h"
+
+
+@pytest.mark.parametrize("units_row", [False, True])
+def test_a_loop_joined_from_files_in_other_units_is_an_error_naming_both(tmp_path, units_row):
+    _bracket_day(tmp_path / "day1.csv", 1, "m3/h", seed=1, units_row=units_row)
+    _bracket_day(tmp_path / "day2.csv", 2, "l/s", seed=2, units_row=units_row)
+    with pytest.raises(ConnectorError) as exc:
+        read_records(tmp_path)
+    msg = str(exc.value)
+    assert "\n" not in msg and "'m3/h'" in msg and "'l/s'" in msg
+    assert str(tmp_path / "day1.csv") in msg and str(tmp_path / "day2.csv") in msg
