@@ -5,6 +5,7 @@ A TOML file (read with the standard library's ``tomllib``)::
     # optional reading options for every file read with this map
     tz = "Europe/Berlin"        # naive local times in the export
     dst = "infer"               # infer | earliest | latest | raise
+    dayfirst = true             # 05/03/2026 is 5 March (false: 3 May); default: the dates decide
 
     [loops.FIC211]
     op = { tag = "FV_211", range = [0, 100] }    # range: engineering values of 0 % and 100 % of span
@@ -32,7 +33,7 @@ from typing import Any, Mapping
 from diagnose.errors import ConnectorError
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
-OPTION_KEYS = {"tz", "dst", "fmt", "format", "ts_s", "max_gap_s", "min_samples"}
+OPTION_KEYS = {"tz", "dst", "dayfirst", "fmt", "format", "ts_s", "max_gap_s", "min_samples"}
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,10 @@ def parse_tagmap(data: Mapping[str, Any], path: str = "<tag map>") -> TagMap:
                 raise ConnectorError(f"loops.{name} needs an {need} tag", path=path)
         loops[str(name)] = LoopMap(str(name), {r: _role(v, f"loops.{name}.{r}", path) for r, v in spec.items()})
     options = {k: v for k, v in data.items() if k in OPTION_KEYS}
+    # the date order is the plant's (its historian's locale), not a loop's: one key for the map
+    if "dayfirst" in options and not isinstance(options["dayfirst"], bool):
+        raise ConnectorError(f"dayfirst must be true (day first: 05/03/2026 is 5 March) or false (month "
+                             f"first), not {options['dayfirst']!r}", path=path)
     unknown = set(data) - OPTION_KEYS - {"loops"}
     if unknown:
         raise ConnectorError(f"tag map has unknown top-level keys {sorted(unknown)}", path=path)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -253,3 +254,27 @@ def test_a_loop_joined_from_files_in_other_units_is_an_error_naming_both(tmp_pat
     msg = str(exc.value)
     assert "\n" not in msg and "'m3/h'" in msg and "'l/s'" in msg
     assert str(tmp_path / "day1.csv") in msg and str(tmp_path / "day2.csv") in msg
+
+
+def test_a_tag_map_gives_the_date_order_and_the_command_line_overrides_it(tmp_path, capsys):
+    from diagnose.service.cli import main
+
+    export = tmp_path / "FIC503.csv"
+    shutil.copy(DATA / "excel_uk_one_day.csv", export)     # 05/03/2026 all morning
+    tags = tmp_path / "map.toml"
+    tags.write_text('dayfirst = true\n\n[loops.FIC503]\nop = "FIC503.OP"\npv = "FIC503.PV"\n')
+    (rec,) = read_records(export, tags=tags)
+    assert rec.start == "2026-03-05T08:00:00Z" and not [f for f in rec.findings if f.code == "date_order"]
+    (us,) = read_records(export, tags=tags, dayfirst=False)
+    assert us.start == "2026-05-03T08:00:00Z"
+    # the command reads the map's order: no date_order warning (without the map it has one)
+    for extra in ([], ["--tags", str(tags)]):
+        assert main(["identify", str(export), "--json"] + extra) == 0
+        codes = {w["code"] for w in json.loads(capsys.readouterr().out)["warnings"]}
+        assert ("data_quality.date_order" in codes) == (not extra)
+    tags.write_text('dayfirst = "yes"\n\n[loops.FIC503]\nop = "FIC503.OP"\npv = "FIC503.PV"\n')
+    with pytest.raises(ConnectorError, match=r"map\.toml: dayfirst must be true .* or false .*, not 'yes'$"):
+        read_records(export, tags=tags)
+    assert main(["identify", str(export), "--tags", str(tags)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "map.toml" in err[0] and "dayfirst must be true" in err[0]
