@@ -59,7 +59,8 @@ def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str
     dayfirst : bool, optional
         Dates such as ``05/03/2026`` are day first (True: 5 March) or month first (False: 3 May).
         Default: decided from the dates (a field above 12, else the reading whose dates lie closer
-        together, else the custom of the separator, with a ``date_order`` warning).
+        together, else the custom of the separator, with a ``date_order`` warning). The files of
+        a folder share one order where a file alone cannot tell it (`date_orders`).
     op, pv, sp, mv, mode : str, optional
         Column (tag) names that override the naming rule; OP/PV given -> one loop.
     time : str, optional
@@ -103,16 +104,10 @@ def read_loops(source: str | os.PathLike | IO[Any], *, tags: Any = None, tz: str
     return read_records(source, **options)
 
 
-def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[LoopRecord]:
-    """`read_loops` with its options as keyword arguments from a mapping (``**options``).
-
-    Unknown option names are a `ConnectorError` (the command line and the batch pass their
-    options through here).
-    """
-    from .layouts import parse
-    from .records import build_records, merge_specs, specs_from_table
+def _reading_options(options: dict[str, Any]) -> tuple[dict[str, Any], Any, Any]:
+    """The options as the readers take them, the tag map (or None) and the progress option: a tag
+    map's reading options fill what was not given, old spellings become new ones."""
     from .tagmap import TagMap, load_tagmap, parse_tagmap
-    from .textio import open_source
 
     unknown = set(options) - set(OPTIONS)
     if unknown:
@@ -134,6 +129,58 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         options.setdefault("fmt", options.pop("format"))
     if "time" in options:
         options.setdefault("ts", options.pop("time"))
+    return options, tagmap, progress
+
+
+def _shared_orders(tables: list[Any]) -> list[bool | None]:
+    """For each table of one folder: the date order the folder's files say together, where the
+    file alone cannot say it (every day and month 12 or less); None where the file decides for
+    itself, has no such dates, or the files together cannot tell either (each is then read, and
+    warned about, as alone)."""
+    from .timebase import alike_both_ways, shared_date_order
+
+    dates = [(t.meta.get("dates") or {}).get("dates") or [] for t in tables]
+    order = shared_date_order(d for ds in dates for d in ds)
+    return [order if order is not None and alike_both_ways(ds) else None for ds in dates]
+
+
+def date_orders(sources: list[Any], **options: Any) -> list[bool | None]:
+    """The date order each of one export's files (a folder of one-day files) is to be read in.
+
+    Returns, per source, True (day first) or False (month first) where the file alone cannot say
+    (every day and month 12 or less: ``05/03/2026`` all day) and the files together can; None
+    where the file decides for itself, could not be read, or the files together cannot tell
+    either. `read_records` does this for a folder; the batch, which reads each file on its own,
+    asks here first. A ``dayfirst`` option (or a tag map's) decides alone: all None.
+    """
+    from .layouts import parse
+    from .textio import open_source
+
+    options, _, _ = _reading_options(options)
+    if options.get("dayfirst") is not None:
+        return [None] * len(sources)
+    tables = []
+    for src in sources:
+        try:
+            tables.append(parse(open_source(src, False), options))
+        except (StictionError, OSError):
+            tables.append(None)   # the reading of the file itself says what is wrong with it
+    read = [t for t in tables if t is not None]
+    orders = iter(_shared_orders(read))
+    return [None if t is None else next(orders) for t in tables]
+
+
+def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[LoopRecord]:
+    """`read_loops` with its options as keyword arguments from a mapping (``**options``).
+
+    Unknown option names are a `ConnectorError` (the command line and the batch pass their
+    options through here). The files of a folder share one date order (`date_orders`).
+    """
+    from .layouts import parse
+    from .records import build_records, merge_specs, specs_from_table
+    from .textio import open_source
+
+    options, tagmap, progress = _reading_options(options)
     if hasattr(source, "read"):
         sources: list[Any] = [source]
         folder = False
@@ -145,20 +192,40 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
         sources = list_sources(path)
         if folder and not sources:
             raise ConnectorError(f"folder has no export files ({', '.join(FILE_SUFFIXES)})", path=path)
-    specs = []
-    reporters = {}
     skipped: list[tuple[str, str]] = []
+
+    def skip(src: Any, exc: BaseException) -> None:
+        if not folder:
+            raise exc
+        # one bad export (empty, cut off, a stray CSV) must not hide the loop the others hold
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        skipped.append((src, text if text.startswith(src) else f"{src}: {text}"))
+
+    read = []
     for src in sources:
         try:
             opened = open_source(src, progress)
-            table = parse(opened, options)
+            read.append((src, opened, parse(opened, options)))
+        except (StictionError, OSError) as exc:
+            skip(src, exc)
+    if folder and options.get("dayfirst") is None:
+        # one export's files share one date order: a file of 05/03/2026 alone cannot tell it
+        for k, order in enumerate(_shared_orders([t for _, _, t in read])):
+            src, opened, table = read[k]
+            if order is None:
+                continue
+            if table.meta["dates"]["dayfirst"] != order:
+                opened = open_source(src, progress)
+                read[k] = (src, opened, parse(opened, dict(options, dayfirst=order)))
+            else:
+                table.meta.pop("date_order_guessed", None)   # read as the folder says: no guess
+    specs = []
+    reporters = {}
+    for src, opened, table in read:
+        try:
             found = specs_from_table(table, options, tagmap)
         except (StictionError, OSError) as exc:
-            if not folder:
-                raise
-            # one bad export (empty, cut off, a stray CSV) must not hide the loop the others hold
-            text = " ".join(str(exc).split()) or type(exc).__name__
-            skipped.append((src, text if text.startswith(src) else f"{src}: {text}"))
+            skip(src, exc)
             continue
         reporters[table.label] = opened.progress
         if not found and tagmap is not None and not folder:
@@ -167,6 +234,8 @@ def read_records(source: str | os.PathLike | IO[Any], **options: Any) -> list[Lo
             raise ConnectorError(f"none of the tag map's loops ({wanted}) has its OP and PV tags in the file "
                                  f"(columns: {cols})", path=table.label)
         specs.extend(found)
+    if folder:   # in the folder's order, whichever stage a file failed at
+        skipped.sort(key=lambda item: sources.index(item[0]))
     # where the loop wanted may sit in a file that could not be read, the error says so
     unread = (f"; {len(skipped)} of its files could not be read (the first: {skipped[0][1]})"
               if skipped else "")

@@ -258,13 +258,17 @@ def _decimal_comma(rows: list[list[str]], cols: list[int], delimiter: str) -> bo
 def _times(cells: Any, lines: np.ndarray, label: str, column: str, options: dict,
            decimal_comma: bool = False, notes: dict | None = None) -> tuple[np.ndarray, bool, str, str | None]:
     """A time column read with the file's options; ``notes`` (the table's meta) gets
-    ``date_order_guessed`` when the dates read alike day first and month first."""
+    ``date_order_guessed`` when the dates read alike day first and month first, and ``dates``
+    (the dates looked at, and whether they were read day first) when their format orders day and
+    month, for a folder's files to decide their order together."""
     if decimal_comma:   # the file's decimal comma holds for a time column of numbers too
         cells = comma_times(_text(cells)) or cells
     pt = parse_times(cells, tz=options.get("tz"), dst=options.get("dst", "infer"), label=label,
                      column=column, lines=lines, dayfirst=options.get("dayfirst"))
     if pt.order_guessed is not None and notes is not None:
         notes.setdefault("date_order_guessed", dict(pt.order_guessed, column=column))
+    if pt.dates and notes is not None:
+        notes.setdefault("dates", {"dates": list(pt.dates), "dayfirst": pt.fmt.startswith("%d"), "column": column})
     return pt.seconds, pt.absolute, pt.fmt, pt.tz
 
 

@@ -487,6 +487,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     from diagnose.quality import assess
 
     meta_base: dict[str, Any] = dict(table.meta if table else {})
+    meta_base.pop("dates", None)   # the dates a folder's files pooled for their order: said by time_format
     meta_base.update({"columns": {r: s.name for r, s in spec.roles.items()},
                       "order": "newest_first" if cleaned["op"].reversed else "oldest_first",
                       "absolute_time": bool(table.absolute) if table else False,

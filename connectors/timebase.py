@@ -29,7 +29,7 @@ import math
 import re
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -75,6 +75,10 @@ class ParsedTimes:
     #: span either way) and no ``dayfirst`` was given: how they were read (``read``: "month first"
     #: or "day first"), the first stamp (``example``) and its date as read (``date``). Else None.
     order_guessed: dict | None = None
+    #: The distinct dates (``05/03/2026``) of the rows looked at when the format puts day and month
+    #: in an order (``%d/%m`` or ``%m/%d``), else None: what `shared_date_order` pools over the
+    #: files of one export.
+    dates: tuple[str, ...] | None = None
 
 
 def _fail(msg: str, label: str | None, line: int | None, column: str | None) -> ConnectorError:
@@ -138,6 +142,50 @@ def _choose_format(samples: list[str], dayfirst: bool | None = None) -> tuple[st
         except ValueError:
             continue
     raise ValueError(first)
+
+
+def _day_month_year(date: str) -> tuple[int, int, int] | None:
+    """The first two fields and the year (two digits read as 20yy) of ``05/03/2026``."""
+    m = _SLASH.match(date)
+    if not m:
+        return None
+    year = int(m.group(3))
+    return int(m.group(1)), int(m.group(2)), year + 2000 if year < 100 else year
+
+
+def alike_both_ways(dates: Iterable[str]) -> bool:
+    """Whether every date has its day and its month at 12 or less: read alone, such dates cannot
+    say which comes first (only how close together each reading puts them)."""
+    fields = [f for f in map(_day_month_year, dates) if f]
+    return bool(fields) and all(a <= 12 and b <= 12 for a, b, _ in fields)
+
+
+def shared_date_order(dates: Iterable[str]) -> bool | None:
+    """The date order that the dates of several files (one export, a file per day) say together:
+    True day first, False month first, None when they cannot tell.
+
+    A first field above 12 says day first and a second above 12 month first (both: the files are
+    not one export, None). With every field 12 or less, the reading whose dates lie closer
+    together, as `parse_times` decides one column: a folder of one-day exports 05/03/2026,
+    06/03/2026 ... is a week of March, not a week of months. Equal spans: None.
+    """
+    fields = [f for f in map(_day_month_year, dates) if f]
+    if not fields:
+        return None
+    day_above_12 = any(a > 12 for a, _, _ in fields)
+    month_above_12 = any(b > 12 for _, b, _ in fields)
+    if day_above_12 or month_above_12:
+        return None if day_above_12 and month_above_12 else day_above_12
+
+    def span(day_first: bool) -> float:
+        days = [datetime(y, b, a) if day_first else datetime(y, a, b) for a, b, y in fields]
+        return (max(days) - min(days)) / timedelta(days=1)
+
+    try:
+        spans = span(True), span(False)
+    except ValueError:      # a date that one reading cannot hold (no such day): not one export
+        return None
+    return None if spans[0] == spans[1] else spans[0] < spans[1]
 
 
 def _date_span(samples: list[str], date_fmt: str) -> float:
@@ -284,11 +332,13 @@ def parse_times(texts: Any, *, tz: str | None = None, dst: str = "infer", label:
         k = int(nonblank[0])
         order = {"read": "day first" if fmt.startswith("%d") else "month first", "example": str(cells[k]).strip(),
                  "date": (_EPOCH + timedelta(microseconds=int(us[k]))).date().isoformat()}
+    dates = (tuple(sorted({m.group(0) for m in map(_SLASH.match, samples) if m}))
+             if fmt.startswith(("%d", "%m")) else None)
     if aware[nonblank[0]]:
         out[nonblank] = us[nonblank] / 1e6
-        return ParsedTimes(out, True, fmt, "offset", order)
+        return ParsedTimes(out, True, fmt, "offset", order, dates)
     out[nonblank] = localise(us, nonblank, zone, dst, label, column, line_of)
-    return ParsedTimes(out, True, fmt, tz or "UTC", order)
+    return ParsedTimes(out, True, fmt, tz or "UTC", order, dates)
 
 
 def _float_cells(cells: list[str]) -> np.ndarray | None:

@@ -706,3 +706,30 @@ def test_healthy_loops_have_no_s_or_j_in_the_summary_and_history_shows_none(firs
     assert float(size_cells("FIC1")[0]) > 3.0
     assert main(["history", "FIC3", "--db", str(plant / "h.sqlite"), "--json"]) == 0
     assert [r["S_pct"] for r in json.loads(capsys.readouterr().out)["runs"]] == [None]
+
+
+def test_a_folder_of_one_day_exports_shares_one_date_order_in_the_batch(tmp_path):
+    # the batch reads each file on its own: alone, 05/03/2026 and 06/03/2026 each read month first
+    src = Path(__file__).parent / "data_connectors" / "excel_uk_one_day.csv"
+    lines = src.read_text().splitlines()
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for day in (5, 6):
+        (logs / f"day{day}.csv").write_text("\n".join([lines[0]] + [f"{day:02d}/03/2026" + ln[10:]
+                                                                     for ln in lines[1:]]) + "\n")
+
+    def starts(out, **kw):
+        res = B.run_batch([logs], out, workers=1, explain=False, narx=False, pdf=False, history=False,
+                          progress=False, **kw)
+        assert res.n_failed == 0
+        got = {}
+        for r in res.rows:
+            doc = json.loads((out / "loops" / r["loop"] / f"{r['loop']}.json").read_text())
+            codes = {w["code"] for w in doc["warnings"]}
+            got[Path(doc["record"]["source"]).name] = (doc["record"]["start"][:10], "data_quality.date_order" in codes)
+        return got
+
+    assert starts(tmp_path / "out") == {"day5.csv": ("2026-03-05", False), "day6.csv": ("2026-03-06", False)}
+    # --monthfirst still decides
+    assert starts(tmp_path / "us", read_options={"dayfirst": False}) == {"day5.csv": ("2026-05-03", False),
+                                                                        "day6.csv": ("2026-06-03", False)}

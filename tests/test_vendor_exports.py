@@ -278,3 +278,46 @@ def test_a_tag_map_gives_the_date_order_and_the_command_line_overrides_it(tmp_pa
     assert main(["identify", str(export), "--tags", str(tags)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "map.toml" in err[0] and "dayfirst must be true" in err[0]
+
+
+def _one_day(path, date: str, tag: str = "FIC503") -> None:
+    """The one-day UK export (Excel, dd/mm/yyyy) dated ``date``, its loop named ``tag``."""
+    lines = (DATA / "excel_uk_one_day.csv").read_text().splitlines()
+    path.write_text("\n".join([lines[0].replace("FIC503", tag)] + [date + ln[10:] for ln in lines[1:]]) + "\n")
+
+
+def _orders(recs):
+    return sorted((r.name, r.start[:10], [f.code for f in r.findings if f.code == "date_order"]) for r in recs)
+
+
+def test_a_folder_of_one_day_exports_shares_one_date_order(tmp_path):
+    # each file alone reads alike both ways (and was read month first: 3 May, 3 June); together
+    # 05/03 and 06/03 are two days of March, not two months
+    for day in (5, 6):
+        _one_day(tmp_path / f"day{day}.csv", f"{day:02d}/03/2026")
+    recs = read_records(tmp_path)
+    assert _orders(recs) == [("FIC503", "2026-03-05", []), ("FIC503", "2026-03-06", [])]
+    assert all(r.meta["time_format"].startswith("%d/%m/%Y") for r in recs)
+    # the same dates month first (a US folder: 03/05, 03/06) stay month first, no longer warned
+    us = tmp_path / "us"
+    us.mkdir()
+    for day in (5, 6):
+        _one_day(us / f"day{day}.csv", f"03/{day:02d}/2026")
+    assert _orders(read_records(us)) == [("FIC503", "2026-03-05", []), ("FIC503", "2026-03-06", [])]
+    # a file whose dates say it (13/03) decides for the ambiguous one beside it
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    _one_day(mixed / "a.csv", "05/03/2026", tag="FIC1")
+    _one_day(mixed / "b.csv", "13/04/2026", tag="FIC2")
+    assert _orders(read_records(mixed)) == [("FIC1", "2026-03-05", []), ("FIC2", "2026-04-13", [])]
+    # --monthfirst still overrides the folder
+    assert [r.start[:10] for r in read_records(tmp_path, dayfirst=False)] == ["2026-05-03", "2026-06-03"]
+
+
+def test_a_folder_that_is_ambiguous_as_a_whole_warns_as_a_file_does(tmp_path):
+    # two loops exported on the same day: the folder cannot tell either, each file says so
+    for tag in ("FIC1", "FIC2"):
+        _one_day(tmp_path / f"{tag}.csv", "05/03/2026", tag=tag)
+    recs = read_records(tmp_path)
+    assert _orders(recs) == [("FIC1", "2026-05-03", ["date_order"]), ("FIC2", "2026-05-03", ["date_order"])]
+    assert [r.start[:10] for r in read_records(tmp_path, dayfirst=True)] == ["2026-03-05", "2026-03-05"]

@@ -462,6 +462,40 @@ def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
     return [r.with_findings(note) for r in records]
 
 
+def file_configs(cfg: BatchConfig, files: Sequence[Path]) -> list[BatchConfig]:
+    """Each file's config: the batch's, with the date order its folder's files say together
+    (`connectors.date_orders`) where the file alone cannot say it (every day and month 12 or
+    less, as in a one-day export). ``--dayfirst``/``--monthfirst`` or a tag map's ``dayfirst``
+    decide alone. The order given is part of the file's input hash, as any read option is."""
+    from connectors import date_orders
+    from connectors.tagmap import load_tagmap
+
+    out = [cfg] * len(files)
+    if cfg.read_options.get("dayfirst") is not None or (cfg.tags and "dayfirst" in load_tagmap(cfg.tags).options):
+        return out
+    opts = {k: v for k, v in cfg.read_options.items() if k not in ("loop", "max_samples")}
+    folders: dict[Path, list[int]] = {}
+    for k, f in enumerate(files):
+        folders.setdefault(f.parent, []).append(k)
+    for idx in folders.values():
+        if len(idx) < 2:
+            continue
+        for k, order in zip(idx, date_orders([_source(files[k]) for k in idx], **opts)):
+            if order is not None:
+                out[k] = replace(cfg, read_options={**cfg.read_options, "dayfirst": order})
+    return out
+
+
+def _source(path: Path) -> Any:
+    """A file as `read_file` reads it: a space-aligned ``.prn`` as its table, else the path."""
+    if path.suffix.lower() == ".prn":
+        try:
+            return whitespace_export(path) or str(path)
+        except OSError:
+            return str(path)
+    return str(path)
+
+
 def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
     """One task: read a file, diagnose every loop in it. Returns ``{"path", "digest", "rows"}``."""
     worker_setup()
@@ -947,35 +981,38 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
             hist.add_rows([dict(r["_history"], run_at=run_at)
                            for r in frows if r["status"] == "ok" and "_history" in r])  # filed by tag
         if not skipped_file:
-            _save_state(cfg, outcome)
+            _save_state(cfg_of.get(str(outcome["path"]), cfg), outcome)
         rows.extend(frows)
         bar.update(failed=sum(1 for r in frows if r["status"] != "ok"),
                    skipped=sum(1 for r in frows if r.get("skipped")))
 
-    todo: list[str] = []
+    todo: list[tuple[str, BatchConfig]] = []
+    # a folder's files are one export: they share one date order (05/03/2026 alone cannot say it)
+    cfg_of = {str(f): c for f, c in zip(files, file_configs(cfg, files))}
     try:
         for f in files:
+            fcfg = cfg_of[str(f)]
             try:
                 digest = _file_digest(f)
             except OSError as exc:
                 collect({"path": str(f), "digest": None,
                          "rows": [failure_row(safe_name(f.stem), str(f), _read_error(f, exc), "file")]})
                 continue
-            done = _load_state(cfg, str(f), digest)
+            done = _load_state(fcfg, str(f), digest)
             if done is not None:
                 collect({"path": str(f), "digest": digest, "rows": done}, skipped_file=True)
             else:
-                todo.append(str(f))
+                todo.append((str(f), fcfg))
         if todo:
             n_exec = min(workers, len(todo)) if not scheduler else workers
             ex = make_executor(n_exec, scheduler)
             # a worker's fits use threads too: share the cores out, or workers x threads
             # oversubscribe them (a remote scheduler's machines are not known: one thread each)
             local = scheduler in (None, "local")
-            task_cfg = replace(cfg, threads=cores_per_worker(n_exec) if local else 1)
+            threads = cores_per_worker(n_exec) if local else 1
             try:
-                futures = [ex.submit(process_file, task_cfg, f) for f in todo]
-                path_of = {id(fu): f for fu, f in zip(futures, todo)}
+                futures = [ex.submit(process_file, replace(fcfg, threads=threads), f) for f, fcfg in todo]
+                path_of = {id(fu): f for fu, (f, _) in zip(futures, todo)}
                 for fu in ex.as_completed(futures):
                     try:
                         outcome = fu.result()
