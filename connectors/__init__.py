@@ -13,6 +13,7 @@ on demand: it pulls in pymodbus).
 from __future__ import annotations
 
 import os
+import re
 from typing import IO, Any
 
 from diagnose.errors import ConnectorError, StictionError
@@ -144,6 +145,26 @@ def _shared_orders(tables: list[Any]) -> list[bool | None]:
     return [order if order is not None and alike_both_ways(ds) else None for ds in dates]
 
 
+#: Bytes of a file `date_orders` looks at before it reads the whole file.
+_DATE_SNIFF_BYTES = 1 << 16
+#: A date whose first two fields could be day or month (05/03/2026, 5.3.26, 05-03-2026).
+_DAY_MONTH_DATE = re.compile(rb"(?<![0-9])[0-9]{1,2}[/.-][0-9]{1,2}[/.-][0-9]{2,4}(?![0-9])")
+
+
+def _may_hold_day_month_dates(src: Any) -> bool:
+    """Whether a file's head shows a date like ``05/03/2026`` (or cannot be sniffed cheaply: a
+    file object, or text that is not ASCII-compatible, such as UTF-16). A nightly batch over a
+    folder of ISO-stamped exports then reads each file once, not twice."""
+    if hasattr(src, "read"):
+        return True
+    try:
+        with open(os.fspath(src), "rb") as fh:
+            head = fh.read(_DATE_SNIFF_BYTES)
+    except OSError:
+        return True
+    return b"\x00" in head or _DAY_MONTH_DATE.search(head) is not None
+
+
 def date_orders(sources: list[Any], **options: Any) -> list[bool | None]:
     """The date order each of one export's files (a folder of one-day files) is to be read in.
 
@@ -161,6 +182,9 @@ def date_orders(sources: list[Any], **options: Any) -> list[bool | None]:
         return [None] * len(sources)
     tables = []
     for src in sources:
+        if not _may_hold_day_month_dates(src):
+            tables.append(None)   # ISO or numeric times: nothing to share, and no second full read
+            continue
         try:
             tables.append(parse(open_source(src, False), options))
         except (StictionError, OSError):

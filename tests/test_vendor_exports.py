@@ -314,6 +314,28 @@ def test_a_folder_of_one_day_exports_shares_one_date_order(tmp_path):
     assert [r.start[:10] for r in read_records(tmp_path, dayfirst=False)] == ["2026-05-03", "2026-06-03"]
 
 
+def test_the_shared_date_order_reads_only_files_whose_dates_could_be_either_way(tmp_path, monkeypatch):
+    import connectors
+    import connectors.layouts
+
+    for day in (5, 6):
+        _one_day(tmp_path / f"day{day}.csv", f"{day:02d}/03/2026")
+    iso = tmp_path / "iso.csv"
+    iso.write_text("time,FIC1.OP,FIC1.PV\n" + "".join(f"2026-03-05T00:00:{k:02d}Z,{50 + k % 3},{40 + k % 2}\n"
+                                                      for k in range(40)))
+    utf16 = tmp_path / "utf16.csv"
+    utf16.write_text((DATA / "excel_uk_one_day.csv").read_text(), encoding="utf-16")
+    parsed = []
+    real_parse = connectors.layouts.parse
+    monkeypatch.setattr(connectors.layouts, "parse", lambda src, opts: parsed.append(src.label) or real_parse(src, opts))
+    files = [tmp_path / "day5.csv", tmp_path / "day6.csv", iso, utf16]
+    orders = connectors.date_orders([str(f) for f in files])
+    assert orders[:3] == [True, True, None]
+    # the ISO file is never read whole; a head the sniff cannot read as ASCII (UTF-16) is
+    assert str(iso) not in parsed
+    assert str(utf16) in parsed and str(tmp_path / "day5.csv") in parsed
+
+
 def test_a_folder_that_is_ambiguous_as_a_whole_warns_as_a_file_does(tmp_path):
     # two loops exported on the same day: the folder cannot tell either, each file says so
     for tag in ("FIC1", "FIC2"):
