@@ -81,6 +81,10 @@ def test_degradation_needs_steady_growth():
     assert H.degradation(rows([1.0, 1.7, 1.3])) is None       # not run over run
     assert H.degradation(rows([1.0, 1.06, 1.12])) is None     # too little in all
     assert H.degradation(rows([1.0, 2.0])) is None            # too few runs
+    # a run that said no stiction has no size: its fitted band does not start a trend
+    said = [dict(r, stiction=k > 0) for k, r in enumerate(rows([0.2, 1.0, 1.3]))]
+    assert H.degradation(said) is None
+    assert H.degradation(said + [dict(rows([1.7])[0], stiction=True)]) is not None
 
 
 def test_cli_prints_the_trend_and_warns(tmp_path, capsys):

@@ -374,10 +374,13 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
                 step_pct: float = DEGRADE_STEP_PCT, total_pct: float = DEGRADE_TOTAL_PCT) -> str | None:
     """A warning when S grew record over record (rows oldest first), else None.
 
-    The last ``runs`` runs with an S must each raise S by at least ``step_pct`` and by at least
-    ``total_pct`` in all (% of valve span).
+    The last ``runs`` runs that sized a stiction (a stored verdict of stiction; rows stored
+    before verdicts were kept count too) must each raise S by at least ``step_pct`` and by at least
+    ``total_pct`` in all (% of valve span). A run that said no stiction has no size to grow from:
+    its fitted band is the noise's, and the history does not show it either (`shown_run`).
     """
-    s = [(_when(r), r.get("S_pct")) for r in rows if r.get("S_pct") is not None]
+    s = [(_when(r), r.get("S_pct")) for r in rows
+         if r.get("S_pct") is not None and (r.get("stiction") is None or bool(r["stiction"]))]
     if len(s) < runs:
         return None
     last = s[-runs:]
