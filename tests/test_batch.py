@@ -162,9 +162,9 @@ def test_cli_exit_code_says_whether_any_failed(plant, tmp_path, capsys):
 def test_degradation_reaches_report_and_summary(plant, tmp_path):
     db = tmp_path / "h.sqlite"
     with History(db) as h:
-        for i, S in enumerate([1.0, 2.0]):
+        for i, S in enumerate([0.5, 1.0, 2.0]):
             h.add_rows([row_from_stored({"loop": "FIC1", "S": S, "tool_version": "old", "input_hash": f"x{i}",
-                                         "stiction": i == 1, "stiction_probability": 0.3 + 0.5 * i},
+                                         "stiction": i > 0, "stiction_probability": 0.3 + 0.3 * i},
                                         run_at=f"2026-01-0{i + 1}T00:00:00+00:00")])   # runs of an older release
     logs = tmp_path / "logs"
     logs.mkdir()
@@ -174,16 +174,18 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     assert row["S_pct"] > 3.0 and row["degradation"] and "S grew" in row["degradation"]
     md = (tmp_path / "out" / "loops" / "FIC1" / "FIC1.md").read_text()
     assert "history.degradation" in md and "## History" in md
-    # the sticky FIC1 of this run makes two sticky runs of three
-    assert "Verdict over this loop's runs: stiction in 2 of the last 3 runs" in md
-    assert "| P(stiction) |" in md and "| 30 % |" in md
-    assert row["sticky_runs"] == [2, 3]
+    # the sticky FIC1 of this run makes three sticky runs of four; the healthy first run (S 0.5)
+    # neither starts the growth nor shows a size in the History table
+    assert "S grew over the last 3 runs, from 1.00 %" in row["degradation"]
+    assert "Verdict over this loop's runs: stiction in 3 of the last 4 runs" in md
+    assert "| P(stiction) |" in md and "| 30 % | - | - |" in md and "| 60 % | 1.00 |" in md
+    assert row["sticky_runs"] == [3, 4]
     summary = (tmp_path / "out" / "summary.md").read_text()
-    assert " (2/3 runs) |" in summary and "k said stiction" in summary
+    assert " (3/4 runs) |" in summary and "k said stiction" in summary
     import csv
     with open(tmp_path / "out" / "summary.csv", newline="") as fh:
-        assert next(csv.DictReader(fh))["sticky_runs"] == "2/3"
-    assert json.loads((tmp_path / "out" / "loops" / "FIC1" / "FIC1.json").read_text())["sticky_runs"] == [2, 3]
+        assert next(csv.DictReader(fh))["sticky_runs"] == "3/4"
+    assert json.loads((tmp_path / "out" / "loops" / "FIC1" / "FIC1.json").read_text())["sticky_runs"] == [3, 4]
     assert "Degrading valves" in (tmp_path / "out" / "summary.md").read_text()
 
 

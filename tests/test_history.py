@@ -364,3 +364,13 @@ def test_the_loop_list_and_the_json_say_the_verdict_in_words(tmp_path, capsys):
     assert any(ln.split() == ["TIC2", "no", "stiction"] for ln in lines)   # not "S 0.00 %"
     assert main(["history", "TIC2", "--db", str(db), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["runs"][0]["stiction"] is False
+
+
+def test_history_figure_leaves_runs_without_stiction_as_gaps():
+    from diagnose.service.figures import history as history_figure
+
+    run = lambda day, S, sticky: {"run_at": f"2026-03-0{day}", "S_pct": S, "J_pct": S / 2, "stiction": sticky}
+    # one sized run beside a healthy one: nothing to draw a trend from
+    assert history_figure([run(1, 0.4, False), run(2, 1.0, True)]) is None
+    png = history_figure([run(1, 0.4, False), run(2, 1.0, True), run(3, 1.5, True)])
+    assert png is not None and png[:8] == b"\x89PNG\r\n\x1a\n"

@@ -113,15 +113,19 @@ def explanation_png(explanation: Any, loop: str = "", *, dpi: float = DPI) -> by
 
 
 def history(rows: list[Mapping[str, Any]]) -> bytes | None:
-    """S and J record over record (history database rows), labelled by each record's end."""
-    pts = [(r.get("data_end") or r.get("run_at", ""), r.get("S_pct"), r.get("J_pct"))
-           for r in rows if r.get("S_pct") is not None]
-    if len(pts) < 2:
+    """S and J record over record (history database rows), labelled by each record's end. A run
+    that said no stiction has no size (`history.shown_run`): a gap, so the time axis keeps it."""
+    from .history import shown_run
+
+    stored = [r for r in rows if r.get("S_pct") is not None]
+    shown = [shown_run(r) for r in stored]
+    pts = [(r.get("data_end") or r.get("run_at", ""), r.get("S_pct"), r.get("J_pct")) for r in shown]
+    if sum(p[1] is not None for p in pts) < 2:
         return None
     fig = _figure(4.6, 2.6)
     ax = fig.subplots()
     x = np.arange(len(pts))
-    ax.plot(x, [p[1] for p in pts], "o-", color=COLORS["op"], label="S")
+    ax.plot(x, [p[1] if p[1] is not None else np.nan for p in pts], "o-", color=COLORS["op"], label="S")
     ax.plot(x, [p[2] if p[2] is not None else np.nan for p in pts], "s-", color=COLORS["mv"], label="J")
     ax.set_xticks(x)
     ax.set_xticklabels([str(p[0])[:10] for p in pts], rotation=30, fontsize=6, ha="right")

@@ -20,7 +20,7 @@ import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..plain import count, duration, number, percent, percent_change
-from .history import persistence, verdict_of
+from .history import persistence, shown_run, verdict_of
 
 if TYPE_CHECKING:
     from ..controller import ControllerAction
@@ -442,7 +442,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
                        [[str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")),
                          fmt(r.get("S_pct")), fmt(r.get("J_pct")),
                          fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]]
-                        for r in history_rows]))
+                        for r in map(shown_run, history_rows)]))
         if "history" in figs:
             blocks.append(("figure", "history", FIGURE_CAPTIONS["history"]))
     if ident.data_quality:
