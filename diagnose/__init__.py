@@ -32,6 +32,8 @@ _EXPORTS = {
     "Note": "diagnose.notes",
     "LoopRecord": "diagnose.record",
     "Finding": "diagnose.record",
+    "valve_activity": "diagnose.activity",
+    "ValveActivity": "diagnose.activity",
     "Evidence": "diagnose.evidence",
     "Verdict": "diagnose.verdict",
     "ProcessModel": "diagnose.process_model",
@@ -45,6 +47,7 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time names load on first use
+    from .activity import ValveActivity, valve_activity
     from .api import explain, identify, read_loops
     from .errors import DataError, StictionError
     from .evidence import Evidence

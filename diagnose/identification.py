@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from . import quality, search
+from .activity import ValveActivity, valve_activity
 from .controller import ControllerAction, controller_action
 from .errors import DataError
 from .evidence import Evidence, pv_usable, run_all
@@ -266,6 +267,10 @@ class Identification:
         select it; `diagnose.identification.identify` alone leaves it None).
     source : str or None
         Where the record came from (file path), as `LoopRecord.source`.
+    activity : ValveActivity or None
+        Valve travel and reversals per day of record (OP, and MV where recorded; noise kept out by
+        a hysteresis band) and the service factor where the record carries a mode signal
+        (`diagnose.activity.valve_activity`, `record_activity`). Not part of the verdict.
     record : LoopRecord or None
         The record identified (for `plot`; not part of the JSON).
     """
@@ -299,6 +304,7 @@ class Identification:
     verdict: Verdict | None = None
     narx: Selection | None = None
     source: str | None = None
+    activity: ValveActivity | None = field(default=None, repr=False)
     record: LoopRecord | None = field(default=None, repr=False)
 
     @property
@@ -386,6 +392,7 @@ class Identification:
             "controller": self.controller.to_dict() if self.controller is not None else None,
             "narx": None if self.narx is None else self.narx.to_dict(),
             "source": self.source,
+            "activity": None if self.activity is None else self.activity.to_dict(),
         }
 
     # ------------------------------------------------------------------ notebooks
@@ -460,6 +467,20 @@ class Identification:
 
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
+
+
+def record_activity(record: LoopRecord) -> ValveActivity:
+    """`valve_activity` of a record: OP, the stem position where recorded, and the service factor
+    where a connector read a mode column (``meta["has_mode"]`` / ``meta["manual_intervals"]``,
+    ``[start, stop)`` sample ranges in manual); without one the service factor is None."""
+    meta = record.meta or {}
+    auto = None
+    iv = meta.get("manual_intervals")
+    if meta.get("has_mode") or iv is not None:
+        auto = np.ones(record.n, dtype=bool)
+        for a, b in iv or ():
+            auto[max(int(a), 0):max(min(int(b), record.n), 0)] = False
+    return valve_activity(record.op, record.ts_s, mv_pct=record.mv, mode_auto=auto)
 
 
 def _check(record: LoopRecord) -> None:
@@ -635,7 +656,8 @@ def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warning
         S_pct=None, J_pct=None, S_interval_pct=None, J_interval_pct=None, process=None,
         rmse=None, r2=None, oscillation=osc, warnings=_unique(warnings), confidence=verdict.confidence,
         method="op_only", detection=det, data_quality=findings, n=record.n, ts_s=ts,
-        evidence=tuple(evidence), verdict=verdict, source=record.source, record=record)
+        evidence=tuple(evidence), verdict=verdict, source=record.source, activity=record_activity(record),
+        record=record)
 
 
 def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True,
@@ -819,4 +841,5 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         confidence=float(min(max(verdict.confidence, 0.0), 1.0)), method=method, detection=det,
         data_quality=findings, fit=fit, valve_fit=valve_fit, linear_fit=linear, n=record.n, ts_s=ts,
         fitted_S_pct=float(S), fitted_J_pct=float(J), controller=ctl,
-        class_alternatives=alternatives, evidence=evidence, verdict=verdict, source=record.source, record=record)
+        class_alternatives=alternatives, evidence=evidence, verdict=verdict, source=record.source,
+        activity=record_activity(record), record=record)

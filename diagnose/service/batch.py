@@ -231,6 +231,7 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
     ji = ident.J_interval_pct if sized else None
     S, J = (ident.S_pct, ident.J_pct) if sized else (None, None)
     period = ident.oscillation.period_s
+    act = ident.activity
     return {
         "loop": diag.loop_id or ident.loop,
         "status": "ok",
@@ -245,6 +246,9 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "oscillation_period_s": r4(period) if ident.loop_oscillates else None,
         "slow_cycle_period_s": r4(period) if ident.slow_cycle else None,
         "sj_in_op_units": not ident.op_in_percent,
+        # valve activity: OP's travel (% of span per day) and reversals per day, noise kept out
+        "travel_pct_per_day": None if act is None else act.to_dict()["travel_pct_per_day"],
+        "reversals_per_day": None if act is None else act.to_dict()["reversals_per_day"],
         "warnings": len(diag.warnings),
         "data_quality_warnings": sum(1 for w in diag.warnings if w.code.startswith("data_quality.")),
         "degradation": diag.degradation,

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 
 #: Bump when the result layout, the service's own logic or the results it computes change: it is
 #: part of the input hash, so a nightly re-run after an upgrade re-diagnoses every loop.
-PIPELINE_REVISION = "12"
+PIPELINE_REVISION = "13"
 
 #: The layout of ``LOOP.json``. Results of every schema in `READ_SCHEMAS` are read back (history,
 #: batch resume); ``/2`` added ``summary`` (the plant summary's row), ``source`` and typed warnings.

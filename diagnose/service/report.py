@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
+from ..activity import BAND_SIGMAS
 from ..plain import count, duration, number, percent, percent_change
 from .history import persistence, shown_run, verdict_of
 
@@ -307,6 +308,43 @@ def _detail_rows(diag: Diagnosis) -> list[list[str]]:
                                  f"data quality {sev.data_quality:.0f}"]]
 
 
+def _rate(value: float | None, unit: str) -> str:
+    """A per-day rate as the report shows it: 3 significant figures, never an exponent."""
+    text = number(value)
+    return text if text == "-" else f"{text} {unit}"
+
+
+def activity_blocks(diag: Diagnosis) -> list[Block]:
+    """Valve travel and reversals per day (and the service factor where the record has a mode
+    signal): what loop-monitoring tools rank valve wear by. Nothing for a result without them."""
+    act = diag.identification.activity
+    if act is None:
+        return []
+    unit = "% of span" if diag.identification.op_in_percent else "OP units"
+    rows = [["OP travel", _rate(act.travel_pct_per_day, f"{unit} per day")],
+            ["OP reversals", _rate(act.reversals_per_day, "per day")]]
+    if act.mv_travel_pct_per_day is not None:
+        rows += [["Stem (MV) travel", _rate(act.mv_travel_pct_per_day, "% of span per day")],
+                 ["Stem (MV) reversals", _rate(act.mv_reversals_per_day, "per day")]]
+    sf = act.service_factor
+    rows.append(["Service factor (time in automatic)", "-: no mode signal recorded" if sf is None
+                 else "100 %" if sf >= 1.0 else percent(sf)])
+    def width(v: float) -> str:  # a noiseless signal's band is a rounding-level floor: 0
+        return "0" if v < 1e-6 else number(v)
+
+    band = f"{width(act.noise_band_pct)} {unit}"
+    if act.mv_noise_band_pct is not None:
+        band += f" (MV: {width(act.mv_noise_band_pct)} % of span)"
+    rows.append(["Noise band (movement within it not counted)", band])
+    rows.append(["Record length the rates are per", duration(act.days * 86_400.0)])
+    return [("h2", "Valve activity"),
+            ("p", "How far the valve was asked to travel (OP) and how often it reversed, per day of this "
+                  "record; a valve that travels far and reverses often wears its packing and seat. "
+                  f"Movement within OP's noise band ({number(BAND_SIGMAS)} times its noise) is not "
+                  "counted. A short record's rates extrapolate it to a day."),
+            ("table", ["Quantity", "Value"], rows)]
+
+
 def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block]:
     sel = diag.selection
     blocks: list[Block] = [("h2", "NARX-SP free run")]
@@ -412,6 +450,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
         blocks.append(("p", "None: the data passed every quality check" +
                        (" and the NARX-SP model is within its robustness margin." if narx_ok else ".")))
     blocks += [("h2", "Loop model"), ("table", ["Quantity", "Value"], _detail_rows(diag))]
+    blocks += activity_blocks(diag)
     for name, title in (("trends", "Trends"), ("phase", "Phase plots")):
         if name in figs:
             blocks += [("h2", title), ("figure", name, FIGURE_CAPTIONS[name])]
@@ -456,7 +495,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
 SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_pct", "S_lo", "S_hi",
                    "J_pct", "J_lo", "J_hi", "sj_in_op_units", "stiction_probability", "sticky_runs",
                    "confidence", "oscillation_period_s",
-                   "slow_cycle_period_s", "warnings",
+                   "slow_cycle_period_s", "travel_pct_per_day", "reversals_per_day", "warnings",
                    "data_quality_warnings", "degradation", "action", "report", "file", "source", "error"]
 
 

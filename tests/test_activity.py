@@ -1,0 +1,189 @@
+"""Valve activity (diagnose.activity): travel and reversals per day on signals with known answers,
+and where they appear (identify --json, LOOP.json, the loop report, the plant summary)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import pytest
+
+from diagnose.activity import BAND_SIGMAS, DAY_S, ValveActivity, hysteresis_turns, noise_sigma, valve_activity
+
+
+def triangle(n: int, period: int, amp: float, mean: float = 50.0) -> np.ndarray:
+    """A triangle wave starting at its trough: ``mean - amp`` .. ``mean + amp``, ``period`` samples."""
+    ph = (np.arange(n) % period) / period
+    return mean + amp * (4.0 * np.abs(ph - 0.5) - 1.0)
+
+
+N, PERIOD, AMP, TS = 10_000, 200, 10.0, 2.0
+DAYS = N * TS / DAY_S
+# from the trough at 0: every half period travels 2 AMP; the last sample lies one step short of a
+# trough (the record is a whole number of periods), and every turn but the last is a reversal
+EXACT_TRAVEL = (N // (PERIOD // 2)) * 2 * AMP - 4 * AMP / PERIOD
+EXACT_REVERSALS = 2 * (N // PERIOD) - 1
+
+
+def test_a_noiseless_triangle_gives_exact_travel_and_reversals():
+    a = valve_activity(triangle(N, PERIOD, AMP), TS)
+    assert a.days == pytest.approx(DAYS, rel=1e-12)
+    assert a.travel_pct_per_day == pytest.approx(EXACT_TRAVEL / DAYS, rel=1e-9)
+    assert a.reversals_per_day == pytest.approx(EXACT_REVERSALS / DAYS, rel=1e-12)
+    # no MV, no mode signal: nothing invented
+    assert a.mv_travel_pct_per_day is None and a.mv_reversals_per_day is None and a.service_factor is None
+    assert a.noise_band_pct < 1e-6
+
+
+def test_the_known_answer_in_physical_terms():
+    """4 x amplitude per period of travel, 2 reversals per period, per day."""
+    a = valve_activity(triangle(86_400, 400, 5.0), 1.0)   # one day at 1 s, period 400 s, amplitude 5 %
+    assert a.days == 1.0
+    assert a.travel_pct_per_day == pytest.approx(4 * 5.0 * 86_400 / 400, rel=1e-3)
+    assert a.reversals_per_day == pytest.approx(2 * 86_400 / 400, abs=1)
+
+
+@pytest.mark.parametrize("sigma", [0.05, 0.2, 0.5])
+def test_white_noise_does_not_multiply_reversals_or_inflate_travel(sigma):
+    clean = valve_activity(triangle(N, PERIOD, AMP), TS)
+    for seed in range(3):
+        noisy = triangle(N, PERIOD, AMP) + np.random.default_rng(seed).normal(0.0, sigma, N)
+        a = valve_activity(noisy, TS)
+        assert a.reversals_per_day == pytest.approx(clean.reversals_per_day, rel=0.02)
+        # the extremes are the noisy extremes: travel reads high by about a noise width per turn,
+        # not by the noise's own wiggles (a raw sum |diff| would be several times the answer)
+        assert a.travel_pct_per_day == pytest.approx(clean.travel_pct_per_day, rel=0.1 * sigma / 0.5)
+        if sigma >= 0.2:
+            raw = np.abs(np.diff(noisy)).sum() / DAYS
+            assert raw > 1.3 * a.travel_pct_per_day
+        # the band follows the noise: BAND_SIGMAS times a robust estimate of it
+        assert a.noise_band_pct == pytest.approx(BAND_SIGMAS * sigma, rel=0.1)
+
+
+def test_a_constant_op_has_no_travel_and_no_reversals():
+    for x in (np.full(5000, 42.0), np.full(5000, 0.0), np.full(5000, 100.0)):
+        a = valve_activity(x, 1.0)
+        assert (a.travel_pct_per_day, a.reversals_per_day) == (0.0, 0.0)
+    # float rounding is not movement
+    a = valve_activity(42.0 + 1e-13 * np.random.default_rng(0).standard_normal(5000), 1.0)
+    assert (a.travel_pct_per_day, a.reversals_per_day) == (0.0, 0.0)
+
+
+def test_white_noise_alone_is_not_movement():
+    for seed in range(4):
+        a = valve_activity(50.0 + np.random.default_rng(seed).normal(0.0, 0.3, 10_000), 1.0)
+        assert (a.travel_pct_per_day, a.reversals_per_day) == (0.0, 0.0)
+
+
+def test_short_records():
+    a = valve_activity([50.0], 1.0)
+    assert (a.travel_pct_per_day, a.reversals_per_day) == (0.0, 0.0) and a.days == 1 / DAY_S
+    a = valve_activity([50.0, 53.0], 10.0)       # one step of 3 % in 20 s
+    assert a.travel_pct_per_day == pytest.approx(3.0 * DAY_S / 20.0) and a.reversals_per_day == 0.0
+    a = valve_activity([50.0, 53.0, 51.0], 1.0)  # up 3, down 2: one reversal
+    assert a.travel_pct_per_day == pytest.approx(5.0 * DAY_S / 3.0)
+    assert a.reversals_per_day == pytest.approx(DAY_S / 3.0)
+    with pytest.raises(ValueError, match="no samples"):
+        valve_activity([], 1.0)
+    with pytest.raises(ValueError, match="ts_s"):
+        valve_activity([1.0, 2.0], 0.0)
+
+
+def test_steps_and_held_samples_count_once():
+    # a sticky valve's stem: held, then jumps; holds do not break a run into reversals
+    x = np.repeat([50.0, 52.0, 52.0, 49.0, 49.0, 53.0], 100)
+    a = valve_activity(x, 1.0)
+    days = x.size / DAY_S
+    assert a.travel_pct_per_day == pytest.approx((2 + 3 + 4) / days)
+    assert a.reversals_per_day == pytest.approx(2 / days)
+    assert hysteresis_turns(x, 0.0).tolist() == [50.0, 52.0, 49.0, 53.0]
+
+
+def test_the_band_drops_wiggles_smaller_than_it():
+    x = np.array([0.0, 10.0, 9.5, 10.2, 0.0, 0.4, -0.1, 10.0])
+    assert hysteresis_turns(x, 1.0).tolist() == [0.0, 10.2, -0.1, 10.0]
+    assert hysteresis_turns(x, 0.0).tolist() == x.tolist()
+    assert hysteresis_turns(x, 20.0).tolist() == [0.0]
+
+
+def test_mv_and_service_factor():
+    op = triangle(N, PERIOD, AMP)
+    mv = np.repeat(op[::10], 10)           # a stem that moves in steps, held in between
+    auto = np.ones(N, dtype=bool)
+    auto[:2500] = False
+    a = valve_activity(op, TS, mv_pct=mv, mode_auto=auto)
+    assert a.service_factor == 0.75
+    assert a.mv_reversals_per_day == pytest.approx(a.reversals_per_day, rel=0.02)
+    assert a.mv_travel_pct_per_day == pytest.approx(a.travel_pct_per_day, rel=0.01)
+    assert a.mv_noise_band_pct is not None
+    with pytest.raises(ValueError, match="mv_pct"):
+        valve_activity(op, TS, mv_pct=mv[:-1])
+    d = a.to_dict()
+    assert set(d) == {f.name for f in dataclasses.fields(ValveActivity)}
+    assert d["service_factor"] == 0.75 and d["reversals_per_day"] == float(f"{a.reversals_per_day:.4g}")
+
+
+def test_noise_sigma_ignores_ramps_and_turns():
+    assert noise_sigma(triangle(N, PERIOD, AMP)) < 1e-9
+    e = np.random.default_rng(3).normal(0.0, 0.2, N)
+    assert noise_sigma(triangle(N, PERIOD, AMP) + e) == pytest.approx(0.2, rel=0.05)
+
+
+def test_it_costs_a_few_ms():
+    x = triangle(10_000, 200, 10.0) + np.random.default_rng(0).normal(0.0, 0.3, 10_000)
+    valve_activity(x, 1.0, mv_pct=x)
+    t0 = time.perf_counter()
+    for _ in range(5):
+        valve_activity(x, 1.0, mv_pct=x)
+    assert (time.perf_counter() - t0) / 5 < 0.05   # about 2 ms here; generous for slow CI machines
+
+
+# ------------------------------------------------------------------------------------------------
+# where it appears
+
+
+@pytest.fixture(scope="module")
+def diag():
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.02, seed=2)
+    rec = rec.replace(meta={"has_mode": True, "manual_intervals": [[100, 400]]})
+    return diagnose(rec, narx=False)
+
+
+def test_identification_and_loop_json_carry_it(diag):
+    ident = diag.identification
+    act = ident.activity
+    assert act is not None and act.travel_pct_per_day > 0 and act.reversals_per_day > 0
+    assert act.service_factor == pytest.approx(1 - 300 / diag.record.n)
+    assert act.days == pytest.approx(diag.record.n * diag.record.ts_s / DAY_S)
+    assert ident.to_dict()["activity"] == act.to_dict()          # stiction identify --json
+    assert diag.to_dict()["activity"] == act.to_dict()           # LOOP.json
+
+
+def test_no_mode_signal_no_service_factor():
+    from diagnose.identification import record_activity
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.02, seed=1)
+    assert record_activity(rec.replace(meta={})).service_factor is None
+    # a connector that read a mode column and found the loop always in automatic
+    assert record_activity(rec.replace(meta={"has_mode": True, "manual_intervals": []})).service_factor == 1.0
+
+
+def test_the_report_and_the_summary_show_it(diag):
+    from diagnose.service.batch import loop_row
+    from diagnose.service.report import SUMMARY_COLUMNS, loop_markdown
+
+    md = loop_markdown(diag)
+    section = md.split("## Valve activity", 1)[1].split("\n## ", 1)[0]
+    act = diag.identification.activity
+    assert "| OP travel |" in section and "% of span per day" in section
+    assert "| OP reversals |" in section and "| Service factor (time in automatic) | 80 % |" in section
+    assert "Record length the rates are per | 25 min" in section
+    row = loop_row(diag, None)
+    assert row["travel_pct_per_day"] == act.to_dict()["travel_pct_per_day"]
+    assert row["reversals_per_day"] == act.to_dict()["reversals_per_day"]
+    assert {"travel_pct_per_day", "reversals_per_day"} <= set(SUMMARY_COLUMNS)
