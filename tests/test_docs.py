@@ -31,6 +31,7 @@ def test_the_api_page_runs_as_a_notebook(tmp_path, monkeypatch):
     assert [(r.name, r.n, r.ts_s) for r in ns["records"]][:2] == [("FIC101", 3000, 1.0), ("FIC102", 3000, 1.0)]
     assert ns["same"].method == "op_mv" and ns["berlin"].cls == fic103.cls
     assert ns["back"].n == ns["records"][0].n
+    assert (round(ns["act"].travel_pct_per_day, -2), ns["act"].reversals_per_day) == (4400.0, 431.0)
     assert fic103.to_dict()["source"] is None and result.to_dict()["source"].endswith("dcs_2411FIC20102_stiction.txt")
 
 
