@@ -18,7 +18,7 @@ from .columns import FRAME_LABEL, option, role_of, split_tag
 from .layouts import Series, Table
 from .tagmap import TagMap
 from .timebase import (END_TOLERANCE, Cleaned, clean_series, empty_slots, estimate_period, irregularity, iso_utc,
-                       jittered_period, runs, shared_rows, spread_truncated, to_grid)
+                       hold_grid, jittered_period, runs, shared_rows, spread_truncated, to_grid)
 
 ROLES = ("op", "pv", "sp", "mv", "mode")
 DEFAULT_MIN_SAMPLES = 20
@@ -499,7 +499,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     units.update({k: v for k, v in spec.units.items() if k in ("pv", "sp")})
     mode = None
     if "mode" in spec.roles:
-        mode, _ = to_grid(cleaned["mode"].t, cleaned["mode"].x, grid, max_gap_s, step=step)
+        # a state holds between its events (a mode archived on change): no ramp, no gap limit
+        mode = hold_grid(cleaned["mode"].t, cleaned["mode"].x, grid, step=step)
     records = []
     for i, (a, b) in enumerate(usable):
         roles = {}
@@ -524,6 +525,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
             m = mode[a:b]
             manual = np.isfinite(m) & (m < 0.5)
             meta["manual_intervals"] = [[int(x), int(y)] for x, y in runs(manual)]
+            # before the mode's first sample, or after a bad one, the state is not known
+            meta["mode_unknown_intervals"] = [[int(x), int(y)] for x, y in runs(~np.isfinite(m))]
             meta["has_mode"] = True
         start = iso_utc(float(grid[a])) if (table and table.absolute) else None
         try:

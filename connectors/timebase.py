@@ -755,6 +755,26 @@ def to_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, max_gap_s: float,
     return out, good & (span > 1.5 * step) & ~on_sample
 
 
+def hold_grid(t: np.ndarray, x: np.ndarray, grid: np.ndarray, step: float | None = None) -> np.ndarray:
+    """A state signal (a controller's mode) on ``grid`` by zero-order hold: each grid point takes
+    the last sample at or before it, NaN before the first sample and after a bad (NaN) one.
+
+    A mode tag is archived when it changes (a PI digital state, exported as recorded values): between
+    two events the state holds, it does not ramp, and a silence of hours is a loop left alone, not
+    a gap. ``t`` must be sorted.
+    """
+    out = np.full(grid.shape, np.nan)
+    if t.size == 0:
+        return out
+    if step is None:
+        step = float(grid[1] - grid[0]) if grid.size > 1 else 1.0
+    # a sample stamped a hair after its grid point (times rounded to the millisecond) still counts
+    j = np.searchsorted(t, grid + 1e-6 * step, side="right") - 1
+    have = j >= 0
+    out[have] = x[j[have]]
+    return out
+
+
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """``[start, stop)`` index pairs of the True runs of a boolean array."""
     if mask.size == 0:

@@ -57,7 +57,8 @@ class ValveActivity:
         stem position is recorded.
     service_factor : float or None
         Share of the record, 0..1, in which the controller was in automatic (the mode signal said
-        so). None when the record carries no mode signal: the share cannot be told.
+        so), counted over the samples whose mode is known. None when the record carries no mode
+        signal (or none of its values is known): the share cannot be told.
     days : float
         The record length the rates are per: samples x sample period, in days. Rates from a record
         of a few hours extrapolate a short window to a day; judge them by this.
@@ -202,9 +203,11 @@ def valve_activity(op_pct: Any, ts_s: float, *, mv_pct: Any = None, mode_auto: A
         Sample period, seconds.
     mv_pct : array of float, shape (n,), optional
         Recorded stem position, % of span.
-    mode_auto : array of bool, shape (n,), optional
-        True where the controller was in automatic; gives the service factor. Leave it out when the
-        record carries no mode signal (the service factor is then None, not 1).
+    mode_auto : array of bool or float, shape (n,), optional
+        True (1) where the controller was in automatic, False (0) in manual, NaN where the mode is
+        not known (before the mode signal's first sample, after a bad one); gives the service
+        factor over the samples whose mode is known. Leave it out when the record carries no mode
+        signal (the service factor is then None, not 1).
 
     Returns
     -------
@@ -256,10 +259,12 @@ def valve_activity(op_pct: Any, ts_s: float, *, mv_pct: Any = None, mode_auto: A
         mv_travel, mv_rev = t * per_day, r * per_day
     sf = None
     if mode_auto is not None:
-        auto = np.asarray(mode_auto, dtype=bool).ravel()
+        auto = np.asarray(mode_auto, dtype=float).ravel()
         if auto.size != n:
             raise ValueError(f"mode_auto has {auto.size} samples but op_pct has {n}")
-        sf = float(np.count_nonzero(auto)) / n
+        known = np.isfinite(auto)
+        if known.any():
+            sf = float(np.count_nonzero(auto[known] >= 0.5)) / int(np.count_nonzero(known))
     return ValveActivity(travel_pct_per_day=travel * per_day, reversals_per_day=rev * per_day, days=days,
                          noise_band_pct=band, mv_travel_pct_per_day=mv_travel, mv_reversals_per_day=mv_rev,
                          mv_noise_band_pct=mv_band, service_factor=sf)

@@ -471,15 +471,17 @@ def _warn(code: str, message: str) -> Note:
 
 def record_activity(record: LoopRecord) -> ValveActivity:
     """`valve_activity` of a record: OP, the stem position where recorded, and the service factor
-    where a connector read a mode column (``meta["has_mode"]`` / ``meta["manual_intervals"]``,
-    ``[start, stop)`` sample ranges in manual); without one the service factor is None."""
+    where a connector read a mode column (``meta["has_mode"]``; ``meta["manual_intervals"]`` and
+    ``meta["mode_unknown_intervals"]``, ``[start, stop)`` sample ranges in manual and of unknown
+    mode); without one the service factor is None."""
     meta = record.meta or {}
     auto = None
     iv = meta.get("manual_intervals")
     if meta.get("has_mode") or iv is not None:
-        auto = np.ones(record.n, dtype=bool)
-        for a, b in iv or ():
-            auto[max(int(a), 0):max(min(int(b), record.n), 0)] = False
+        auto = np.ones(record.n)
+        for value, intervals in ((0.0, iv), (np.nan, meta.get("mode_unknown_intervals"))):
+            for a, b in intervals or ():
+                auto[max(int(a), 0):max(min(int(b), record.n), 0)] = value
     return valve_activity(record.op, record.ts_s, mv_pct=record.mv, mode_auto=auto)
 
 

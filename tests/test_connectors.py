@@ -1054,3 +1054,29 @@ def test_truncated_time_stamps_are_spread_at_the_period_given(tmp_path, newest_f
     f.write_text("".join(lines))
     (rec,) = read_records(f, ts_s=10)
     assert any(x.code == "duplicates" and x.severity == "warning" for x in rec.findings)
+
+
+def test_a_mode_archived_on_change_holds_between_its_events(tmp_path):
+    # a long (tag, time, value) export: OP and PV every 10 s for two hours, the mode only when it
+    # changed (a PI digital state's recorded values): manual from 00:30 to 01:00, unknown before
+    # its first event at 00:05
+    from diagnose.identification import record_activity
+
+    rng = np.random.default_rng(7)
+    lines = ["Tag,Timestamp,Value"]
+    for k in range(720):
+        t = f"2026-03-05T{k * 10 // 3600:02d}:{k * 10 % 3600 // 60:02d}:{k * 10 % 60:02d}Z"
+        lines += [f"FIC7.OP,{t},{50 + 5 * np.sin(k / 20) + rng.normal(0, 0.1):.3f}",
+                  f"FIC7.PV,{t},{40 + 4 * np.sin((k - 3) / 20) + rng.normal(0, 0.1):.3f}"]
+    lines += ["FIC7.MODE,2026-03-05T00:05:00Z,AUTO", "FIC7.MODE,2026-03-05T00:30:00Z,MAN",
+              "FIC7.MODE,2026-03-05T01:00:00Z,AUTO"]
+    path = tmp_path / "fic7_long.csv"
+    path.write_text("\n".join(lines) + "\n")
+    (rec,) = read_records(path)
+    assert rec.n == 720 and rec.meta["has_mode"]
+    assert rec.meta["manual_intervals"] == [[180, 360]]        # 00:30 to 01:00 at 10 s
+    assert rec.meta["mode_unknown_intervals"] == [[0, 30]]     # before the first event
+    man = next(f for f in rec.findings if f.code == "manual_mode")
+    assert man.data["samples"] == 180
+    # the service factor counts the samples whose mode is known: 510 of 690 in automatic
+    assert record_activity(rec).service_factor == pytest.approx(510 / 690)
