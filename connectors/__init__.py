@@ -141,8 +141,25 @@ def _shared_orders(tables: list[Any]) -> list[bool | None]:
     from .timebase import alike_both_ways, shared_date_order
 
     dates = [(t.meta.get("dates") or {}).get("dates") or [] for t in tables]
-    order = shared_date_order(d for ds in dates for d in ds)
-    return [order if order is not None and alike_both_ways(ds) else None for ds in dates]
+    # files of one export share their layout and time format: a US export (month first, AM/PM)
+    # beside a UK one (day first, 24 h) in the same folder must not lend it its order
+    groups: dict[tuple, list[int]] = {}
+    for k, t in enumerate(tables):
+        groups.setdefault(_export_signature(t), []).append(k)
+    out: list[bool | None] = [None] * len(tables)
+    for idx in groups.values():
+        order = shared_date_order(d for k in idx for d in dates[k])
+        for k in idx:
+            out[k] = order if order is not None and alike_both_ways(dates[k]) else None
+    return out
+
+
+def _export_signature(table: Any) -> tuple:
+    """What the files of one export have in common: layout, separators, the time column and its
+    format with day and month taken as one field (their order is what is being decided)."""
+    m = table.meta
+    fmt = str(m.get("time_format") or "").replace("%d", "%D").replace("%m", "%D")
+    return (m.get("format"), m.get("delimiter"), m.get("decimal"), fmt, (m.get("dates") or {}).get("column"))
 
 
 #: Bytes of a file `date_orders` looks at before it reads the whole file.

@@ -343,3 +343,19 @@ def test_a_folder_that_is_ambiguous_as_a_whole_warns_as_a_file_does(tmp_path):
     recs = read_records(tmp_path)
     assert _orders(recs) == [("FIC1", "2026-05-03", ["date_order"]), ("FIC2", "2026-05-03", ["date_order"])]
     assert [r.start[:10] for r in read_records(tmp_path, dayfirst=True)] == ["2026-03-05", "2026-03-05"]
+
+
+def test_a_file_of_another_export_in_the_folder_does_not_lend_its_date_order(tmp_path):
+    # a US export (month first, AM/PM) of one day beside a UK export whose 13/04 says day first:
+    # the US file keeps its own reading (a guess, warned about), not the UK file's order
+    _one_day(tmp_path / "uk.csv", "13/04/2026", tag="FIC2")
+    lines = (DATA / "excel_uk_one_day.csv").read_text().splitlines()
+    us = [lines[0].replace("FIC503", "FIC1")]
+    for ln in lines[1:]:
+        hh, rest = int(ln[11:13]), ln[13:]
+        us.append(f"03/05/2026 {hh % 12 or 12:02d}{rest[:6]} {'AM' if hh < 12 else 'PM'}{rest[6:]}")
+    (tmp_path / "us.csv").write_text("\n".join(us) + "\n")
+    recs = {r.name: r for r in read_records(tmp_path)}
+    assert recs["FIC2"].start[:10] == "2026-04-13"
+    assert recs["FIC1"].start[:10] == "2026-03-05"
+    assert [f.code for f in recs["FIC1"].findings if f.code == "date_order"] == ["date_order"]
