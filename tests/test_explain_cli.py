@@ -48,6 +48,17 @@ def test_human_summary_with_a_subset_of_hypotheses(csv_with_mv, capsys):
     assert "missing physics" in out and "actuator_lag" in out and "asymmetric" not in out.split("\n")[2]
 
 
+def test_summary_heads_with_the_baseline_and_the_refit_the_hypotheses_are_judged_against():
+    from diagnose.service.commands.explain import summary
+
+    d = {"loop": "LIC1", "missing_physics": None, "baseline_rmse": 2.072, "improved_rmse": 2.072,
+         "target": "pv", "hypotheses": [], "mismatch": {"reference_rmse": 0.1692}, "explanation": "x."}
+    head = summary(d).splitlines()[1]
+    assert head == "  held-out RMSE (PV, PV units): baseline 2.072, plain model refit here 0.1692; nothing named"
+    named = dict(d, missing_physics="actuator_lag", improved_rmse=0.12, target="mv")
+    assert summary(named).splitlines()[1].endswith("refit here 0.1692 -> with actuator_lag 0.12")
+
+
 @pytest.mark.parametrize("argv,msg", [
     (["--mv", "NOPE"], "no column named 'NOPE'"),
     (["--hypotheses", "gremlins"], "unknown hypothesis 'gremlins'"),

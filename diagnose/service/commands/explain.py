@@ -36,9 +36,15 @@ def summary(d: dict[str, Any]) -> str:
     from ...plain import duration, number, percent_change
 
     unit = "% of span" if d.get("target") == "mv" else "PV units"
-    lines = [f"{d.get('loop', '')}: missing physics: {d['missing_physics'] or 'none named'}",
-             f"  held-out RMSE ({d.get('target', 'pv').upper()}, {unit}): baseline {number(d['baseline_rmse'], 4)}"
-             f" -> {number(d['improved_rmse'], 4)}"]
+    # the hypotheses' changes are against the plain model refit here, which can differ a lot from
+    # the baseline (an integrating process's balance error grows over the held-out part): both shown
+    ref = (d.get("mismatch") or {}).get("reference_rmse")
+    head = f"  held-out RMSE ({d.get('target', 'pv').upper()}, {unit}): baseline {number(d['baseline_rmse'], 4)}"
+    if ref is not None:
+        head += f", plain model refit here {number(ref, 4)}"
+    head += (f" -> with {d['missing_physics']} {number(d['improved_rmse'], 4)}" if d["missing_physics"]
+             else "; nothing named")
+    lines = [f"{d.get('loop', '')}: missing physics: {d['missing_physics'] or 'none named'}", head]
     for h in d["hypotheses"]:
         params = ", ".join(f"{k} {duration(v) if k.endswith('_s') else number(v)}"
                            for k, v in h["params"].items() if v is not None)
