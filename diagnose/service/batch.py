@@ -478,6 +478,9 @@ def file_configs(cfg: BatchConfig, files: Sequence[Path]) -> list[BatchConfig]:
     if cfg.read_options.get("dayfirst") is not None or (cfg.tags and "dayfirst" in load_tagmap(cfg.tags).options):
         return out
     opts = {k: v for k, v in cfg.read_options.items() if k not in ("loop", "max_samples")}
+    if cfg.tags:
+        # the map's reading options (fmt, tz) read the dates as the files themselves will be read
+        opts["tags"] = cfg.tags
     folders: dict[Path, list[int]] = {}
     for k, f in enumerate(files):
         folders.setdefault(f.parent, []).append(k)
