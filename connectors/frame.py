@@ -18,7 +18,7 @@ from diagnose.errors import ConnectorError, DataError
 from diagnose.record import LoopRecord
 
 from .columns import FRAME_LABEL, role_of
-from .layouts import Series, Table, is_time_header
+from .layouts import Series, Table, blank_cells, is_time_header
 from .records import build_records, specs_from_table
 from .textio import numbers
 from .timebase import localise, parse_times, zone_of
@@ -106,7 +106,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         num = numbers(values)
         series.append(Series(name=name, t=t, x=num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                              n_blank=num.n_blank, examples=num.examples, first_line=None, column=name,
-                             cells=num.text))
+                             cells=num.text, blank=blank_cells(num)))
     meta = {"format": "dataframe", "time_format": tfmt, "time_zone": tzone,
             "time_columns": [names[time_col]] if time_col is not None else []}
     if guessed:

@@ -72,6 +72,7 @@ class Series:
     cells: pd.Series | None = None
     units: str | None = None
     quality_column: str | None = None    # the column whose codes made ``n_bad_quality`` gaps (wide layout)
+    blank: np.ndarray | None = None      # True per row whose cell was empty (None: no empty cell, or not kept)
 
 
 @dataclass
@@ -277,11 +278,19 @@ def _text(col: np.ndarray) -> list[str]:
     return [v if isinstance(v, str) else "" if v is None or v != v else str(v) for v in col]
 
 
+def blank_cells(num: Any) -> np.ndarray | None:
+    """True per cell of a `numbers` column that was empty; None when none was."""
+    k = num.kind
+    if k is None or not (k == 1).any():
+        return None
+    return k == 1
+
+
 def _series(name: str, t: np.ndarray | None, col: np.ndarray, decimal_comma: bool, first_line: int | None) -> Series:
     num = numbers(col, decimal_comma)
     return Series(name=name, t=t, x=num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                   n_blank=num.n_blank, examples=num.examples, first_line=first_line, column=name,
-                  cells=num.text)
+                  cells=num.text, blank=blank_cells(num))
 
 
 # ---------------------------------------------------------------------------------------------- wide
@@ -483,7 +492,7 @@ def parse_long(src: Source, options: dict) -> Table:
                              n_bad_quality=int(np.count_nonzero(bq)),
                              n_blank=int(np.count_nonzero(k == 1)) if k is not None else 0,
                              examples=examples, first_line=int(lines[idx[0]]), column=header[val_j],
-                             cells=cells))
+                             cells=cells, blank=(k == 1) if k is not None and (k == 1).any() else None))
     meta = {"format": "long", "delimiter": delimiter_name(head.delimiter), "decimal": "," if dec else ".",
             "encoding": src.encoding, "bom": src.bom, "time_format": tfmt, "time_zone": tzone, "quality_scheme": scheme,
             "quality_column": header[q_j] if q_j is not None else None, **notes}
@@ -537,7 +546,7 @@ def parse_ragged(src: Source, options: dict) -> Table:
             num = numbers(vcells, dec)
             series.append(Series(name, tt, num.values, n_text=num.n_text, n_nonfinite=num.n_nonfinite,
                                  n_blank=num.n_blank, examples=num.examples, first_line=int(tl[0]),
-                                 column=name, cells=num.text))
+                                 column=name, cells=num.text, blank=blank_cells(num)))
         j += 2
     if not series:
         raise ConnectorError("no timestamp/value column pairs found for the ragged layout", path=label,

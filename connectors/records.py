@@ -202,6 +202,14 @@ def _name_columns(label: str | None) -> str:
     return "name the columns with --op/--pv or give a tag map with --tags"
 
 
+def _joined_blank(a: Series, b: Series) -> np.ndarray | None:
+    """The empty-cell mask of two series joined end to end (None when neither had an empty cell)."""
+    if a.blank is None and b.blank is None:
+        return None
+    return np.concatenate([a.blank if a.blank is not None else np.zeros(a.x.size, bool),
+                           b.blank if b.blank is not None else np.zeros(b.x.size, bool)])
+
+
 def _mode_values(s: Series, auto: tuple[float, ...] | None) -> np.ndarray:
     """1 = automatic, 0 = manual, NaN = unknown, from numbers or text states."""
     x = s.x
@@ -340,6 +348,10 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         if ts_opt and s.t is not None and (spread := spread_truncated(t, float(ts_opt))) is not None:
             spread_rows = max(spread_rows, shared_rows(t))
             t = spread
+        if role == "mode" and s.blank is not None and s.blank.size == t.size:
+            # an empty cell of a mode column is no event (a mode archived on change, exported beside
+            # tags sampled at every row): the state before it holds; a bad value makes it unknown
+            t, x = t[~s.blank], x[~s.blank]
         c = clean_series(t, x)
         n_dups = max(n_dups, c.n_duplicates)
         if role in ("op", "pv") and t.size:
@@ -727,7 +739,8 @@ def merge_specs(specs: list[LoopSpec]) -> list[LoopSpec]:
                                           b.n_bad_quality + s.n_bad_quality, b.n_blank + s.n_blank,
                                           (b.examples + s.examples)[:4], b.first_line, b.column,
                                           None, units=_joined_units(sp.name, role, b, s, base, sp),
-                                          quality_column=b.quality_column or s.quality_column)
+                                          quality_column=b.quality_column or s.quality_column,
+                                          blank=_joined_blank(b, s))
             continue
         if key in out:
             key = f"{sp.name}@{os.path.basename(sp.table.label) if sp.table else len(order)}"

@@ -1080,3 +1080,35 @@ def test_a_mode_archived_on_change_holds_between_its_events(tmp_path):
     assert man.data["samples"] == 180
     # the service factor counts the samples whose mode is known: 510 of 690 in automatic
     assert record_activity(rec).service_factor == pytest.approx(510 / 690)
+
+
+@pytest.mark.parametrize("mode_cells", [("AUTO", "MAN", "AUTO"), ("1", "0", "1")])
+def test_a_wide_mode_column_with_empty_cells_holds_between_its_events(tmp_path, mode_cells):
+    # a wide export: OP and PV on every row, the mode written only on the rows where it changed
+    # (empty cells between): manual from 00:30 to 01:00, unknown before its first value at 00:05;
+    # an empty cell is no event (the state holds), not a bad value
+    from diagnose.identification import record_activity
+
+    rng = np.random.default_rng(11)
+    events = {30: mode_cells[0], 180: mode_cells[1], 360: mode_cells[2]}
+    lines = ["Time,FIC7.OP,FIC7.PV,FIC7.MODE"]
+    for k in range(720):
+        t = f"2026-03-05T{k * 10 // 3600:02d}:{k * 10 % 3600 // 60:02d}:{k * 10 % 60:02d}Z"
+        lines.append(f"{t},{50 + 5 * np.sin(k / 20) + rng.normal(0, 0.1):.3f},"
+                     f"{40 + 4 * np.sin((k - 3) / 20) + rng.normal(0, 0.1):.3f},{events.get(k, '')}")
+    path = tmp_path / "fic7_wide.csv"
+    path.write_text("\n".join(lines) + "\n")
+    (rec,) = read_records(path)
+    assert rec.n == 720 and rec.meta["has_mode"]
+    assert rec.meta["manual_intervals"] == [[180, 360]]
+    assert rec.meta["mode_unknown_intervals"] == [[0, 30]]
+    man = next(f for f in rec.findings if f.code == "manual_mode")
+    assert man.data["samples"] == 180
+    assert record_activity(rec).service_factor == pytest.approx(510 / 690)
+    # a DataFrame with NaN between the mode's values reads the same
+    import pandas as pd
+    from connectors import read_frame
+    df = pd.read_csv(path)
+    df["Time"] = pd.to_datetime(df["Time"])
+    (frec,) = read_frame(df.set_index("Time"))
+    assert frec.meta["manual_intervals"] == [[180, 360]]
