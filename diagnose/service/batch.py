@@ -391,8 +391,10 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
         end = end_of_record(record.start, record.n, record.ts_s)
         hist = [r for r in previous_runs(cfg.db, _tag(record), exclude_hash=ih)
                 if end is None or not r.get("data_end") or r["data_end"] < end]
-        warn = degrade(hist + [{"run_at": "this run", "data_end": end,
-                                "S_pct": diag.identification.S_pct}]) if hist else None
+        # this run with its verdict: a run that says no stiction has no size to grow from (it
+        # neither breaks nor extends the growth), as in `stiction history`
+        warn = degrade(hist + [{"run_at": "this run", "data_end": end, "S_pct": diag.identification.S_pct,
+                                **verdict_of(diag.identification)}]) if hist else None
         held = sticky_runs(hist + [verdict_of(diag.identification)])
         runs = None if held is None else held[:2]
         diag = replace(diag, loop_id=loop_id, input_hash=ih, degradation=warn, sticky_runs=runs,
