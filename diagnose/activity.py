@@ -182,11 +182,27 @@ def hysteresis_turns(x: np.ndarray, band: float) -> np.ndarray:
     return np.asarray(turns, dtype=float)
 
 
+#: On a quantised signal (values on a grid of step q) the band is at least this many steps: a
+#: flicker by one level is the resolution's, not the valve's, while a move of two levels counts.
+QUANT_STEPS = 1.5
+
+
 def _travel(x: np.ndarray) -> tuple[float, int, float]:
     """(travel, reversals, band) of one signal over the record."""
+    from .quality import quantum
+
     x = np.asarray(x, dtype=float)
     scale = float(np.max(np.abs(x))) if x.size else 0.0
     band = max(BAND_SIGMAS * noise_sigma(x), _REL_FLOOR * max(scale, 1.0))
+    q = quantum(x) if x.size > 2 else None
+    if q is not None and band < QUANT_STEPS * q["step"]:
+        # held at its levels, the signal's second differences are mostly zero, so its noise reads
+        # as none and each flicker by one level would count as a reversal: where it turns back
+        # after one level, the band is widened to drop such turns (a ramp sampled in equal steps
+        # is on a grid too, but never turns by one step)
+        turns = np.abs(np.diff(_extrema(x))) / q["step"]
+        if np.any(np.abs(turns - 1.0) <= 0.02):
+            band = QUANT_STEPS * q["step"]
     turns = hysteresis_turns(x, band)
     travel = float(np.sum(np.abs(np.diff(turns)))) if turns.size > 1 else 0.0
     return travel, max(int(turns.size) - 2, 0), band
@@ -234,8 +250,10 @@ def valve_activity(op_pct: Any, ts_s: float, *, mv_pct: Any = None, mode_auto: A
     noise is large against its movements, travel reads low. MV gets its own band, from its own
     noise. The estimate assumes white noise: noise that was low-pass filtered before it was logged
     (correlated from sample to sample) has smaller second differences than its size, so part of
-    it is counted as movement; and an OP held at quantisation levels that flickers by one level
-    counts each flicker (its second differences are mostly zero, so its band is zero).
+    it is counted as movement. An OP held at quantisation levels (every change a whole number of
+    steps q) has mostly zero second differences, so its noise reads as none: where it turns back
+    after a single level, its band is ``1.5 q`` (`QUANT_STEPS`), so that a flicker by one level is
+    not a reversal (a move of two levels or more counts).
 
     The rates are per day of record (``n * ts_s / 86400`` days). Cost: a few vectorised passes and
     one loop over the turning points of the signal (a few ms for 10 000 samples).

@@ -107,6 +107,22 @@ def test_the_band_drops_wiggles_smaller_than_it():
     assert hysteresis_turns(x, 20.0).tolist() == [0.0]
 
 
+def test_an_op_quantised_to_whole_percent_does_not_count_its_flicker():
+    # an OP logged in 1 % steps: the noise makes it flicker between two levels near every value,
+    # its second differences are mostly zero (no noise seen), and each flicker was a reversal
+    clean = valve_activity(triangle(N, PERIOD, AMP), TS)
+    for seed in range(3):
+        noisy = triangle(N, PERIOD, AMP) + np.random.default_rng(seed).normal(0.0, 0.2, N)
+        a = valve_activity(np.round(noisy), TS)
+        assert a.reversals_per_day == pytest.approx(clean.reversals_per_day, rel=0.02)
+        assert a.travel_pct_per_day == pytest.approx(clean.travel_pct_per_day, rel=0.05)
+        assert a.noise_band_pct == pytest.approx(1.5)
+    # moves of two steps or more still count
+    x = np.repeat([50.0, 53.0, 51.0, 54.0, 52.0], 50)
+    a = valve_activity(x, 1.0)
+    assert a.reversals_per_day == pytest.approx(3 * DAY_S / x.size)
+
+
 def test_mv_and_service_factor():
     op = triangle(N, PERIOD, AMP)
     mv = np.repeat(op[::10], 10)           # a stem that moves in steps, held in between
