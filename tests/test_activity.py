@@ -203,3 +203,20 @@ def test_the_report_and_the_summary_show_it(diag):
     assert row["travel_pct_per_day"] == act.to_dict()["travel_pct_per_day"]
     assert row["reversals_per_day"] == act.to_dict()["reversals_per_day"]
     assert {"travel_pct_per_day", "reversals_per_day"} <= set(SUMMARY_COLUMNS)
+
+
+def test_a_mode_column_with_no_known_value_is_not_called_no_mode_signal():
+    # the file has a mode column, but its only value lies after the record: the service factor is
+    # unknown, and the report does not say that no mode signal was recorded
+    from diagnose.service.pipeline import diagnose
+    from diagnose.service.report import loop_markdown
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.02, seed=2)
+    d = diagnose(rec.replace(meta={"has_mode": True, "manual_intervals": [],
+                                   "mode_unknown_intervals": [[0, rec.n]]}), narx=False)
+    assert d.identification.activity.service_factor is None
+    row = next(ln for ln in loop_markdown(d).splitlines() if ln.startswith("| Service factor"))
+    assert "no mode signal" not in row and "mode column has no known value" in row
+    bare = diagnose(rec.replace(meta={}), narx=False)
+    assert "| Service factor (time in automatic) | -: no mode signal recorded |" in loop_markdown(bare)

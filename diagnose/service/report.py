@@ -327,7 +327,10 @@ def activity_blocks(diag: Diagnosis) -> list[Block]:
         rows += [["Stem (MV) travel", _rate(act.mv_travel_pct_per_day, "% of span per day")],
                  ["Stem (MV) reversals", _rate(act.mv_reversals_per_day, "per day")]]
     sf = act.service_factor
-    rows.append(["Service factor (time in automatic)", "-: no mode signal recorded" if sf is None
+    meta = getattr(diag.record, "meta", None) or {}
+    unknown = ("-: the mode column has no known value over this record (none before it, or bad ones)"
+               if meta.get("has_mode") else "-: no mode signal recorded")
+    rows.append(["Service factor (time in automatic)", unknown if sf is None
                  else "100 %" if sf >= 1.0 else percent(sf)])
     def width(v: float) -> str:  # a noiseless signal's band is a rounding-level floor: 0
         return "0" if v < 1e-6 else number(v)
