@@ -204,7 +204,7 @@ def choose_record(records: Sequence[LoopRecord], loop: str | None, source: str,
     rec = max(chosen, key=lambda r: r.n)
     notes: tuple[Note, ...] = ()
     if len(chosen) > 1:
-        notes = (Note("segments", f"the record is split into {len(chosen)} segments (gaps or mode changes); "
+        notes = (Note("segments", f"the record is split into {len(chosen)} segments at gaps; "
                                   f"{verb} the longest ({rec.n} samples)"),)
     return rec, notes
 

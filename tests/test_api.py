@@ -133,6 +133,8 @@ def test_gaps_are_read_alike(loop, tmp_path):
     api = diagnose.identify(split)
     assert _json(api) == {**cli, "source": None}
     assert api.warnings[0].code == "segments" and api.n == len(df) - 500
+    # records are split at gaps only: a manual stretch (mode column) stays in the record
+    assert "at gaps" in api.warnings[0].message and "mode change" not in api.warnings[0].message
 
 
 def test_a_record_gives_the_core_identification_with_its_bank_model(loop):
