@@ -84,7 +84,10 @@ def test_degradation_needs_steady_growth():
     # a run that said no stiction has no size: its fitted band does not start a trend
     said = [dict(r, stiction=k > 0) for k, r in enumerate(rows([0.2, 1.0, 1.3]))]
     assert H.degradation(said) is None
-    assert H.degradation(said + [dict(rows([1.7])[0], stiction=True)]) is not None
+    grown = said + [dict(rows([1.7])[0], stiction=True)]
+    assert H.degradation(grown) is not None
+    # the latest run found no stiction (a repair): nothing is degrading now
+    assert H.degradation(grown + [dict(rows([0.1])[0], stiction=False)]) is None
 
 
 def test_cli_prints_the_trend_and_warns(tmp_path, capsys):

@@ -377,8 +377,13 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
     The last ``runs`` runs that sized a stiction (a stored verdict of stiction; rows stored
     before verdicts were kept count too) must each raise S by at least ``step_pct`` and by at least
     ``total_pct`` in all (% of valve span). A run that said no stiction has no size to grow from:
-    its fitted band is the noise's, and the history does not show it either (`shown_run`).
+    its fitted band is the noise's, and the history does not show it either (`shown_run`). When
+    the latest run that stored a verdict said no stiction there is no warning: after a repair the
+    valve is not degrading, and a report that says "no stiction" should not say "degrading".
     """
+    said = [r for r in rows if r.get("stiction") is not None]
+    if said and not bool(said[-1]["stiction"]):
+        return None
     s = [(_when(r), r.get("S_pct")) for r in rows
          if r.get("S_pct") is not None and (r.get("stiction") is None or bool(r["stiction"]))]
     if len(s) < runs:
