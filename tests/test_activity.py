@@ -220,3 +220,21 @@ def test_a_mode_column_with_no_known_value_is_not_called_no_mode_signal():
     assert "no mode signal" not in row and "mode column has no known value" in row
     bare = diagnose(rec.replace(meta={}), narx=False)
     assert "| Service factor (time in automatic) | -: no mode signal recorded |" in loop_markdown(bare)
+
+
+def test_an_op_logged_as_a_fraction_is_reported_in_op_units():
+    # OP 0..1 without a stem position to scale it: the tool warns (op_fraction) and does not guess,
+    # so the report must not call OP's travel "% of span"
+    from diagnose.service.pipeline import diagnose
+    from diagnose.service.report import loop_markdown
+    from diagnose.simulate import sticky_loop
+    from diagnose.quality import assess
+
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.02, seed=2)
+    frac = rec.replace(op=rec.op / 100.0, mv=None)
+    frac = frac.with_findings(*assess(frac))
+    d = diagnose(frac, narx=False)
+    assert "data_quality.op_fraction" in {w.code for w in d.warnings}
+    section = loop_markdown(d).split("## Valve activity", 1)[1].split("\n## ", 1)[0]
+    travel = next(ln for ln in section.splitlines() if ln.startswith("| OP travel |"))
+    assert "OP units per day" in travel and "% of span" not in travel

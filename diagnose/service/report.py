@@ -320,7 +320,9 @@ def activity_blocks(diag: Diagnosis) -> list[Block]:
     act = diag.identification.activity
     if act is None:
         return []
-    unit = "% of span" if diag.identification.op_in_percent else "OP units"
+    # an OP the data say is a fraction of span (and that no stem position rescaled) is in its own units
+    fraction = any(w.code == "data_quality.op_fraction" for w in diag.warnings)
+    unit = "% of span" if diag.identification.op_in_percent and not fraction else "OP units"
     rows = [["OP travel", _rate(act.travel_pct_per_day, f"{unit} per day")],
             ["OP reversals", _rate(act.reversals_per_day, "per day")]]
     if act.mv_travel_pct_per_day is not None:
