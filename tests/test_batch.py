@@ -65,6 +65,15 @@ def test_discover_skips_hidden_foreign_and_output(tmp_path):
     files, missing = B.discover([tmp_path, tmp_path / "b.txt", tmp_path / "nope.csv"], exclude=[tmp_path / "out"])
     assert sorted(f.relative_to(tmp_path).as_posix() for f in files) == ["a/x.csv", "b.txt"]
     assert [m["status"] for m in missing] == ["failed"] and "nope.csv" in missing[0]["error"]
+    # the output folder of an earlier run (another --out) is no input either, and is said so
+    old = tmp_path / "reports_monday"
+    (old / "loops" / "FIC1").mkdir(parents=True)
+    for name in ("summary.csv", "summary.json"):
+        (old / name).write_text("t")
+    skipped = []
+    files, _ = B.discover([tmp_path], exclude=[tmp_path / "out"], skipped=skipped)
+    assert sorted(f.relative_to(tmp_path).as_posix() for f in files) == ["a/x.csv", "b.txt"]
+    assert {"path": str(old), "reason": "the output folder of an earlier stiction batch"} in skipped
 
 
 def test_reports_summary_and_ranking(first_run):

@@ -108,7 +108,8 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
              skipped: list[dict[str, Any]] | None = None) -> tuple[list[Path], list[dict[str, Any]]]:
     """Input files (folders searched recursively for `INPUT_SUFFIXES`) and missing inputs.
 
-    Hidden files/folders and anything under ``exclude`` (the output folder) are left out. Returns
+    Hidden files/folders, anything under ``exclude`` (the output folder) and the output folders of
+    earlier batches (a ``summary.json`` beside a ``loops`` folder) are left out. Returns
     the files in a stable order and one failure row per input path that does not exist. Other
     files found in the folders are appended to ``skipped`` (``{"path", "reason"}``) when given: a
     batch reports them rather than passing over them in silence.
@@ -132,11 +133,23 @@ def discover(inputs: Iterable[str | os.PathLike], *, exclude: Iterable[str | os.
             missing.append(failure_row(safe_name(Path(where).name), str(where),
                                        f"{where}: cannot read the folder: {exc.strerror or exc}", "input"))
 
+    def earlier_output(folder: Path) -> bool:
+        # another run's --out folder inside the inputs: its summary.csv is no historian export
+        return (folder / "summary.json").is_file() and (folder / "loops").is_dir()
+
     for item in inputs:
         p = Path(item)
         if p.is_dir():
             for root, dirs, names in os.walk(p, onerror=unreadable):
-                dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+                kept = []
+                for d in sorted(d for d in dirs if not d.startswith(".")):
+                    if earlier_output(Path(root) / d):
+                        if skipped is not None:
+                            skipped.append({"path": str(Path(root) / d),
+                                            "reason": "the output folder of an earlier stiction batch"})
+                    else:
+                        kept.append(d)
+                dirs[:] = kept
                 if any(Path(root).resolve() == e or e in Path(root).resolve().parents for e in excl):
                     continue
                 for name in sorted(names):
