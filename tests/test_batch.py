@@ -768,3 +768,18 @@ def test_a_folder_of_one_day_exports_shares_one_date_order_in_the_batch(tmp_path
     # --monthfirst still decides
     assert starts(tmp_path / "us", read_options={"dayfirst": False}) == {"day5.csv": ("2026-05-03", False),
                                                                         "day6.csv": ("2026-06-03", False)}
+
+
+def test_the_summary_keeps_a_small_probability_small_not_zero():
+    # P(stiction) of a healthy loop is about 2e-5: the summary says "< 1 %", as the history does
+    from diagnose.plain import percent
+    from diagnose.service.batch import loop_row
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    d = diagnose(sticky_loop(0.0, 0.0, n=1500, noise_std=0.02, load_walk_std=0.02, seed=0), narx=False)
+    p = d.identification.stiction_probability
+    assert 0 < p < 0.005
+    row = loop_row(d, None)
+    assert row["stiction_probability"] == pytest.approx(p, rel=1e-3)
+    assert percent(row["stiction_probability"]) == "< 1 %"

@@ -237,6 +237,9 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
     def r4(v: float | None) -> float | None:
         return None if v is None else round(float(v), 4)
 
+    def sig4(v: float | None) -> float | None:
+        return None if v is None else float(f"{float(v):.4g}")
+
     # S, J and their intervals are a size of the stiction found (docs/verdict.md): none for a loop
     # whose verdict is not stiction, where a 0.00 would read as a measured clean valve
     sized = bool(ident.stiction)
@@ -254,8 +257,9 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "sticky": bool(ident.stiction),
         "S_pct": r4(S), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
         "J_pct": r4(J), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
-        "stiction_probability": r4(ident.stiction_probability),
-        "confidence": r4(ident.confidence),
+        # significant digits, not decimals: a probability of 3e-5 is "< 1 %", not a rounded 0
+        "stiction_probability": sig4(ident.stiction_probability),
+        "confidence": sig4(ident.confidence),
         "oscillation_period_s": r4(period) if ident.loop_oscillates else None,
         "slow_cycle_period_s": r4(period) if ident.slow_cycle else None,
         "sj_in_op_units": not ident.op_in_percent,
