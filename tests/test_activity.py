@@ -238,4 +238,3 @@ def test_an_op_logged_as_a_fraction_is_reported_in_op_units():
     section = loop_markdown(d).split("## Valve activity", 1)[1].split("\n## ", 1)[0]
     travel = next(ln for ln in section.splitlines() if ln.startswith("| OP travel |"))
     assert "OP units per day" in travel and "% of span" not in travel
-
