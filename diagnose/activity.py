@@ -24,10 +24,10 @@ import numpy as np
 #: Seconds per day: travel and reversals are given per day of record.
 DAY_S = 86_400.0
 
-#: The hysteresis band is this many times the robust noise standard deviation of the signal. On
-#: white noise of standard deviation sigma a retreat of 8 sigma from a running extreme does not
-#: happen by noise alone (none in 40 000 samples of white noise; at 6 sigma, about 20 in 10 000),
-#: while a movement of a few % of span on an OP with 0.1 % noise is counted in full.
+#: The hysteresis band is this many times the robust noise standard deviation of the signal:
+#: white noise alone retreats from its running extreme by 6 sigma now and then over a long record
+#: and by 8 sigma practically never (tests/test_activity.py), while a movement of a few % of span
+#: on an OP with 0.1 % noise is still counted in full.
 BAND_SIGMAS = 8.0
 
 #: A band is never narrower than this fraction of the signal's magnitude: floating-point rounding

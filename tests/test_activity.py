@@ -4,7 +4,6 @@ and where they appear (identify --json, LOOP.json, the loop report, the plant su
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 import pytest
@@ -144,15 +143,6 @@ def test_noise_sigma_ignores_ramps_and_turns():
     assert noise_sigma(triangle(N, PERIOD, AMP)) < 1e-9
     e = np.random.default_rng(3).normal(0.0, 0.2, N)
     assert noise_sigma(triangle(N, PERIOD, AMP) + e) == pytest.approx(0.2, rel=0.05)
-
-
-def test_it_costs_a_few_ms():
-    x = triangle(10_000, 200, 10.0) + np.random.default_rng(0).normal(0.0, 0.3, 10_000)
-    valve_activity(x, 1.0, mv_pct=x)
-    t0 = time.perf_counter()
-    for _ in range(5):
-        valve_activity(x, 1.0, mv_pct=x)
-    assert (time.perf_counter() - t0) / 5 < 0.05   # about 2 ms here; generous for slow CI machines
 
 
 # ------------------------------------------------------------------------------------------------
