@@ -783,3 +783,40 @@ def test_the_summary_keeps_a_small_probability_small_not_zero():
     row = loop_row(d, None)
     assert row["stiction_probability"] == pytest.approx(p, rel=1e-3)
     assert percent(row["stiction_probability"]) == "< 1 %"
+
+
+def test_second_batch_on_the_same_out_is_refused_in_one_line(tmp_path, capsys):
+    """Two batches writing one output folder would overwrite each other's summary: while one holds
+    the folder (`lock_out_dir`, an flock), another is refused before it reads anything, in one line."""
+    _write_loops(tmp_path / "logs", loops=LOOPS[:1], n=600)
+    out = tmp_path / "out"
+    out.mkdir()
+    held = B.lock_out_dir(out)
+    try:
+        rc = main(["batch", str(tmp_path / "logs"), "--out", str(out), "--no-history", "--workers", "1",
+                   "--no-pdf", "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 1
+        assert err.count("\n") == 1 and "Traceback" not in err
+        assert f"{out}: another stiction batch (process {os.getpid()})" in err and "--out" in err
+        assert not (out / "summary.json").exists() and not (out / "loops").exists()
+    finally:
+        held.close()
+    B.lock_out_dir(out).close()  # released: the folder is free again
+
+
+def test_out_folder_that_cannot_be_written_is_one_line_before_any_work(tmp_path, monkeypatch):
+    """An output folder that exists but cannot be written (read-only mount, no permission) is said
+    up front, naming the folder, not after every loop was diagnosed and the summary failed."""
+    out = tmp_path / "out"
+    out.mkdir()
+    real_open = open
+
+    def ro_open(file, *a, **k):
+        if str(file).startswith(str(out)):
+            raise OSError(30, "Read-only file system")
+        return real_open(file, *a, **k)
+
+    monkeypatch.setattr("builtins.open", ro_open)
+    with pytest.raises(B.DataError, match=r"out: cannot write to the output folder: Read-only file system"):
+        B.run_batch([tmp_path], out, workers=1, history=False, progress=False)

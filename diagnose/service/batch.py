@@ -970,6 +970,49 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataError(f"{out}: cannot create the output folder: {exc.strerror or exc}") from None
+    lock = lock_out_dir(out)  # one batch at a time per output folder: two would overwrite one summary
+    try:
+        return _run_batch(inputs, out, t0, workers=workers, scheduler=scheduler, tags=tags,
+                          read_options=read_options, explain=explain, narx=narx, pdf=pdf, db=db,
+                          history=history, progress=progress, stream=stream)
+    finally:
+        lock.close()  # the kernel drops the lock with the process too (kill -9 leaves none behind)
+
+
+def lock_out_dir(out: Path) -> Any:
+    """Take ``out/.stiction/lock`` (an exclusive ``flock``, held until the returned file is closed),
+    or raise a one-line `DataError` naming the folder: when another batch holds it (with its process
+    id), or when the folder cannot be written (read-only, no permission), before anything runs."""
+    import fcntl
+
+    path = out / ".stiction" / "lock"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        f = open(path, "a+")
+    except OSError as exc:
+        raise DataError(f"{out}: cannot write to the output folder: {exc.strerror or exc}") from None
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        f.seek(0)
+        pid = f.read().strip()
+        f.close()
+        raise DataError(f"{out}: another stiction batch{f' (process {pid})' if pid.isdigit() else ''} "
+                        "is writing to this output folder; wait for it to finish or give another --out") from None
+    f.seek(0)
+    f.truncate()
+    f.write(str(os.getpid()))
+    f.flush()
+    return f
+
+
+def _run_batch(inputs: Sequence[str | os.PathLike], out: Path, t0: float, *, workers: int | None,
+               scheduler: str | None, tags: str | None, read_options: Mapping[str, Any] | None,
+               explain: bool | str, narx: bool, pdf: bool, db: str | os.PathLike | None, history: bool,
+               progress: bool, stream: Any) -> BatchResult:
+    from .history import History, default_db_path, utc_now
+    from .pipeline import tool_version
+
     if tags is not None:
         if not Path(tags).is_file():
             raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
