@@ -377,3 +377,51 @@ def test_history_figure_leaves_runs_without_stiction_as_gaps():
     assert history_figure([run(1, 0.4, False), run(2, 1.0, True)]) is None
     png = history_figure([run(1, 0.4, False), run(2, 1.0, True), run(3, 1.5, True)])
     assert png is not None and png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_damaged_row_is_a_one_line_error_naming_the_database(tmp_path, capsys):
+    """A page damaged on disk (bytes that are not UTF-8 in a text column) fails the query: the CLI
+    says so in one line naming the file, exit 1, no traceback."""
+    db = tmp_path / "h.sqlite"
+    _fill(db, "FIC1", [1.0, 1.2])
+    with sqlite3.connect(db) as c:
+        c.execute("UPDATE runs SET data_start = CAST(X'323032362dff' AS TEXT) WHERE loop = 'FIC1'")
+    assert main(["history", "FIC1", "--db", str(db)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {db}: history database error while reading the runs of FIC1")
+    with pytest.raises(H.StictionError, match="while reading the runs"):
+        H.History(db, readonly=True).runs("FIC1")
+    assert H.previous_runs(db, "FIC1") == []   # a report's history: left out, the report still written
+
+
+def test_a_database_in_a_folder_that_cannot_be_written_is_read_but_not_written(tmp_path, monkeypatch, capsys):
+    """WAL needs a -shm file beside the database, which SQLite cannot create in a read-only folder
+    (it says "unable to open database file"): `stiction history` still reads such a copy
+    (immutable), and a batch or monitor says in one line that the folder is read-only."""
+    folder = tmp_path / "share"
+    db = folder / "h.sqlite"
+    _fill(db, "FIC1", [1.0, 1.2])
+    real_connect, real_access = H.sqlite3.connect, H.os.access
+
+    def connect(target, *a, **k):  # what SQLite does there, even for root (who may write anyway)
+        if str(target).startswith("file:") and "immutable=1" not in str(target):
+            raise_on = sqlite3.OperationalError("unable to open database file")
+
+            class Refusing:
+                def execute(self, *a, **k):
+                    raise raise_on
+
+                def close(self):
+                    pass
+            return Refusing()
+        return real_connect(target, *a, **k)
+
+    monkeypatch.setattr(H.sqlite3, "connect", connect)
+    monkeypatch.setattr(H.os, "access", lambda p, mode: False if str(p).startswith(str(folder)) else real_access(p, mode))
+    assert main(["history", "FIC1", "--db", str(db)]) == 0
+    assert "FIC1: 2 run(s)" in capsys.readouterr().out
+    with pytest.raises(H.StictionError, match=r"h\.sqlite: cannot write the history database: its folder is read-only"):
+        H.History(db)
+    with pytest.raises(H.StictionError, match=r"cannot create the history database's folder .*not_a_folder"):
+        (tmp_path / "not_a_folder").write_text("x")
+        H.History(tmp_path / "not_a_folder" / "h.sqlite")

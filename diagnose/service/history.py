@@ -236,9 +236,9 @@ class History:
                 if not self.path.exists():
                     raise StictionError(f"{self.path}: no history database here yet; run "
                                         "`stiction batch` (or give --db)")
-                self.conn = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30)
+                self.conn = self._connect_readonly()
             else:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._check_writable()
                 self.conn = sqlite3.connect(self.path, timeout=30)
                 self.conn.execute("PRAGMA journal_mode=WAL")
                 self.conn.execute("PRAGMA synchronous=NORMAL")
@@ -252,6 +252,39 @@ class History:
             raise StictionError(f"{self.path}: not a usable history database ({exc}); give another "
                                 "path with --db") from None
         self.conn.row_factory = sqlite3.Row
+
+    def _connect_readonly(self) -> sqlite3.Connection:
+        """A read-only connection. A WAL database needs its ``-shm`` file, which SQLite cannot create
+        in a folder it may not write (a read-only share, a copy kept by another user): there no
+        process can be writing the file either, so it is opened as immutable."""
+        conn = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30)
+        try:
+            conn.execute("PRAGMA schema_version").fetchone()
+            return conn
+        except sqlite3.OperationalError:
+            if os.access(self.path.parent, os.W_OK):
+                raise
+            conn.close()
+            return sqlite3.connect(f"file:{self.path}?mode=ro&immutable=1", uri=True, timeout=30)
+
+    def _check_writable(self) -> None:
+        """Say why the database cannot be written (a read-only folder or file, no permission) in
+        one line naming it, rather than SQLite's "unable to open database file"."""
+        parent = self.path.parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StictionError(f"{self.path}: cannot create the history database's folder {parent}: "
+                                f"{exc.strerror or exc}; give another path with --db (or --no-history)") from None
+        # SQLite writes the -wal and -shm files beside the database: the folder must be writable too
+        for target, what in ((parent, "its folder"), (self.path, "the database file")):
+            if target.exists() and not os.access(target, os.W_OK):
+                raise StictionError(f"{self.path}: cannot write the history database: {what} is read-only "
+                                    "(or not yours); give another path with --db (or --no-history)")
+
+    def _failed(self, exc: sqlite3.Error, doing: str) -> StictionError:
+        return StictionError(f"{self.path}: history database error while {doing} ({exc}); "
+                             "check the file (`sqlite3 FILE 'PRAGMA integrity_check'`) or give another --db")
 
     def _migrate(self) -> None:
         """Bring a database of an earlier schema up to this one, in place (inside the caller's
@@ -301,10 +334,15 @@ class History:
         sql = (f"INSERT INTO runs ({', '.join(_COLS)}) VALUES ({', '.join('?' for _ in _COLS)}) "
                "ON CONFLICT (loop, input_hash, tool_version) DO NOTHING")
         n = 0
-        with self.conn:  # one transaction: all rows or none
-            for row in rows:
-                cur = self.conn.execute(sql, tuple(row.get(c) for c in _COLS))
-                n += cur.rowcount
+        try:
+            with self.conn:  # one transaction: all rows or none
+                for row in rows:
+                    cur = self.conn.execute(sql, tuple(row.get(c) for c in _COLS))
+                    n += cur.rowcount
+        except sqlite3.IntegrityError:
+            raise   # a row the code built wrong, not a file in trouble
+        except sqlite3.Error as exc:
+            raise self._failed(exc, "storing runs") from None
         return n
 
     def add(self, diag: Diagnosis, **kw: Any) -> bool:
@@ -335,7 +373,10 @@ class History:
         sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY {end} DESC, run_at DESC, id DESC"
         if limit:
             sql += f" LIMIT {int(limit)}"
-        rows = [dict(r) for r in self.conn.execute(sql, args)]
+        try:
+            rows = [dict(r) for r in self.conn.execute(sql, args)]
+        except sqlite3.Error as exc:
+            raise self._failed(exc, f"reading the runs of {loop}") from None
         rows.reverse()
         for r in rows:   # one form whatever release wrote the row
             for key in ("run_at", "data_start", "data_end"):
@@ -345,12 +386,18 @@ class History:
         return rows
 
     def loops(self) -> list[str]:
-        return [r[0] for r in self.conn.execute("SELECT DISTINCT loop FROM runs ORDER BY loop")]
+        try:
+            return [r[0] for r in self.conn.execute("SELECT DISTINCT loop FROM runs ORDER BY loop")]
+        except sqlite3.Error as exc:
+            raise self._failed(exc, "listing the loops") from None
 
     def has(self, loop: str, input_hash: str, tool_version: str) -> bool:
-        cur = self.conn.execute("SELECT 1 FROM runs WHERE loop = ? AND input_hash = ? AND tool_version = ?",
-                                (loop, input_hash, tool_version))
-        return cur.fetchone() is not None
+        try:
+            cur = self.conn.execute("SELECT 1 FROM runs WHERE loop = ? AND input_hash = ? AND tool_version = ?",
+                                    (loop, input_hash, tool_version))
+            return cur.fetchone() is not None
+        except sqlite3.Error as exc:
+            raise self._failed(exc, f"looking up a run of {loop}") from None
 
 
 def previous_runs(db_path: str | os.PathLike | None, loop: str, *, exclude_hash: str | None = None,
