@@ -381,3 +381,42 @@ def test_each_window_line_says_how_many_of_the_loops_last_windows_showed_stictio
     assert lines[2].endswith("[stiction in 2 of the last 3 windows]")
     if mon.history is not None:
         mon.history.close()
+
+
+def test_a_history_that_fails_mid_run_is_said_and_the_monitor_goes_on(tmp_path):
+    """A history database that fails while the monitor runs (damaged, gone, locked past the
+    timeout) costs the window its row, said in one line; the window's files and line stand and the
+    next windows are still diagnosed (before: an sqlite traceback from the event loop's callback)."""
+    import io
+    from concurrent.futures import Future
+    from dataclasses import replace
+
+    from diagnose.service.monitor import Monitor
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(free_port(), 1, period_s=0.1, window_samples=150))
+    log = io.StringIO()
+    mon = Monitor(cfg, tmp_path / "out", history=True, db=tmp_path / "h.sqlite", log=log, workers=0)
+    d = diagnose(sticky_loop(4.0, 1.5, n=1500, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                              load_walk_std=0.01, seed=1, name="SIM000").replace(mv=None), explain=False, narx=False)
+    mon.history.conn.close()   # every statement now fails as a broken database's would
+    for i in range(2):
+        fut: Future = Future()
+        fut.set_result(replace(d, loop_id="SIM000", window=f"w{i}", input_hash=f"window:w{i}"))
+        mon._done("SIM000", fut)
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 4
+    assert lines[0].startswith(f"SIM000 w0: not stored in the history: {tmp_path / 'h.sqlite'}: history database error")
+    assert lines[3].startswith("SIM000 w1: ") and lines[3].endswith("[stiction in 2 of the last 2 windows]")
+    assert mon.stats.diagnosed == 2
+
+
+def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path, capsys):
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(free_port(), 1, period_s=0.1, window_samples=150))
+    (tmp_path / "file").write_text("x")
+    assert main(["monitor", str(cfg), "--out", str(tmp_path / "file" / "out"), "--no-history", "--duration", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err == f"error: {tmp_path / 'file' / 'out'}: cannot create the output folder: Not a directory\n"

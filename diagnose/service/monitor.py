@@ -192,7 +192,10 @@ class Monitor:
 
         self.config = config if not isinstance(config, (str, os.PathLike)) else load_modbus_config(config)
         self.out_dir = Path(out_dir)
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DataError(f"{self.out_dir}: cannot create the output folder: {exc.strerror or exc}") from None
         self.explain = explain
         self.figures = figures
         self.log = log if log is not None else sys.stderr
@@ -336,12 +339,17 @@ class Monitor:
             return
         self.stats.diagnosed += 1
         loop = res.loop_id or name
+        # this run's windows are kept too: the persistence when the history cannot be read or written
+        recent: Any = self._recent.setdefault(loop, deque(maxlen=PERSIST_RUNS))
+        recent.append(verdict_of(res.identification))
         if self.history is not None:
-            self.history.add(res)
-            recent = self.history.runs(history_loop(res.identification.loop), limit=PERSIST_RUNS)
-        else:
-            recent = self._recent.setdefault(loop, deque(maxlen=PERSIST_RUNS))
-            recent.append(verdict_of(res.identification))
+            try:
+                self.history.add(res)
+                recent = self.history.runs(history_loop(res.identification.loop), limit=PERSIST_RUNS)
+            except StictionError as exc:  # a database gone bad mid-run: say so, keep monitoring
+                msg = f"{loop} {res.window}: not stored in the history: {exc}"
+                self.stats.errors.append(msg)
+                print(msg, file=self.log, flush=True)
         held = sticky_runs(list(recent))
         if self.metrics is not None:
             self.metrics.observe(loop, res, held)
