@@ -820,3 +820,20 @@ def test_out_folder_that_cannot_be_written_is_one_line_before_any_work(tmp_path,
     monkeypatch.setattr("builtins.open", ro_open)
     with pytest.raises(B.DataError, match=r"out: cannot write to the output folder: Read-only file system"):
         B.run_batch([tmp_path], out, workers=1, history=False, progress=False)
+
+
+def test_pdfs_on_or_off_do_not_store_a_second_history_row_and_a_pdf_run_writes_them(plant, tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "FIC1.csv").write_bytes((plant / "logs" / "FIC1.csv").read_bytes())
+    db, out = tmp_path / "h.sqlite", tmp_path / "out"
+    B.run_batch([logs], out, workers=1, explain=False, narx=False, pdf=False, db=db, progress=False)
+    assert not (out / "loops" / "FIC1" / "FIC1.pdf").exists()
+    # a run that wants the PDFs writes them (the earlier run did not), under the same input hash
+    res = B.run_batch([logs], out, workers=1, explain=False, narx=False, pdf=True, db=db, progress=False)
+    assert not res.rows[0].get("skipped") and (out / "loops" / "FIC1" / "FIC1.pdf").is_file()
+    # and a run without them afterwards reuses the loop as it is
+    res = B.run_batch([logs], out, workers=1, explain=False, narx=False, pdf=False, db=db, progress=False)
+    assert res.rows[0].get("skipped")
+    with History(db, readonly=True) as h:
+        assert len(h.runs("FIC1")) == 1

@@ -92,11 +92,17 @@ class BatchConfig:
     threads: int | None = None
 
     def options_key(self) -> str:
-        """The part of the input hash that the options make (what changes the result)."""
+        """What the options make of a file's outputs (a file done with another key is done again)."""
+        return json.dumps({"result": self.result_key(), "pdf": self.pdf}, sort_keys=True)
+
+    def result_key(self) -> str:
+        """The part of a loop's input hash that the options make: what changes the result. Whether
+        PDFs are written does not, so a run with ``--no-pdf`` after one with PDFs stores no second
+        history row for the same record."""
         from .pipeline import tool_version
 
         opts = {"read": dict(sorted(self.read_options.items())), "tags": _file_digest(self.tags),
-                "explain": self.explain, "narx": self.narx, "pdf": self.pdf, "version": tool_version()}
+                "explain": self.explain, "narx": self.narx, "version": tool_version()}
         return json.dumps(opts, sort_keys=True, default=str)
 
 
@@ -397,9 +403,11 @@ def process_record(cfg: BatchConfig, record: Any, path: Path, digest: str) -> di
     from .pipeline import diagnose, recommended_action
 
     loop_id = _choose_loop_id(cfg, record, path)
-    ih = input_hash(digest, cfg.options_key(), record.name, record.meta.get("segment"))
+    ih = input_hash(digest, cfg.result_key(), record.name, record.meta.get("segment"))
     prev = _existing(cfg, loop_id)
-    if prev is not None and prev.get("input_hash") == ih:
+    # a loop done before is reused, unless this run wants the PDF that run did not write
+    pdf_missing = cfg.pdf and not (_loop_dir(cfg, loop_id) / f"{loop_id}.pdf").exists()
+    if prev is not None and prev.get("input_hash") == ih and not pdf_missing:
         row = stored_row(prev)
         if row is not None:
             return row
