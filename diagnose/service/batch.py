@@ -246,23 +246,18 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
     def sig4(v: float | None) -> float | None:
         return None if v is None else float(f"{float(v):.4g}")
 
-    # S, J and their intervals are a size of the stiction found (docs/verdict.md): none for a loop
-    # whose verdict is not stiction, where a 0.00 would read as a measured clean valve
-    sized = bool(ident.stiction)
-    si = ident.S_interval_pct if sized else None
-    ji = ident.J_interval_pct if sized else None
-    S, J = (ident.S_pct, ident.J_pct) if sized else (None, None)
+    si, ji = ident.S_interval_pct, ident.J_interval_pct
     period = ident.oscillation.period_s
-    act = ident.activity
-    return {
+    act = {} if ident.activity is None else ident.activity.to_dict()
+    return _sized({
         "loop": diag.loop_id or ident.loop,
         "status": "ok",
         "severity": diag.severity.score,
         "verdict": diag.verdict_text,
         "class": ident.cls,
         "sticky": bool(ident.stiction),
-        "S_pct": r4(S), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
-        "J_pct": r4(J), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
+        "S_pct": r4(ident.S_pct), "S_lo": None if si is None else r4(si[0]), "S_hi": None if si is None else r4(si[1]),
+        "J_pct": r4(ident.J_pct), "J_lo": None if ji is None else r4(ji[0]), "J_hi": None if ji is None else r4(ji[1]),
         # significant digits, not decimals: a probability of 3e-5 is "< 1 %", not a rounded 0
         "stiction_probability": sig4(ident.stiction_probability),
         "confidence": sig4(ident.confidence),
@@ -270,8 +265,8 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "slow_cycle_period_s": r4(period) if ident.slow_cycle else None,
         "sj_in_op_units": not ident.op_in_percent,
         # valve activity: OP's travel (% of span per day) and reversals per day, noise kept out
-        "travel_pct_per_day": None if act is None else act.to_dict()["travel_pct_per_day"],
-        "reversals_per_day": None if act is None else act.to_dict()["reversals_per_day"],
+        "travel_pct_per_day": act.get("travel_pct_per_day"),
+        "reversals_per_day": act.get("reversals_per_day"),
         "warnings": len(diag.warnings),
         "data_quality_warnings": sum(1 for w in diag.warnings if w.code.startswith("data_quality.")),
         "degradation": diag.degradation,
@@ -283,7 +278,18 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "input_hash": diag.input_hash,
         "skipped": False,
         "seconds": round(sum(diag.timings_s.values()), 4),
-    }
+    })
+
+
+def _sized(row: dict[str, Any]) -> dict[str, Any]:
+    """A summary row with S, J and their intervals only when its verdict is stiction: they size the
+    stiction found (docs/verdict.md), and for a healthy loop a 0.00 would read as a measured clean
+    valve. The history keeps the full result."""
+    from .history import SIZE_COLUMNS
+
+    if not row.get("sticky"):
+        row.update(dict.fromkeys(SIZE_COLUMNS))
+    return row
 
 
 def stored_row(stored: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -292,11 +298,9 @@ def stored_row(stored: Mapping[str, Any]) -> dict[str, Any] | None:
     row = stored.get("summary")
     if not isinstance(row, Mapping):
         return None
-    from .history import SIZE_COLUMNS, row_from_stored
+    from .history import row_from_stored
 
-    out = dict(row, skipped=True)
-    if not out.get("sticky"):  # a row written before healthy loops' S/J were left empty
-        out.update(dict.fromkeys(SIZE_COLUMNS))
+    out = _sized(dict(row, skipped=True))   # rows written before healthy loops' S/J were left empty too
     out["_history"] = row_from_stored(stored)
     return out
 
@@ -497,16 +501,14 @@ def file_configs(cfg: BatchConfig, files: Sequence[Path]) -> list[BatchConfig]:
     """Each file's config: the batch's, with the date order its folder's files say together
     (`connectors.date_orders`) where the file alone cannot say it (every day and month 12 or
     less, as in a one-day export). ``--dayfirst``/``--monthfirst`` or a tag map's ``dayfirst``
-    decide alone. The order given is part of the file's input hash, as any read option is."""
+    decide alone (`connectors.date_orders` leaves every file alone then). The order given is part
+    of the file's input hash, as any read option is."""
     from connectors import date_orders
-    from connectors.tagmap import load_tagmap
 
     out = [cfg] * len(files)
-    if cfg.read_options.get("dayfirst") is not None or (cfg.tags and "dayfirst" in load_tagmap(cfg.tags).options):
-        return out
     opts = {k: v for k, v in cfg.read_options.items() if k not in ("loop", "max_samples")}
     if cfg.tags:
-        # the map's reading options (fmt, tz) read the dates as the files themselves will be read
+        # the map's reading options (fmt, tz, dayfirst) read the dates as the files will be read
         opts["tags"] = cfg.tags
     folders: dict[Path, list[int]] = {}
     for k, f in enumerate(files):
