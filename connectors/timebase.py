@@ -104,14 +104,7 @@ def _choose_format(samples: list[str], dayfirst: bool | None = None) -> tuple[st
     if m:
         sep = first[m.end(1)]
         yfmt = "%Y" if len(m.group(3)) == 4 else "%y"
-        day_above_12 = month_above_12 = False
-        for s in samples:
-            mm = _SLASH.match(s)
-            if mm:
-                if int(mm.group(1)) > 12:
-                    day_above_12 = True
-                if int(mm.group(2)) > 12:
-                    month_above_12 = True
+        _, day_above_12, month_above_12 = _fields_above_12(samples)
         orders = [f"%m{sep}%d{sep}{yfmt}", f"%d{sep}%m{sep}{yfmt}"]
         if dayfirst is not None:
             if dayfirst:
@@ -144,20 +137,24 @@ def _choose_format(samples: list[str], dayfirst: bool | None = None) -> tuple[st
     raise ValueError(first)
 
 
-def _day_month_year(date: str) -> tuple[int, int, int] | None:
-    """The first two fields and the year (two digits read as 20yy) of ``05/03/2026``."""
-    m = _SLASH.match(date)
-    if not m:
-        return None
-    year = int(m.group(3))
-    return int(m.group(1)), int(m.group(2)), year + 2000 if year < 100 else year
+def _fields_above_12(dates: Iterable[str]) -> tuple[bool, bool, bool]:
+    """(any day/month-style date, a first field above 12, a second field above 12) of the dates
+    such as ``05/03/2026``: a field above 12 can only be a day."""
+    seen = first = second = False
+    for d in dates:
+        m = _SLASH.match(d)
+        if m:
+            seen = True
+            first = first or int(m.group(1)) > 12
+            second = second or int(m.group(2)) > 12
+    return seen, first, second
 
 
 def alike_both_ways(dates: Iterable[str]) -> bool:
     """Whether every date has its day and its month at 12 or less: read alone, such dates cannot
     say which comes first (only how close together each reading puts them)."""
-    fields = [f for f in map(_day_month_year, dates) if f]
-    return bool(fields) and all(a <= 12 and b <= 12 for a, b, _ in fields)
+    seen, first, second = _fields_above_12(dates)
+    return seen and not first and not second
 
 
 def shared_date_order(dates: Iterable[str]) -> bool | None:
@@ -166,26 +163,21 @@ def shared_date_order(dates: Iterable[str]) -> bool | None:
 
     A first field above 12 says day first and a second above 12 month first (both: the files are
     not one export, None). With every field 12 or less, the reading whose dates lie closer
-    together, as `parse_times` decides one column: a folder of one-day exports 05/03/2026,
-    06/03/2026 ... is a week of March, not a week of months. Equal spans: None.
+    together (`_date_span`, as `parse_times` decides one column): a folder of one-day exports
+    05/03/2026, 06/03/2026 ... is a week of March, not a week of months. Equal spans: None.
     """
-    fields = [f for f in map(_day_month_year, dates) if f]
-    if not fields:
+    dates = [d for d in dates if _SLASH.match(d)]
+    seen, first, second = _fields_above_12(dates)
+    if not seen:
         return None
-    day_above_12 = any(a > 12 for a, _, _ in fields)
-    month_above_12 = any(b > 12 for _, b, _ in fields)
-    if day_above_12 or month_above_12:
-        return None if day_above_12 and month_above_12 else day_above_12
-
-    def span(day_first: bool) -> float:
-        days = [datetime(y, b, a) if day_first else datetime(y, a, b) for a, b, y in fields]
-        return (max(days) - min(days)) / timedelta(days=1)
-
-    try:
-        spans = span(True), span(False)
-    except ValueError:      # a date that one reading cannot hold (no such day): not one export
-        return None
-    return None if spans[0] == spans[1] else spans[0] < spans[1]
+    if first or second:
+        return None if first and second else first
+    m = _SLASH.match(dates[0])
+    sep, yfmt = dates[0][m.end(1)], "%Y" if len(m.group(3)) == 4 else "%y"
+    month_first, day_first = (_date_span(dates, f) for f in (f"%m{sep}%d{sep}{yfmt}", f"%d{sep}%m{sep}{yfmt}"))
+    if math.isinf(month_first) or math.isinf(day_first) or month_first == day_first:
+        return None   # a date one reading cannot hold (no such day), or no difference
+    return day_first < month_first
 
 
 def _date_span(samples: list[str], date_fmt: str) -> float:
