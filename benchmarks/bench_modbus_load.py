@@ -7,7 +7,10 @@ CPU use (process time / wall time, i.e. share of one core), polls, missed polls 
 task could not start in time), failed polls, windows handed on and the worst timestamp jitter.
 
     python benchmarks/bench_modbus_load.py --loops 200 --devices 4 --duration 60 \
-        [--stride 10] [--out docs/_bench_connectors.md]
+        [--stride 10] [--out /tmp/modbus_load.md]
+
+``--out`` replaces the whole file with the table: docs/_bench_connectors.md holds more than this
+table, so write elsewhere and merge the figures into it by hand.
 
 ``--stride 10`` leaves register holes between loops so that every loop costs its own request
 (200 requests per second); the default packs loops into ~120-register block reads.
@@ -85,7 +88,8 @@ def main(argv=None) -> int:
     ap.add_argument("--stride", type=int, default=8, help="registers per loop (8 = packed, 10 = holes)")
     ap.add_argument("--window", type=int, default=30, help="samples per window handed on")
     ap.add_argument("--baseline-loops", type=int, default=20)
-    ap.add_argument("--out", help="also write the table (markdown) to this file")
+    ap.add_argument("--out", help="also write the table (markdown) to this file, replacing it "
+                                    "(not docs/_bench_connectors.md: merge into it by hand)")
     args = ap.parse_args(argv)
     rows = []
     for n in (args.baseline_loops, args.loops):

@@ -1,7 +1,10 @@
 """NARX-SP (this package) against sysidentpy's NARXNN on the fixed protocol (narx-protocol.md).
 
     python benchmarks/bench_narx_sysid.py [--venv /work/venv-sysid] [--seeds 3] [--epochs 200]
-                                          [--md docs/_bench_narx.md]
+                                          [--md /tmp/narx_sysid.md]
+
+``--md`` replaces the whole file with the table: docs/_bench_narx.md holds more than this table,
+so write elsewhere and merge the figures into it by hand.
 
 sysidentpy pins numpy <= 2.3.5, so it runs in its own environment, created once with
     python3 -m venv /work/venv-sysid && /work/venv-sysid/bin/pip install sysidentpy "numpy<=2.3.5" torch
@@ -35,7 +38,8 @@ def main(argv=None):
     ap.add_argument("--venv", default="/work/venv-sysid")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--epochs", type=int, default=200)
-    ap.add_argument("--md", default=None, help="write the markdown table here too")
+    ap.add_argument("--md", default=None, help="write the markdown table here too, replacing the file "
+                    "(not docs/_bench_narx.md: merge into it by hand)")
     a = ap.parse_args(argv)
     py = os.path.join(a.venv, "bin", "python")
     if not os.path.exists(py):

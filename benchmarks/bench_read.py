@@ -17,7 +17,10 @@ revision ``--baseline``, unpacked into a temporary folder) in separate subproces
     diagnoses the records read (`diagnose.identification.identify`, timed apart from reading).
 
     python benchmarks/bench_read.py compare --fuzz 400
-    python benchmarks/bench_read.py large --rows 3000000 --md docs/_bench_read.md
+    python benchmarks/bench_read.py large --rows 3000000 --md /tmp/read_large.md
+
+``--md`` replaces the whole file with the table; the figures go into docs/_bench_connectors.md
+by hand (it holds more than this table).
 """
 
 from __future__ import annotations

@@ -201,6 +201,17 @@ def main(argv=None) -> int:
     return 0
 
 
+def _machine() -> str:
+    """The CPU model, core count and load average after the run, as bench_explain.py prints them
+    (the figure used to say "under load from other jobs" whatever the load)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.machine import cpu_model
+
+    load = os.getloadavg()
+    return (f"{cpu_model()}, {os.cpu_count()} cores, load average after the run {load[0]:.1f} / "
+            f"{load[1]:.1f} / {load[2]:.1f}")
+
+
 def render(rows: list[dict], args, wall: float) -> str:
     parts = ["## Missing physics: proof on concealed data", "",
              f"`python benchmarks/validate_physics.py --per-effect {args.per_effect} --n {args.n} "
@@ -249,7 +260,7 @@ def render(rows: list[dict], args, wall: float) -> str:
                      f"{n_ex}/{len(exercised)} ({100 * n_ex / max(len(exercised), 1):.0f} %) | - |")
     secs = [r["seconds"] for r in rows]
     parts += ["", f"Time per record: median {np.median(secs):.1f} s, max {np.max(secs):.1f} s "
-              f"(2 shared CPU cores under load from other jobs; whole run {wall / 60:.1f} min).", ""]
+              f"({_machine()}; whole run {wall / 60:.1f} min).", ""]
     # per-effect RMSE change
     parts += ["| set | effect | n named right | median baseline RMSE | median improved RMSE | median reduction |",
               "|---|---|---|---|---|---|"]
