@@ -119,3 +119,24 @@ def test_a_folder_names_each_file_it_skipped(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err[0] == f"note: skipped {tmp_path / 'empty.csv'}: file is empty"
     assert len(err) == 2 and err[1].startswith(f"error: {tmp_path}: ") and "PV (50) is constant" in err[1]
+
+
+def test_explanation_says_when_the_refit_chose_another_process_family():
+    # the hypotheses are judged against the refit: a user must not read it as the baseline's own
+    # structure when the grid swapped an integrating process for a slow first-order one
+    from types import SimpleNamespace
+
+    from diagnose.physics.explain import _refit_kind
+    from diagnose.process_model import ProcessModel
+
+    integ = ProcessModel("integrating", 0.02, 5.0, 3.0, 50.0)
+    foptd = ProcessModel("foptd", 1.0, 107.0, 16.0, 0.0)
+
+    def run(stage, old, new):
+        return SimpleNamespace(stage=SimpleNamespace(name=stage), baseline=SimpleNamespace(
+            structure=SimpleNamespace(process=old)), reference=SimpleNamespace(process=new))
+
+    assert _refit_kind(run("loop", integ, foptd)) == \
+        " (as a first-order process, where the baseline has an integrating one)"
+    assert _refit_kind(run("loop", foptd, foptd)) == ""
+    assert _refit_kind(run("valve", integ, foptd)) == ""

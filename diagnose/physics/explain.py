@@ -273,7 +273,7 @@ def _run_stage(stage: Stage, hyps: Sequence[PhysicsHypothesis], *, given: Struct
     stage, ref, ref_sse = _reference(stage, base)
     ref_hat, ref_stem, _ = predict(stage, ref)
     # locate on the residual of the better-trained of the two plain models (the fitting stage's
-    # baseline, or the same structure refit by the searches here)
+    # baseline, or the plain model refit by the searches here)
     base_tr = float(np.sum((stage.y - base.y_hat)[stage.train] ** 2))
     if ref_sse < base_tr:
         located_on, loc_hat, loc_stem, loc_struct = "reference", ref_hat, ref_stem, ref
@@ -598,6 +598,19 @@ def _fmt_params(params: Mapping[str, float]) -> str:
     return ", ".join(f"{k} = {duration(v) if k.endswith('_s') else number(v)}" for k, v in params.items())
 
 
+def _refit_kind(run: _StageRun) -> str:
+    """Says so when the refit's grid chose another process family than the baseline's: the
+    hypotheses are judged against the refit, and an integrating level fitted as a slow
+    self-regulating process is a different model, not the baseline's parameters polished."""
+    old, new = run.baseline.structure.process, run.reference.process
+    if run.stage.name != "loop" or old.kind == new.kind:
+        return ""
+    return f" (as {_KIND_WORDS[new.kind]} process, where the baseline has {_KIND_WORDS[old.kind]} one)"
+
+
+_KIND_WORDS = {"foptd": "a first-order", "soptd": "a second-order", "integrating": "an integrating"}
+
+
 def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: str, base_rmse: float,
           improved_rmse: float) -> str:
     from .hypotheses import REGISTRY
@@ -606,7 +619,7 @@ def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: 
     what = "MV (stem position) from OP" if report_stage == "valve" else "PV from OP"
     hints = run.mismatch.hints
     parts = [f"Baseline ({run.baseline.source}) simulating {what}: held-out RMSE {base_rmse:.4g}; "
-             f"the same structure refit here: {run.ref_rmse:.4g}."]
+             f"the plain model refit here{_refit_kind(run)}: {run.ref_rmse:.4g}."]
     if hints:
         parts.append("Residual: " + "; ".join(hints) + ".")
     if winner:

@@ -154,7 +154,8 @@ class StageMismatch(Mismatch):
 @dataclass(frozen=True, eq=False)
 class StageModels:
     """The plain models of one stage: the baseline (``baseline_source`` says where it came from)
-    and the reference (the same structure refit here)."""
+    and the reference (the plain model refit by explain's searches; on the loop stage their grid
+    may choose another process family)."""
 
     stage: str
     baseline: Structure
