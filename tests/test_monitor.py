@@ -375,12 +375,20 @@ def test_each_window_line_says_how_many_of_the_loops_last_windows_showed_stictio
         fut: Future = Future()
         fut.set_result(replace(d, loop_id="SIM000", window=f"w{i}", input_hash=f"window:w{i}"))
         mon._done("SIM000", fut)
+    mon.close()
     lines = log.getvalue().splitlines()
     assert len(lines) == 3 and "[stiction" not in lines[0]      # one window says nothing of persistence
     assert lines[1].endswith("[stiction in 1 of the last 2 windows]")
     assert lines[2].endswith("[stiction in 2 of the last 3 windows]")
-    if mon.history is not None:
-        mon.history.close()
+    if history:
+        # a monitor started later counts on from the loop's windows in the history
+        log = io.StringIO()
+        mon = Monitor(cfg, tmp_path / "out", history=True, db=tmp_path / "h.sqlite", log=log, workers=0)
+        fut = Future()
+        fut.set_result(replace(healthy, loop_id="SIM000", window="w3", input_hash="window:w3"))
+        mon._done("SIM000", fut)
+        mon.close()
+        assert log.getvalue().splitlines() == [f"SIM000 w3: {healthy.verdict_text} [stiction in 2 of the last 4 windows]"]
 
 
 def test_a_history_that_fails_mid_run_is_said_and_the_monitor_goes_on(tmp_path):
@@ -398,19 +406,28 @@ def test_a_history_that_fails_mid_run_is_said_and_the_monitor_goes_on(tmp_path):
     cfg = tmp_path / "plant.toml"
     cfg.write_text(default_config_text(free_port(), 1, period_s=0.1, window_samples=150))
     log = io.StringIO()
-    mon = Monitor(cfg, tmp_path / "out", history=True, db=tmp_path / "h.sqlite", log=log, workers=0)
+    db = tmp_path / "h.sqlite"
+    mon = Monitor(cfg, tmp_path / "out", history=True, db=db, log=log, workers=0)
     d = diagnose(sticky_loop(4.0, 1.5, n=1500, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
                               load_walk_std=0.01, seed=1, name="SIM000").replace(mv=None), explain=False, narx=False)
-    mon.history.conn.close()   # every statement now fails as a broken database's would
+    # the database is damaged after the monitor opened it: every write now fails
+    for extra in ("-wal", "-shm"):
+        (tmp_path / f"h.sqlite{extra}").unlink(missing_ok=True)
+    db.write_bytes(b"not a database " * 300)
     for i in range(2):
         fut: Future = Future()
         fut.set_result(replace(d, loop_id="SIM000", window=f"w{i}", input_hash=f"window:w{i}"))
         mon._done("SIM000", fut)
+        mon.history_writer.flush()
+    mon.close()
     lines = log.getvalue().splitlines()
-    assert len(lines) == 4
-    assert lines[0].startswith(f"SIM000 w0: not stored in the history: {tmp_path / 'h.sqlite'}: history database error")
-    assert lines[3].startswith("SIM000 w1: ") and lines[3].endswith("[stiction in 2 of the last 2 windows]")
-    assert mon.stats.diagnosed == 2
+    assert len(lines) == 4, lines
+    # the window's line first (it does not wait for the database), then its row's failure
+    assert lines[0].startswith("SIM000 w0: ") and "[stiction" not in lines[0]
+    assert lines[1].startswith(f"SIM000 w0: not stored in the history: {db}: not a usable history database")
+    assert lines[2].startswith("SIM000 w1: ") and lines[2].endswith("[stiction in 2 of the last 2 windows]")
+    assert lines[3].startswith(f"SIM000 w1: not stored in the history: {db}: ")
+    assert mon.stats.diagnosed == 2 and len(mon.stats.errors) == 2
 
 
 def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path, capsys):
@@ -420,3 +437,108 @@ def test_an_output_folder_that_cannot_be_created_is_one_line(tmp_path, capsys):
     assert main(["monitor", str(cfg), "--out", str(tmp_path / "file" / "out"), "--no-history", "--duration", "1"]) == 1
     err = capsys.readouterr().err
     assert err == f"error: {tmp_path / 'file' / 'out'}: cannot create the output folder: Not a directory\n"
+
+
+def test_a_history_locked_by_another_writer_does_not_stop_the_polling(tmp_path):
+    """Another process's write lock on the history (a batch's transaction, a backup) holds back
+    the rows only: windows keep being polled, diagnosed and said while it is held, and their rows
+    land once it is released."""
+    import asyncio
+    import io
+    import sqlite3
+
+    from diagnose.service.monitor import Monitor
+
+    port = free_port()
+    cfg = tmp_path / "plant.toml"
+    # 100-sample windows at 0.04 s: one every 4 s per loop
+    cfg.write_text(default_config_text(port, 1, period_s=0.04, window_samples=100))
+    db = tmp_path / "h.sqlite"
+    sim = _start_sim(port)
+    results: list[tuple[float, str]] = []
+    log = io.StringIO()
+    try:
+        mon = Monitor(cfg, tmp_path / "out", db=db, log=log, workers=1,
+                      on_result=lambda res: results.append((time.monotonic(), res.window)))
+        locked, release = threading.Event(), threading.Event()
+        held: dict = {}
+
+        def hold_lock():
+            conn = sqlite3.connect(db, timeout=5, isolation_level=None)
+            conn.execute("BEGIN EXCLUSIVE")
+            locked.set()
+            release.wait(60)
+            held["rows_before_release"] = conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+            held["released_at"] = time.monotonic()
+            conn.execute("COMMIT")
+            conn.close()
+
+        locker = threading.Thread(target=hold_lock)
+        locker.start()
+        assert locked.wait(10)
+        # held for 16 s, well inside SQLite's 30 s wait: the writes wait, then land
+        timer = threading.Timer(16.0, release.set)
+        timer.start()
+        try:
+            stats = asyncio.run(mon.run(22.0))
+        finally:
+            release.set()
+            timer.cancel()
+            locker.join()
+    finally:
+        _stop(sim)
+    text = log.getvalue()
+    while_locked = [w for t, w in results if t < held["released_at"]]
+    # a row written on the event loop would hold the polling until the lock goes: no window said
+    # while it is held, some 250 polls missed (17 here, on 2 busy cores)
+    assert len(while_locked) >= 2, (results, held, text)
+    assert held["rows_before_release"] == 0
+    assert stats.polls_missed < 120, (stats, text)
+    assert "not stored" not in text and stats.errors == [], text
+    with sqlite3.connect(db) as conn:
+        stored = {r[0] for r in conn.execute("SELECT input_hash FROM runs WHERE loop = 'SIM000'")}
+    assert stats.diagnosed == len(results) >= 3
+    assert stored == {f"window:{w}" for _, w in results}
+
+
+def test_results_waiting_for_a_locked_history_are_bounded_and_stored_at_the_stop(tmp_path, monkeypatch):
+    """While another writer holds the history, at most HISTORY_QUEUE results wait for it (one more
+    is not stored, said in its line, and the window's line is not held up); closing the monitor
+    stores those waiting once the lock is gone."""
+    import io
+    import sqlite3
+    from concurrent.futures import Future
+    from dataclasses import replace
+
+    from diagnose.service import monitor as monitor_mod
+    from diagnose.service.monitor import Monitor
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    monkeypatch.setattr(monitor_mod, "HISTORY_QUEUE", 2)
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(free_port(), 1, period_s=0.1, window_samples=150))
+    db = tmp_path / "h.sqlite"
+    log = io.StringIO()
+    mon = Monitor(cfg, tmp_path / "out", db=db, log=log, workers=0)
+    d = diagnose(sticky_loop(4.0, 1.5, n=1500, gain=1.5, tau_s=20.0, delay_s=3.0, noise_std=0.02,
+                              load_walk_std=0.01, seed=1, name="SIM000").replace(mv=None), explain=False, narx=False)
+    other = sqlite3.connect(db, timeout=5, isolation_level=None, check_same_thread=False)
+    other.execute("BEGIN EXCLUSIVE")
+    t0 = time.monotonic()
+    for i in range(6):
+        fut: Future = Future()
+        fut.set_result(replace(d, loop_id="SIM000", window=f"w{i}", input_hash=f"window:w{i}"))
+        mon._done("SIM000", fut)
+    said_in = time.monotonic() - t0
+    threading.Timer(2.0, lambda: (other.execute("COMMIT"), other.close())).start()
+    mon.close()   # waits for the lock, then stores what waited
+    text = log.getvalue()
+    refused = [ln for ln in text.splitlines() if "not stored in the history: 2 results already wait" in ln]
+    with sqlite3.connect(db) as conn:
+        stored = {r[0] for r in conn.execute("SELECT input_hash FROM runs")}
+    assert said_in < 1.0, said_in
+    # the writer holds at most one batch (waiting on the lock) beside the 2 queued
+    assert 1 <= len(refused) <= 4 and len(stored) + len(refused) == 6, text
+    assert all(f"SIM000 w{i}: Stiction" in text for i in range(6)), text
+    assert "waiting for the history database" in text

@@ -3,8 +3,9 @@
 `connectors.modbus.ModbusPoller` polls every loop on the event loop of this process and hands each
 full window on as a `LoopRecord`. The window is diagnosed in a separate worker process (so the
 polling never waits for a diagnosis), which writes ``OUT/LOOP/WINDOW.json`` and ``WINDOW.md`` (and
-``latest.json``/``latest.md``), atomically. This process stores each result in the history database
-and updates the optional Prometheus metrics. A device that restarts is reconnected by the poller
+``latest.json``/``latest.md``), atomically. This process updates the optional Prometheus metrics
+and hands each result to a thread that stores it in the history database (`HistoryWriter`: the
+polling never waits for the database either). A device that restarts is reconnected by the poller
 (its lost polls become gaps, never invented values); each outage and each reconnection is logged
 with its UTC time and the outage's length, and a device that never answers is named at the end. A
 window that cannot be diagnosed is logged and monitoring goes on. The window length is checked
@@ -17,8 +18,10 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import queue
 import signal
 import sys
+import threading
 import time
 from collections import deque
 from concurrent.futures import Future
@@ -43,6 +46,10 @@ MIN_WINDOW_SAMPLES = 100
 
 #: Seconds of polls without data (and without an error) after which a device counts as out.
 OUTAGE_AFTER_S = 1.0
+
+#: Results that may wait for the history database (locked by another writer, a slow disk); one
+#: more is not stored, said in its line, rather than held in memory without end.
+HISTORY_QUEUE = 256
 
 
 def _utc(t_s: float) -> str:
@@ -154,6 +161,79 @@ def _warm_up() -> bool:
     return True
 
 
+class HistoryWriter:
+    """Stores the monitor's results in the history database on a thread of its own.
+
+    SQLite waits up to 30 s for a database another process holds locked (a batch's transaction, a
+    backup); on the polling thread that wait would miss polls. Results queue here (at most
+    `HISTORY_QUEUE`) and the thread stores what has gathered in one transaction, so a lock costs one
+    wait for all of them, not one per window. A result that cannot be stored costs its row only,
+    said in one line through ``failed(diag, reason)``. The database is opened by the thread at its
+    first result (an sqlite connection belongs to its thread) and again after a failed open.
+    """
+
+    def __init__(self, path: str | os.PathLike | None, failed: Callable[[Any, str], None]) -> None:
+        self.path = path
+        self.failed = failed
+        self._q: queue.Queue = queue.Queue(HISTORY_QUEUE)
+        self._thread = threading.Thread(target=self._run, name="stiction-history", daemon=True)
+        self._thread.start()
+
+    def put(self, diag: Any, run_at: str) -> str | None:
+        """Queue a result without waiting; the reason it will not be stored when the queue is full."""
+        try:
+            self._q.put_nowait((diag, run_at))
+        except queue.Full:
+            return (f"{HISTORY_QUEUE} results already wait for the history database {self.path} "
+                    "(locked by another writer?)")
+        return None
+
+    def waiting(self) -> int:
+        """Results queued or being stored."""
+        return self._q.unfinished_tasks
+
+    def flush(self) -> None:
+        """Return when every result queued so far is stored (or said not to be)."""
+        self._q.join()
+
+    def close(self) -> None:
+        """Store what is queued, then stop the thread."""
+        if self._thread.is_alive():
+            self._q.put(None)   # waits while the queue is full: the thread is emptying it
+            self._thread.join()
+
+    def _run(self) -> None:
+        from .history import History, row_from_diagnosis
+
+        hist: Any = None
+        stop = False
+        while not stop:
+            items = [self._q.get()]
+            while True:
+                try:
+                    items.append(self._q.get_nowait())
+                except queue.Empty:
+                    break
+            results = [it for it in items if it is not None]
+            stop = len(results) < len(items)
+            try:
+                if results:
+                    if hist is None:
+                        hist = History(self.path)
+                    hist.add_rows([row_from_diagnosis(d, run_at=t) for d, t in results])
+            except Exception as exc:  # the database, not the monitor, is in trouble: its rows are lost
+                why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                if not isinstance(exc, StictionError):
+                    why = f"{type(exc).__name__}: {why}"
+                for d, _ in results:
+                    self.failed(d, why)
+            finally:
+                for _ in items:
+                    self._q.task_done()
+        if hist is not None:
+            hist.close()
+
+
 class Monitor:
     """Poll, diagnose windows off the event loop, store and publish the results.
 
@@ -165,7 +245,8 @@ class Monitor:
         Where each window's JSON/Markdown goes (``OUT/LOOP/``).
     db : path, optional
         History database (`diagnose.service.history.default_db_path()` when None); ``history=False``
-        leaves it alone.
+        leaves it alone. It is opened (and its loops' last runs read) here; the results are stored
+        by a `HistoryWriter`.
     metrics_port : int, optional
         Serve Prometheus metrics on this local port.
     window_samples : int, optional
@@ -212,14 +293,19 @@ class Monitor:
         self.poller = ModbusPoller(self.config, on_window=self._on_window, window_samples=self.window_samples,
                                    on_sample=self._on_sample, on_error=self._on_read_error)
         self._said: set[tuple[str, str]] = set()
-        # each loop's last verdicts, for the persistence said beside each window (without a history
-        # database: this run's windows only)
+        self._say_lock = threading.Lock()
+        # each loop's last verdicts, for the persistence said beside each window: its runs in the
+        # history database when the monitor starts, then this run's windows (kept here, as the
+        # history's writes are not waited for)
         self._recent: dict[str, deque] = {}
-        self.history = None
+        self.history_writer: HistoryWriter | None = None
         if history:
             from .history import History
 
-            self.history = History(db)
+            with History(db) as hist:   # a bad --db is a one-line error before polling starts
+                self.db_path = hist.path
+                self._seed_recent(hist)
+            self.history_writer = HistoryWriter(self.db_path, self._not_stored)
         self.metrics = None
         if metrics_port is not None:
             from .metrics import Metrics
@@ -230,6 +316,27 @@ class Monitor:
         self._pending: set[Any] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._poll_task: asyncio.Future | None = None
+
+    def _seed_recent(self, hist: Any) -> None:
+        for name in self.config.loops:
+            loop = history_loop(name)
+            try:
+                runs = hist.runs(loop, limit=PERSIST_RUNS)
+            except StictionError as exc:  # a damaged page: this run's windows still count
+                self._say(f"{loop}: earlier runs not read from the history: {exc}")
+                runs = []
+            self._recent[loop] = deque(runs, maxlen=PERSIST_RUNS)
+
+    def _say(self, msg: str) -> None:
+        # one write per line, under a lock: the history's thread says its failures too
+        with self._say_lock:
+            self.log.write(msg + "\n")
+            self.log.flush()
+
+    def _not_stored(self, res: Any, why: str) -> None:
+        msg = f"{res.loop_id or res.identification.loop} {res.window}: not stored in the history: {why}"
+        self.stats.errors.append(msg)
+        self._say(msg)
 
     # ------------------------------------------------------------------------------ links
     def _on_sample(self, loop: str, t_s: float, values: dict) -> None:
@@ -339,22 +446,19 @@ class Monitor:
             return
         self.stats.diagnosed += 1
         loop = res.loop_id or name
-        # this run's windows are kept too: the persistence when the history cannot be read or written
-        recent: Any = self._recent.setdefault(loop, deque(maxlen=PERSIST_RUNS))
+        recent = self._recent.setdefault(history_loop(res.identification.loop), deque(maxlen=PERSIST_RUNS))
         recent.append(verdict_of(res.identification))
-        if self.history is not None:
-            try:
-                self.history.add(res)
-                recent = self.history.runs(history_loop(res.identification.loop), limit=PERSIST_RUNS)
-            except StictionError as exc:  # a database gone bad mid-run: say so, keep monitoring
-                msg = f"{loop} {res.window}: not stored in the history: {exc}"
-                self.stats.errors.append(msg)
-                print(msg, file=self.log, flush=True)
+        if self.history_writer is not None:
+            from .history import utc_now
+
+            why = self.history_writer.put(res, utc_now())
+            if why is not None:
+                self._not_stored(res, why)
         held = sticky_runs(list(recent))
         if self.metrics is not None:
             self.metrics.observe(loop, res, held)
         said = "" if held is None else f" [stiction in {held[0]} of the last {held[1]} windows]"
-        print(f"{loop} {res.window}: {res.verdict_text}{said}", file=self.log, flush=True)
+        self._say(f"{loop} {res.window}: {res.verdict_text}{said}")
         if self.on_result is not None:
             self.on_result(res)
 
@@ -431,12 +535,21 @@ class Monitor:
         return self.stats
 
     def close(self) -> None:
+        """Stop the workers, then store the results still queued for the history before returning."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-        if self.history is not None:
-            self.history.close()
-            self.history = None
+        if self.history_writer is not None:
+            # a stop that waits for a locked database says why it waits
+            deadline = time.monotonic() + 1.0
+            while self.history_writer.waiting() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            waiting = self.history_writer.waiting()
+            if waiting:
+                self._say(f"{_utc(time.time())} waiting for the history database {self.db_path} to store "
+                          f"{waiting} result(s)")
+            self.history_writer.close()
+            self.history_writer = None
         if self.metrics is not None:
             self.metrics.close()
             self.metrics = None
