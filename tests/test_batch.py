@@ -837,3 +837,24 @@ def test_pdfs_on_or_off_do_not_store_a_second_history_row_and_a_pdf_run_writes_t
     assert res.rows[0].get("skipped")
     with History(db, readonly=True) as h:
         assert len(h.runs("FIC1")) == 1
+
+
+@pytest.mark.parametrize("kind", ["folder", "damaged", "under_a_file"])
+def test_a_bad_db_is_one_line_and_leaves_no_output_folder(plant, tmp_path, capsys, kind):
+    """A --db the batch cannot use is refused before the output folder (and its lock) is made."""
+    db = {"folder": tmp_path / "dbdir", "damaged": tmp_path / "h.sqlite",
+          "under_a_file": tmp_path / "plain" / "h.sqlite"}[kind]
+    if kind == "folder":
+        db.mkdir()
+    elif kind == "damaged":
+        db.write_bytes(b"this is no sqlite database\n" * 200)
+    else:
+        (tmp_path / "plain").write_text("a file, not a folder\n")
+    out = tmp_path / "new" / "out"
+    rc = main(["batch", str(plant / "logs" / "FIC1.csv"), "--out", str(out), "--workers", "1", "--no-pdf",
+               "--db", str(db), "--quiet"])
+    cap = capsys.readouterr()
+    assert rc == 1
+    assert cap.err.startswith(f"error: {db}: ") and cap.err.count("\n") == 1, cap.err
+    assert "Traceback" not in cap.err and cap.out == ""
+    assert not out.exists() and not (tmp_path / "new").exists()

@@ -976,6 +976,10 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise DataError(f"{out}: is a file; --out must be a folder (the reports and the summary go into it)")
+    if history:
+        # a bad --db (a folder, a damaged file, a read-only place) is said before the output folder
+        # and its lock exist: a refused run leaves nothing behind
+        History(db if db is not None else default_db_path()).close()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -1039,7 +1043,7 @@ def _run_batch(inputs: Sequence[str | os.PathLike], out: Path, t0: float, *, wor
     workers = workers or usable_cores()
     rows: list[dict[str, Any]] = [dict(m, file=m["source"]) for m in missing]
     bar = Progress(len(files), stream=stream, enabled=progress)
-    hist = History(db_path) if history else None   # a bad --db is said first, as for any input
+    hist = History(db_path) if history else None
     if not files:
         # nothing to diagnose: a one-line error, as for an empty folder, and no summary of nothing
         if hist is not None:
