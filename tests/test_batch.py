@@ -858,3 +858,65 @@ def test_a_bad_db_is_one_line_and_leaves_no_output_folder(plant, tmp_path, capsy
     assert cap.err.startswith(f"error: {db}: ") and cap.err.count("\n") == 1, cap.err
     assert "Traceback" not in cap.err and cap.out == ""
     assert not out.exists() and not (tmp_path / "new").exists()
+
+
+def _pdf_run_id(path: Path) -> str | None:
+    info = subprocess.run(["pdfinfo", str(path)], capture_output=True, text=True, check=True).stdout
+    subject = [ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("Subject:")]
+    return subject[0].removeprefix("stiction run ") if subject else None
+
+
+def _summary_ids(out: Path) -> dict[str, str | None]:
+    return {**B.summary_run_ids(out), "summary.pdf": _pdf_run_id(out / "summary.pdf")}
+
+
+def _summary_bytes(out: Path) -> dict[str, bytes]:
+    return {name: (out / name).read_bytes() for name in B.SUMMARY_FILES}
+
+
+def test_the_summary_files_are_replaced_as_one_set(first_run, tmp_path, monkeypatch):
+    """A summary whose PDF cannot be made leaves the last run's four files as they were; one cut
+    off while its files were being moved into place is recognisable by its run ids and is finished
+    by the next batch on the folder."""
+    import diagnose.service.pdf as pdf_mod
+
+    rows = B.rank([dict(r) for r in first_run[1].rows])
+    out = tmp_path / "out"
+    first = B.write_summary(out, rows, meta={"generated_at": "2026-11-26T01:00:00Z"})
+    assert set(_summary_ids(out).values()) == {first}
+    old = _summary_bytes(out)
+
+    def broken_pdf(*args, **kw):
+        raise RuntimeError("no room for the PDF")
+
+    # a later file fails: the earlier ones of this run must not have replaced the last run's
+    monkeypatch.setattr(pdf_mod, "to_pdf", broken_pdf)
+    with pytest.raises(RuntimeError, match="no room"):
+        B.write_summary(out, rows[:1], meta={"generated_at": "2026-11-26T02:00:00Z"})
+    monkeypatch.undo()
+    assert _summary_bytes(out) == old
+    assert not (out / B.STATE_DIR / "summary-next").exists()
+
+    # killed between two renames: summary.csv is the new run's, summary.json still the last one's
+    real_replace = os.replace
+
+    def killed_at_the_markdown(src, dst):
+        if Path(dst) == out / "summary.md":
+            raise KeyboardInterrupt
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", killed_at_the_markdown)
+    with pytest.raises(KeyboardInterrupt):
+        B.write_summary(out, rows[:1], meta={"generated_at": "2026-11-26T03:00:00Z"})
+    monkeypatch.undo()
+    ids = _summary_ids(out)
+    cut = ids["summary.csv"]
+    assert cut not in (None, first) and ids["summary.json"] == first != cut   # told apart by their ids
+    # the next batch on the folder (here one with nothing to read) finishes that set first
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["batch", str(empty), "--out", str(out), "--quiet", "--no-history"]) == 1
+    assert set(_summary_ids(out).values()) == {cut}
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["generated_at"] == "2026-11-26T03:00:00Z" and len(doc["loops"]) == 1
+    assert not (out / B.STATE_DIR / "summary-next").exists()

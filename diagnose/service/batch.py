@@ -913,33 +913,134 @@ def _csv_cell(value: Any) -> Any:
     return value
 
 
+#: The plant summary's files, in the order they are moved into place: ``summary.json`` last, so
+#: that the one machines read names the run whose set is complete.
+SUMMARY_FILES = ("summary.csv", "summary.md", "summary.pdf", "summary.json")
+_SUMMARY_STAGE = "summary-next"
+_RUN_MARK = re.compile(r"<!-- stiction run (\S+) -->")
+
+
+def new_run_id() -> str:
+    """An id for one batch's summary set, carried by each of its files."""
+    import uuid
+
+    return uuid.uuid4().hex[:16]
+
+
 def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool = True,
                   meta: Mapping[str, Any] | None = None,
-                  skipped_files: Sequence[Mapping[str, Any]] = ()) -> None:
-    """``summary.md``, ``summary.pdf``, ``summary.csv`` and ``summary.json`` (atomically)."""
+                  skipped_files: Sequence[Mapping[str, Any]] = ()) -> str:
+    """``summary.csv``, ``summary.md``, ``summary.pdf`` and ``summary.json`` as one set; returns its run id.
+
+    Each file is atomic, but four renames are not one: a kill between them would leave some files
+    of this run beside others of the last. So all four are written first into
+    ``OUT/.stiction/summary-next/``, which a ``complete`` file then marks whole, and only then moved
+    into place in the order of `SUMMARY_FILES`. Each carries the run id (``run_id`` in the JSON, a
+    ``run_id`` column in the CSV, a ``<!-- stiction run ID -->`` line ending the Markdown, the PDF's
+    subject): a set is one run's when its files carry ``summary.json``'s id. A set cut off before it
+    was whole is dropped; one cut off while being moved is finished by the next batch on the folder
+    (`finish_summary`).
+    """
     from .report import summary_blocks, to_markdown
 
     meta = dict(meta or {})
+    run_id = str(meta.setdefault("run_id", new_run_id()))
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=[*SUMMARY_COLUMNS, "run_id"], extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: _csv_cell(r.get(k)) for k in SUMMARY_COLUMNS})
-    atomic_write(out_dir / "summary.csv", buf.getvalue())
+        w.writerow({**{k: _csv_cell(r.get(k)) for k in SUMMARY_COLUMNS}, "run_id": run_id})
+    files: dict[str, str | bytes] = {"summary.csv": buf.getvalue()}
     clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     t = tally(rows)
     doc = {**meta, "n_loops": t["loops"], "n_failed": sum(1 for r in rows if r["status"] != "ok"),
            "n_files_failed": t["files_failed"], "n_inputs_failed": t["inputs_failed"],
            "loops": clean, "skipped_files": [dict(f) for f in skipped_files]}
-    atomic_write(out_dir / "summary.json", json.dumps(doc, indent=1, default=str))
     kw = {"generated_at": meta.get("generated_at"), "tool_version": meta.get("tool_version"),
           "skipped_files": skipped_files}
-    atomic_write(out_dir / "summary.md", to_markdown(summary_blocks(rows, **kw)))
+    files["summary.md"] = to_markdown(summary_blocks(rows, **kw)).rstrip("\n") + f"\n\n<!-- stiction run {run_id} -->\n"
     if pdf:
         from .pdf import to_pdf
 
-        atomic_write(out_dir / "summary.pdf", to_pdf(summary_blocks(rows, links=False, **kw),
-                                                     title="Plant stiction summary"))
+        files["summary.pdf"] = to_pdf(summary_blocks(rows, links=False, **kw), title="Plant stiction summary",
+                                      subject=f"stiction run {run_id}")
+    files["summary.json"] = json.dumps(doc, indent=1, default=str)
+    stage = Path(out_dir) / STATE_DIR / _SUMMARY_STAGE
+    _drop(stage)   # a set an earlier run did not finish writing
+    (stage / "complete").unlink(missing_ok=True)   # never beside a set that is not whole
+    for name, data in files.items():
+        atomic_write(stage / name, data)
+    atomic_write(stage / "complete", run_id)
+    finish_summary(out_dir)
+    return run_id
+
+
+def finish_summary(out_dir: str | os.PathLike) -> None:
+    """Move a complete staged summary set into place (`write_summary`); drop one that is not complete.
+
+    Run at the start of every batch (under the folder's lock), so that a batch killed while moving
+    its summary into place leaves the set of that run, not a mix with the run before."""
+    out = Path(out_dir)
+    stage = out / STATE_DIR / _SUMMARY_STAGE
+    if not (stage / "complete").is_file():
+        _drop(stage)
+        return
+    for name in SUMMARY_FILES:
+        if (stage / name).is_file():
+            try:
+                os.replace(stage / name, out / name)
+            except OSError as exc:
+                raise DataError(f"{out / name}: cannot write: {exc.strerror or exc}") from None
+            _sync_dir(out)   # the renames reach the disk in this order: summary.json last
+    _drop(stage)
+
+
+def _drop(folder: Path) -> None:
+    """Remove the staging folder (it holds files only)."""
+    if not folder.is_dir():
+        return
+    try:
+        for p in folder.iterdir():
+            p.unlink(missing_ok=True)
+        folder.rmdir()
+    except OSError:  # left for the next run to clear
+        pass
+
+
+def _sync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - a file system that cannot sync a folder
+        pass
+    finally:
+        os.close(fd)
+
+
+def summary_run_ids(out_dir: str | os.PathLike) -> dict[str, str | None]:
+    """The run id each summary file in ``out_dir`` carries (None where a file is missing or
+    carries none; the PDF is not read): the set is one run's when these agree with ``summary.json``."""
+    out = Path(out_dir)
+    ids: dict[str, str | None] = {}
+    try:
+        ids["summary.json"] = json.loads((out / "summary.json").read_text(encoding="utf-8")).get("run_id")
+    except (OSError, ValueError, AttributeError):
+        ids["summary.json"] = None
+    try:
+        with open(out / "summary.csv", newline="", encoding="utf-8") as fh:
+            got = {r.get("run_id") for r in csv.DictReader(fh)}
+        ids["summary.csv"] = got.pop() if len(got) == 1 else None
+    except (OSError, csv.Error):
+        ids["summary.csv"] = None
+    try:
+        m = _RUN_MARK.search((out / "summary.md").read_text(encoding="utf-8"))
+        ids["summary.md"] = m.group(1) if m else None
+    except OSError:
+        ids["summary.md"] = None
+    return ids
 
 
 def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *,
@@ -986,6 +1087,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
         raise DataError(f"{out}: cannot create the output folder: {exc.strerror or exc}") from None
     lock = lock_out_dir(out)  # one batch at a time per output folder: two would overwrite one summary
     try:
+        finish_summary(out)   # the summary set of a batch killed while moving it into place
         return _run_batch(inputs, out, t0, workers=workers, scheduler=scheduler, tags=tags,
                           read_options=read_options, explain=explain, narx=narx, pdf=pdf, db=db,
                           history=history, progress=progress, stream=stream)

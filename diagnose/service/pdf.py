@@ -51,8 +51,9 @@ def _one_line_widths(pdf, header: Sequence[str], rows: Sequence[Sequence[str]], 
 
 
 def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, *,
-           title: str | None = None) -> bytes:
-    """Render blocks to PDF bytes; ``figures`` maps a figure block's name to its PNG bytes."""
+           title: str | None = None, subject: str | None = None) -> bytes:
+    """Render blocks to PDF bytes; ``figures`` maps a figure block's name to its PNG bytes;
+    ``title`` and ``subject`` go into the document's properties."""
     from fpdf import FPDF
     from fpdf.fonts import FontFace
 
@@ -62,6 +63,8 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
     pdf.set_margins(15, 15, 15)
     if title:
         pdf.set_title(latin1(title))
+    if subject:
+        pdf.set_subject(latin1(subject))
     pdf.set_creator("stiction")
     pdf.add_page()
     epw = pdf.epw
