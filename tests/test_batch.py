@@ -920,3 +920,27 @@ def test_the_summary_files_are_replaced_as_one_set(first_run, tmp_path, monkeypa
     doc = json.loads((out / "summary.json").read_text())
     assert doc["generated_at"] == "2026-11-26T03:00:00Z" and len(doc["loops"]) == 1
     assert not (out / B.STATE_DIR / "summary-next").exists()
+
+
+def test_a_file_the_tag_map_names_no_loop_in_is_read_with_the_maps_reading_options(tmp_path):
+    """The naming rule finds the loops of such a file; the map's date order and time zone still
+    read its times."""
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.03, load_walk_std=0.02, seed=7, name="FIC9").replace(mv=None)
+    lines = ["time,FIC9.OP,FIC9.PV"]
+    for k in range(rec.n):   # 5 March 2026 from midnight, local time, day first: 05/03 alone cannot say which
+        hh, mm, ss = k // 3600, k // 60 % 60, k % 60
+        lines.append(f"05/03/2026 {hh:02d}:{mm:02d}:{ss:02d},{rec.op[k]:.6g},{rec.pv[k]:.6g}")
+    path = tmp_path / "FIC9.csv"
+    path.write_text("\n".join(lines) + "\n")
+    tags = tmp_path / "map.toml"
+    tags.write_text('dayfirst = true\ntz = "Europe/Berlin"\n\n[loops.TIC1]\nop = "TV_1"\npv = "TT_1"\n')
+    records = B.read_file(B.BatchConfig(out_dir=str(tmp_path / "out"), tags=str(tags)), path)
+    assert [r.name for r in records] == ["FIC9"]
+    rec9 = records[0]
+    assert any(f.code == "tag_map" for f in rec9.findings)
+    # 00:00 on 5 March in Berlin (UTC+1): not 3 May, not read as UTC
+    assert str(rec9.start).startswith("2026-03-04T23:00:00"), rec9.start
+    assert not any("date" in f.code for f in rec9.findings), [f.code for f in rec9.findings]
+    # an option given to the batch wins over the map's, as where the map names a loop
+    cfg = B.BatchConfig(out_dir=str(tmp_path / "out"), tags=str(tags), read_options={"tz": "UTC"})
+    assert str(B.read_file(cfg, path)[0].start).startswith("2026-03-05T00:00:00")

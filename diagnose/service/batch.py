@@ -467,7 +467,8 @@ def whitespace_export(path: str | os.PathLike) -> io.StringIO | None:
 
 def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
     """The records of one file. A tag map applies where it names a loop in the file; a file where
-    it names none is read by the naming rule, with a finding that says so. A space-aligned
+    it names none is read by the naming rule (with the map's reading options), with a finding that
+    says so. A space-aligned
     ``.prn`` export is read as the table it is."""
     from connectors import read_records
 
@@ -486,6 +487,14 @@ def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
         return read(tags=cfg.tags)
     except StictionError as exc:
         tag_error = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    from connectors.tagmap import load_tagmap
+
+    # only the loops' names fall back to the naming rule: the map's reading options (date order,
+    # time zone, format) are the plant's and read this file too, filling what was not given, as
+    # they do where the map names a loop
+    for key, value in load_tagmap(cfg.tags).options.items():
+        if opts.get(key) is None:
+            opts[key] = value
     try:
         records = read()
     except StictionError as exc:
