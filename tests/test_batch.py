@@ -839,6 +839,21 @@ def test_pdfs_on_or_off_do_not_store_a_second_history_row_and_a_pdf_run_writes_t
         assert len(h.runs("FIC1")) == 1
 
 
+@pytest.mark.parametrize("kind", ["missing", "broken"])
+def test_a_bad_tag_map_is_one_line_and_leaves_no_output_folder(plant, tmp_path, capsys, kind):
+    tags = tmp_path / "tags.toml"
+    if kind == "broken":
+        tags.write_text("[loops.FIC1]\nop = { tag = \"FIC1.OP\", range = [0, 0] }\n")
+    out = tmp_path / "new" / "out"
+    rc = main(["batch", str(plant / "logs" / "FIC1.csv"), "--out", str(out), "--workers", "1", "--no-pdf",
+               "--tags", str(tags), "--db", str(tmp_path / "h.sqlite"), "--quiet"])
+    cap = capsys.readouterr()
+    assert rc == 1
+    assert cap.err.startswith("error: ") and str(tags.name) in cap.err and cap.err.count("\n") == 1, cap.err
+    assert "Traceback" not in cap.err and cap.out == ""
+    assert not out.exists() and not (tmp_path / "new").exists()
+
+
 @pytest.mark.parametrize("kind", ["folder", "damaged", "under_a_file"])
 def test_a_bad_db_is_one_line_and_leaves_no_output_folder(plant, tmp_path, capsys, kind):
     """A --db the batch cannot use is refused before the output folder (and its lock) is made."""

@@ -1086,9 +1086,15 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise DataError(f"{out}: is a file; --out must be a folder (the reports and the summary go into it)")
+    # a bad --tags or --db (a folder, a damaged file, a read-only place) is said before the output
+    # folder and its lock exist: a refused run leaves nothing behind
+    if tags is not None:
+        if not Path(tags).is_file():
+            raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
+        from connectors.tagmap import load_tagmap
+
+        load_tagmap(tags)  # a broken map is reported once, up front, not once per file
     if history:
-        # a bad --db (a folder, a damaged file, a read-only place) is said before the output folder
-        # and its lock exist: a refused run leaves nothing behind
         History(db if db is not None else default_db_path()).close()
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -1138,12 +1144,6 @@ def _run_batch(inputs: Sequence[str | os.PathLike], out: Path, t0: float, *, wor
     from .history import History, default_db_path, utc_now
     from .pipeline import tool_version
 
-    if tags is not None:
-        if not Path(tags).is_file():
-            raise DataError(f"{tags}: tag map not found; give an existing TOML file with --tags")
-        from connectors.tagmap import load_tagmap
-
-        load_tagmap(tags)  # a broken map is reported once, up front, not once per file
     db_path = Path(db) if db is not None else default_db_path()
     from ..api import check_read_options
 
