@@ -903,7 +903,9 @@ def test_the_text_picks_the_best_refused_hypothesis_by_its_relative_change_not_a
     def run(stage, rmse, red):
         h = HypothesisResult(name=f"h_{stage}", params={}, heldout_rmse=rmse, accepted=False, stage=stage,
                              train_rmse=rmse, reduction=red, delta_bic=1.0, n_extra=2, refused="some rule")
-        return SimpleNamespace(baseline=SimpleNamespace(source="fit_hammerstein"), ref_rmse=1.0,
+        plant = SimpleNamespace(process=SimpleNamespace(kind="foptd"))
+        return SimpleNamespace(baseline=SimpleNamespace(source="fit_hammerstein", structure=plant), ref_rmse=1.0,
+                               stage=SimpleNamespace(name=stage), reference=plant,
                                mismatch=SimpleNamespace(hints=()), fitted=[(None, None, h)])
 
     runs = {"loop": run("loop", 0.5, 0.30), "valve": run("valve", 1e-5, 0.02)}
