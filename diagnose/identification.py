@@ -329,6 +329,16 @@ class Identification:
         return not any(w.code == "op_not_percent" for w in self.warnings)
 
     @property
+    def op_units(self) -> str:
+        """The units of OP, and so of S, J and OP's travel: ``"% of span"``; ``"OP units"`` where OP
+        lay outside 0..100 % (`op_in_percent` False); ``"fraction of span"`` where OP stayed
+        within 0..1 and no stem position scaled it (warning ``data_quality.op_fraction``)."""
+        codes = {w.code for w in self.warnings}
+        if "op_not_percent" in codes:
+            return "OP units"
+        return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
+
+    @property
     def loop_oscillates(self) -> bool:
         """The loop oscillates regularly at a loop's own period (a slow cycle does not count)."""
         return bool(self.oscillation.oscillating) and not self.slow_cycle

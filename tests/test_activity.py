@@ -212,9 +212,10 @@ def test_a_mode_column_with_no_known_value_is_not_called_no_mode_signal():
     assert "| Service factor (time in automatic) | -: no mode signal recorded |" in loop_markdown(bare)
 
 
-def test_an_op_logged_as_a_fraction_is_reported_in_op_units():
+def test_an_op_logged_as_a_fraction_is_reported_in_a_fraction_of_span():
     # OP 0..1 without a stem position to scale it: the tool warns (op_fraction) and does not guess,
-    # so the report must not call OP's travel "% of span"
+    # so neither the report nor the summary row may call OP's travel "% of span"
+    from diagnose.service.batch import loop_row
     from diagnose.service.pipeline import diagnose
     from diagnose.service.report import loop_markdown
     from diagnose.simulate import sticky_loop
@@ -227,4 +228,9 @@ def test_an_op_logged_as_a_fraction_is_reported_in_op_units():
     assert "data_quality.op_fraction" in {w.code for w in d.warnings}
     section = loop_markdown(d).split("## Valve activity", 1)[1].split("\n## ", 1)[0]
     travel = next(ln for ln in section.splitlines() if ln.startswith("| OP travel |"))
-    assert "OP units per day" in travel and "% of span" not in travel
+    assert "fraction of span per day" in travel and "% of span" not in travel
+    row = loop_row(d, None)
+    assert row["sj_units"] == d.identification.op_units == "fraction of span" and row["sj_in_op_units"] is True
+    # the same loop in %: the units the summary gives every other loop
+    pct = loop_row(diagnose(rec, narx=False), None)
+    assert pct["sj_units"] == "% of span" and pct["sj_in_op_units"] is False

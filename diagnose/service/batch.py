@@ -263,8 +263,10 @@ def loop_row(diag: Diagnosis, report: str | None) -> dict[str, Any]:
         "confidence": sig4(ident.confidence),
         "oscillation_period_s": r4(period) if ident.loop_oscillates else None,
         "slow_cycle_period_s": r4(period) if ident.slow_cycle else None,
-        "sj_in_op_units": not ident.op_in_percent,
-        # valve activity: OP's travel (% of span per day) and reversals per day, noise kept out
+        # the units of S, J and OP's travel, as the loop's report gives them
+        "sj_units": ident.op_units,
+        "sj_in_op_units": ident.op_units != "% of span",
+        # valve activity: OP's travel (in sj_units per day) and reversals per day, noise kept out
         "travel_pct_per_day": act.get("travel_pct_per_day"),
         "reversals_per_day": act.get("reversals_per_day"),
         "warnings": len(diag.warnings),

@@ -320,9 +320,7 @@ def activity_blocks(diag: Diagnosis) -> list[Block]:
     act = diag.identification.activity
     if act is None:
         return []
-    # an OP the data say is a fraction of span (and that no stem position rescaled) is in its own units
-    fraction = any(w.code == "data_quality.op_fraction" for w in diag.warnings)
-    unit = "% of span" if diag.identification.op_in_percent and not fraction else "OP units"
+    unit = diag.identification.op_units
     rows = [["OP travel", _rate(act.travel_pct_per_day, f"{unit} per day")],
             ["OP reversals", _rate(act.reversals_per_day, "per day")]]
     if act.mv_travel_pct_per_day is not None:
@@ -498,7 +496,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
 
 
 SUMMARY_COLUMNS = ["rank", "loop", "status", "severity", "verdict", "class", "S_pct", "S_lo", "S_hi",
-                   "J_pct", "J_lo", "J_hi", "sj_in_op_units", "stiction_probability", "sticky_runs",
+                   "J_pct", "J_lo", "J_hi", "sj_units", "sj_in_op_units", "stiction_probability", "sticky_runs",
                    "confidence", "oscillation_period_s",
                    "slow_cycle_period_s", "travel_pct_per_day", "reversals_per_day", "warnings",
                    "data_quality_warnings", "degradation", "action", "report", "file", "source", "error"]
@@ -528,6 +526,17 @@ def not_read(t: Mapping[str, int]) -> list[str]:
     if t["inputs_failed"]:
         out.append(f"{count(t['inputs_failed'], 'input')} not found or not readable")
     return out
+
+
+def _row_units(row: Mapping[str, Any]) -> str:
+    """The units of a summary row's S, J and travel (``sj_units``, `Identification.op_units`); a
+    row stored without it has only ``sj_in_op_units``."""
+    return row.get("sj_units") or ("OP units" if row.get("sj_in_op_units") else "% of span")
+
+
+def _in_units(text: str, units: str) -> str:
+    """A summary cell of S, J or travel: a value not in % of span says what it is in."""
+    return text if text == "-" or units == "% of span" else f"{text} ({units})"
 
 
 def _loop_and_file(row: Mapping[str, Any]) -> str:
@@ -569,14 +578,14 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         name = str(r.get("loop"))
         if links and r.get("report"):
             name = f"[{name}]({r['report']})"
-        op_units = " (OP units)" if r.get("sj_in_op_units") else ""
+        units = _row_units(r)
         osc = duration(r.get("oscillation_period_s"))
         if r.get("slow_cycle_period_s"):
             osc = f"slow cycle {duration(r['slow_cycle_period_s'])}"
         # the degradation is S's trend over the loop's records: beside S, not a data-quality warning
         rising = " (degrading)" if r.get("degradation") else ""
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".1f"), fmt(r.get("class")),
-                      fmt(r.get("S_pct")) + op_units + rising, fmt(r.get("J_pct")) + op_units,
+                      _in_units(fmt(r.get("S_pct")), units) + rising, _in_units(fmt(r.get("J_pct")), units),
                       # as the loop's own report words them: a rounded "100%" reads as a certainty
                       percent(r.get("stiction_probability")) + _runs_note(r.get("sticky_runs")),
                       percent(r.get("confidence")),
