@@ -6,6 +6,7 @@ import csv
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -959,3 +960,64 @@ def test_a_file_the_tag_map_names_no_loop_in_is_read_with_the_maps_reading_optio
     # an option given to the batch wins over the map's, as where the map names a loop
     cfg = B.BatchConfig(out_dir=str(tmp_path / "out"), tags=str(tags), read_options={"tz": "UTC"})
     assert str(B.read_file(cfg, path)[0].start).startswith("2026-03-05T00:00:00")
+
+
+def test_the_summary_pdf_keeps_its_words_and_shows_valve_activity_in_each_loops_units(tmp_path):
+    # a plant's deep export folders give long paths: on a portrait page the table's narrow columns
+    # cut words ("Severi/ty"). Three units of OP: % of span, a fraction of span (0..1, no stem
+    # position to rescale it) and engineering units (outside 0..100)
+    from diagnose.plain import number
+
+    logs = tmp_path / "plant_north" / "unit_400_distillation" / "nightly_historian_exports" / "area_51_cooling"
+    logs.mkdir(parents=True)
+    ops = {"FIC1": lambda op: op, "FV2": lambda op: op / 100.0, "TV3": lambda op: 4.0 + 0.16 * op - 20.0}
+    for i, (name, scale) in enumerate(ops.items()):
+        rec = sticky_loop(4.0, 1.0, n=1500, noise_std=0.03, load_walk_std=0.02, seed=20 + i, name=name)
+        write_wide(rec.replace(op=scale(rec.op), mv=None), logs / f"{name}_export_2026-11-26.csv")
+    out = tmp_path / "out"
+    res = B.run_batch([tmp_path / "plant_north"], out, workers=1, explain=False, narx=False, history=False,
+                      progress=False)
+    assert res.n_failed == 0
+    with open(out / "summary.csv", newline="") as fh:
+        rows = {r["loop"]: r for r in csv.DictReader(fh)}
+    assert {k: (r["sj_units"], r["sj_in_op_units"]) for k, r in rows.items()} == {
+        "FIC1": ("% of span", "False"), "FV2": ("fraction of span", "True"), "TV3": ("OP units", "True")}
+    assert all(float(r["travel_pct_per_day"]) > 0 and float(r["reversals_per_day"]) > 0 for r in rows.values())
+
+    # Markdown: the two activity columns, each loop's travel in its own units
+    md = (out / "summary.md").read_text()
+    header = next(ln for ln in md.splitlines() if ln.startswith("| # | Loop"))
+    cols = [c.strip() for c in header.strip("|").split("|")]
+    assert "Travel %/day" in cols and "Reversals/day" in cols
+    for loop, r in rows.items():
+        line = next(ln for ln in md.splitlines() if f"[{loop}](" in ln)
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        travel = number(float(r["travel_pct_per_day"]))
+        want = travel if r["sj_units"] == "% of span" else f"{travel} ({r['sj_units']})"
+        assert cells[cols.index("Travel %/day")] == want
+        assert cells[cols.index("Reversals/day")] == number(float(r["reversals_per_day"]))
+
+    # the PDF, read by poppler: landscape, every header word whole, the new columns and values there
+    pdf = out / "summary.pdf"
+    info = subprocess.run(["pdfinfo", str(pdf)], capture_output=True, text=True, check=True).stdout
+    w, h = (float(v) for v in next(ln for ln in info.splitlines() if ln.startswith("Page size:")).split()[2:5:2])
+    assert w > h, info
+    # -raw: the text in the order it was drawn, so a cell's lines follow each other
+    text = subprocess.run(["pdftotext", "-raw", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
+    table = text.split("Loops ranked by severity", 1)[1].split("Recommended actions", 1)[0]
+    words = table.split()
+    for word in "# Loop Severity Class S % J % P(stiction) Conf. Oscillation Travel %/day Reversals/day DQ warn. File".split():
+        assert word in words, f"header word {word!r} split or missing"
+    segments = re.split(r"^\d+ (?=(?:FIC1|FV2|TV3) )", table, flags=re.M)[1:]
+    assert [seg.split()[0] for seg in segments] == [loop for loop, _ in sorted(rows.items(), key=lambda kv: int(kv[1]["rank"]))]
+    for seg in segments:
+        r = rows[seg.split()[0]]
+        assert number(float(r["travel_pct_per_day"])) in seg.split()
+        assert number(float(r["reversals_per_day"])) in seg.split()
+        # a path too long for its column breaks after a '/', never inside a name
+        lines = seg.splitlines()
+        start = next(i for i, ln in enumerate(lines) if ln.startswith("plant_north/"))
+        path = []
+        while len("".join(path)) < len(r["file"]):
+            path.append(lines[start + len(path)].strip())
+        assert "".join(path) == r["file"] and all(p.endswith("/") for p in path[:-1]), path

@@ -38,16 +38,94 @@ def _figure_size_mm(png: bytes, epw: float) -> tuple[float, float]:
     return w_mm, w_mm * h_px / w_px
 
 
-def _one_line_widths(pdf, header: Sequence[str], rows: Sequence[Sequence[str]], padding: float) -> list[float]:
-    """Each column's width (mm) with every cell on one line (headers may wrap between words)."""
-    out = []
+#: where a word without spaces (a file's path) may break across lines: after each separator
+_PATH_BREAK = re.compile(r"(?<=[/\\])")
+
+#: the smallest font (pt) a table shrinks to before it lets a word break
+_MIN_TABLE_PT = 6.5
+
+
+def _pieces(text: str) -> list[str]:
+    """The parts a cell may wrap between: its words, and a path's parts after each separator."""
+    return [p for w in text.split() for p in _PATH_BREAK.split(w) if p]
+
+
+def _column_bounds(pdf, header: Sequence[str], rows: Sequence[Sequence[str]], padding: float
+                   ) -> tuple[list[float], list[float], list[float]]:
+    """Each column's widths (mm) at the current font: the least, its widest unbreakable part (a
+    header word in bold; a cell's word, or a path's part); the one that keeps its cells on one line
+    (the header may wrap between words); and the one that keeps the header on one line too."""
+    pad = 2 * padding + 0.5
+    least, one_line, flat = [], [], []
     for j, h in enumerate(header):
         pdf.set_font(style="B")   # the header row's face
-        words = [pdf.get_string_width(w) for w in latin1(str(h)).split()]
+        head = [pdf.get_string_width(w) for w in latin1(str(h)).split()]
+        whole = pdf.get_string_width(latin1(str(h)))
         pdf.set_font(style="")
-        cells = [pdf.get_string_width(latin1(str(r[j]))) for r in rows if j < len(r)]
-        out.append(max(words + cells + [0.0]) + 2 * padding + 0.5)
-    return out
+        cells = [latin1(str(r[j])) for r in rows if j < len(r)]
+        least.append(max(head + [pdf.get_string_width(p) for c in cells for p in _pieces(c)] + [0.0]) + pad)
+        one_line.append(max(head + [pdf.get_string_width(c) for c in cells] + [0.0]) + pad)
+        flat.append(max(one_line[-1], whole + pad))
+    return least, one_line, flat
+
+
+def _table_widths(least: Sequence[float], one_line: Sequence[float], flat: Sequence[float],
+                  epw: float) -> list[float] | None:
+    """Column widths (mm) that split no word, or None where the least widths exceed ``epw``: one
+    line per cell where that fits (headers too where they fit), else each column's least width and
+    the room left over shared by how much of each column's text would still wrap, so a sentence or
+    a path takes what a number does not need (and the table is no taller than it must be)."""
+    if sum(flat) <= epw:
+        return list(flat)
+    if sum(one_line) <= epw:
+        return list(one_line)
+    if sum(least) > epw:
+        return None
+    spare, want = epw - sum(least), [o - m for o, m in zip(one_line, least)]
+    return [m + spare * w / sum(want) for m, w in zip(least, want)]
+
+
+def _wrap_paths(pdf, text: str, width: float) -> str:
+    """``text`` with each word wider than ``width`` (mm) broken into lines after its separators,
+    where the table would otherwise cut it between two letters."""
+    out = []
+    for word in text.split(" "):
+        if pdf.get_string_width(word) <= width:
+            out.append(word)
+            continue
+        lines = [""]
+        for p in _PATH_BREAK.split(word):
+            if lines[-1] and pdf.get_string_width(lines[-1] + p) > width:
+                lines.append("")
+            lines[-1] += p
+        out.append("\n".join(lines))
+    return " ".join(out)
+
+
+def _table(pdf, header: Sequence[str], rows: Sequence[Sequence[str]], epw: float, head) -> None:
+    """A table whose columns split no word: the font shrinks (to `_MIN_TABLE_PT`) until the widest
+    words fit; a path too long for its column wraps after a '/'."""
+    size = 8.0 if len(header) > 4 or len(rows) > 8 else 9.0
+    padding = 0.8
+    while True:
+        pdf.set_font("Helvetica", "", size)
+        least, one_line, flat = _column_bounds(pdf, header, rows, padding)
+        widths = _table_widths(least, one_line, flat, epw)
+        if widths is not None or size <= _MIN_TABLE_PT:
+            break
+        size -= 0.5
+    if widths is None:   # words wider than the page: they break rather than run off it
+        widths = [w * epw / sum(least) for w in least]
+    # the widths are proportions of the text width: a table that fits on one line is spread over it
+    with pdf.table(headings_style=head, line_height=0.49 * size, text_align="LEFT", padding=padding,
+                   col_widths=tuple(widths)) as table:
+        r = table.row()
+        for h in header:
+            r.cell(latin1(h))
+        for row in rows:
+            r = table.row()
+            for j, c in enumerate(row):
+                r.cell(_wrap_paths(pdf, latin1(c), widths[j] - 2 * padding - 0.5))
 
 
 def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, *,
@@ -58,7 +136,8 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
     from fpdf.fonts import FontFace
 
     figures = figures or {}
-    pdf = FPDF(orientation="P", unit="mm", format="A4")
+    landscape = any(b[0] == "landscape" for b in blocks)
+    pdf = FPDF(orientation="L" if landscape else "P", unit="mm", format="A4")
     pdf.set_auto_page_break(auto=True, margin=15)
     pdf.set_margins(15, 15, 15)
     if title:
@@ -98,29 +177,7 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
                 pdf.multi_cell(epw - 3, 4.5, latin1("- " + str(item)), new_x="LMARGIN", new_y="NEXT", align="L")
             pdf.ln(1.5)
         elif kind == "table":
-            header, rows = b[1], b[2]
-            small = len(header) > 4 or len(rows) > 8
-            pdf.set_font("Helvetica", "", 8 if small else 9)
-            # column widths by content (long text columns wrap, short numeric ones stay narrow)
-            lens = [max([len(latin1(str(h)))] + [len(latin1(str(r[j]))) for r in rows if j < len(r)])
-                    for j, h in enumerate(header)]
-            # short headers ("Named") stay on one line; the last column, the sentence ("Why",
-            # "Finding", "Value"), may take most of the width
-            widths = [min(max(n, 8), 110 if j == len(lens) - 1 else 60) + 2 for j, n in enumerate(lens)]
-            fit = _one_line_widths(pdf, header, rows, padding=0.8)
-            if sum(fit) <= epw:
-                # every cell fits on one line: widths as measured, so a short column ("#", "S %")
-                # does not take the room a file name needs (counted characters broke it mid-word)
-                widths = fit
-            with pdf.table(headings_style=head, line_height=3.9 if small else 4.4, text_align="LEFT", padding=0.8,
-                           col_widths=tuple(widths)) as table:
-                r = table.row()
-                for h in header:
-                    r.cell(latin1(h))
-                for row in rows:
-                    r = table.row()
-                    for c in row:
-                        r.cell(latin1(c))
+            _table(pdf, b[1], b[2], epw, head)
             pdf.ln(2)
         elif kind == "figure":
             png = figures.get(b[1])
@@ -135,6 +192,8 @@ def to_pdf(blocks: Sequence[Block], figures: Mapping[str, bytes] | None = None, 
             pdf.ln(2)
         elif kind == "page":
             pdf.add_page()
+        elif kind == "landscape":
+            continue
         else:  # pragma: no cover - programming error
             raise ValueError(f"unknown block kind {kind!r}")
     return bytes(pdf.output())

@@ -8,7 +8,9 @@ are tuples:
 
 ``("title", text)``, ``("h2", text)``, ``("p", text)``, ``("strong", text)``, ``("bullets", [text])``,
 ``("table", header, rows)``, ``("figure", name, caption)`` where ``name`` is a PNG file name beside
-the report, and ``("page",)``: a new page (the PDF starts one; Markdown draws a rule).
+the report, ``("page",)``: a new page (the PDF starts one; Markdown draws a rule), and
+``("landscape",)``: the PDF's pages are landscape, for a table too wide for a portrait page
+(Markdown has no pages: nothing).
 
 A loop's report opens with one page a maintenance planner can act on (the verdict, S and J with
 what they mean, why we believe it, what to do); the figures and the details follow.
@@ -554,7 +556,8 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
     ok = [r for r in rows if r.get("status") == "ok"]
     bad = [r for r in rows if r.get("status") != "ok"]
     sticky = [r for r in ok if r.get("sticky")]
-    blocks: list[Block] = [("title", title)]
+    # thirteen columns: on a portrait page their words would not fit
+    blocks: list[Block] = [("landscape",), ("title", title)]
     t = tally(rows)
     line = (f"{count(t['loops'], 'loop')}: {t['diagnosed']} diagnosed, {t['loops_failed']} failed; "
             f"{len(sticky)} with stiction." + "".join(f" {x[0].upper()}{x[1:]}." for x in not_read(t)))
@@ -568,6 +571,11 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
                         "50), oscillation (25) and data-quality warnings (15), so likely sticky valves "
                         "rank first; equal severities are ordered by S. Slow cycles (periods of hours: "
                         "daily or shift patterns of the plant) are not loop oscillations and add nothing."))
+    blocks.append(("p", "Travel is how far OP moved in % of valve span per day of record, Reversals how often it "
+                        "changed direction per day (movement within OP's noise band not counted): a valve that "
+                        "travels far and reverses often wears its packing. S, J and travel of a loop whose OP is "
+                        "not in % of span are in OP's own units, marked beside them. DQ warn.: data-quality "
+                        "warnings."))
     if any(r.get("sticky_runs") for r in ok):
         blocks.append(("p", "Beside P(stiction), (k/m runs): of the loop's last m runs in the history, this one "
                             "included, k said stiction. One window can hold too little stick-slip to tell; "
@@ -590,12 +598,13 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
                       percent(r.get("stiction_probability")) + _runs_note(r.get("sticky_runs")),
                       percent(r.get("confidence")),
                       osc,
+                      _in_units(number(r.get("travel_pct_per_day")), units), number(r.get("reversals_per_day")),
                       fmt(r.get("data_quality_warnings"), "d"),
                       # which file the loop came from: two copies of one export give FIC103 and
                       # FIC103__FIC103, told apart only by it (last: a path is the widest cell)
                       fmt(r.get("file") or r.get("source"))])
     blocks.append(("table", ["#", "Loop", "Severity", "Class", "S %", "J %", "P(stiction)", "Conf.", "Oscillation",
-                             "DQ warn.", "File"], table))
+                             "Travel %/day", "Reversals/day", "DQ warn.", "File"], table))
     if any(r.get("degradation") for r in ok):
         blocks.append(("h2", "Degrading valves"))
         blocks.append(("bullets", [f"{_loop_and_file(r)}: {r['degradation']}" for r in ok if r.get("degradation")]))
@@ -648,6 +657,8 @@ def to_markdown(blocks: Sequence[Block], *, figure_path: str = "{name}.png") -> 
             out.append(f"![{b[2]}]({figure_path.format(name=b[1])})\n\n*{b[2]}*\n")
         elif kind == "page":
             out.append("---\n")
+        elif kind == "landscape":
+            continue
         else:  # pragma: no cover - programming error
             raise ValueError(f"unknown block kind {kind!r}")
     return "\n".join(out)
