@@ -222,11 +222,16 @@ FILE_FORMATS = ("wide", "long", "ragged", "influx", "dcs")
 
 
 def op_scale_advice(record: LoopRecord) -> str:
-    """How whoever made ``record`` gives OP in % of span: a flag for a file, a keyword for a
-    DataFrame or arrays (Python, where there is no ``--op``), the register map for a Modbus device."""
-    fmt = (record.meta or {}).get("format")
+    """How whoever made ``record`` gives OP in % of span: a tag map for a file (its ``range``
+    scales OP, and the export stays as it is), a keyword for a DataFrame or arrays (Python, where
+    there is no ``--op``), the register map for a Modbus device."""
+    meta = record.meta or {}
+    fmt = meta.get("format")
     if fmt in FILE_FORMATS:
-        return "scale OP to % (multiply by 100) or pass the right column with --op"
+        cols = meta.get("columns") or {}
+        op, pv = cols.get("op") or "OP_TAG", cols.get("pv") or "PV_TAG"
+        return (f'read OP as % of span with a tag map (--tags MAP.toml) holding [loops.{record.name}] with '
+                f'op = {{ tag = "{op}", range = [0, 1] }} and pv = "{pv}", or pass the right column with --op')
     if fmt == "dataframe":
         return "scale OP's column to % (multiply by 100) or name the right column with op='COLUMN'"
     if fmt == "modbus":

@@ -4,6 +4,7 @@ saturation, frozen values, manual mode."""
 from __future__ import annotations
 
 import io
+import json
 
 import numpy as np
 import pytest
@@ -159,7 +160,9 @@ def test_op_fraction_advice_fits_where_the_record_came_from(tmp_path, capsys):
     write_wide(rec.replace(op=rec.op / 100.0, mv=None), path)
     assert main(["identify", str(path)]) == 0
     (line,) = [ln for ln in capsys.readouterr().out.splitlines() if "[data_quality.op_fraction]" in ln]
-    assert line.endswith("scale OP to % (multiply by 100) or pass the right column with --op")
+    assert line.endswith('read OP as % of span with a tag map (--tags MAP.toml) holding [loops.FIC9] with '
+                         'op = { tag = "FIC9.OP", range = [0, 1] } and pv = "FIC9.PV", or pass the right column '
+                         'with --op')
     df = pd.read_csv(path, parse_dates=["time"], index_col="time")
     frame = diagnose.identify(df, narx=False)
     (w,) = [w for w in frame.warnings if w.code == "data_quality.op_fraction"]
@@ -170,3 +173,34 @@ def test_op_fraction_advice_fits_where_the_record_came_from(tmp_path, capsys):
     (f,) = [f for f in assess(back) if f.code == "op_fraction"]
     assert f.message.endswith("name the right column with op='COLUMN'")
 
+
+
+def test_the_tag_map_the_op_fraction_advice_gives_reads_op_in_percent(tmp_path, capsys):
+    # the map written exactly as the warning words it: its range scales OP to % of span, the
+    # warning goes, and S and J come out as the same export logged in % gives them
+    import re
+
+    from connectors.historian import write_wide
+    from diagnose.service.cli import main
+
+    rec = sticky_loop(4.0, 1.0, n=1500, seed=8, noise_std=0.03, load_walk_std=0.02, name="FIC9")
+    frac, pct = tmp_path / "frac" / "FIC9.csv", tmp_path / "pct" / "FIC9.csv"
+    frac.parent.mkdir()
+    pct.parent.mkdir()
+    write_wide(rec.replace(op=rec.op / 100.0, mv=None), frac)
+    write_wide(rec.replace(mv=None), pct)
+    assert main(["identify", str(frac), "--json"]) == 0
+    warned = json.loads(capsys.readouterr().out)
+    (advice,) = [w["message"] for w in warned["warnings"] if w["code"] == "data_quality.op_fraction"]
+    loop, op, pv = re.search(r"\[loops\.(\S+)\] with (op = \{.*?\}) and (pv = \"[^\"]+\")", advice).groups()
+    tags = tmp_path / "map.toml"
+    tags.write_text(f"[loops.{loop}]\n{op}\n{pv}\n")
+    assert main(["identify", str(frac), "--tags", str(tags), "--json"]) == 0
+    mapped = json.loads(capsys.readouterr().out)
+    assert main(["identify", str(pct), "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    codes = {w["code"] for w in mapped["warnings"]}
+    assert "data_quality.op_fraction" not in codes and "op_not_percent" not in codes
+    assert mapped["stiction"] and mapped["S"] == pytest.approx(plain["S"], abs=0.05)
+    assert mapped["J"] == pytest.approx(plain["J"], abs=0.05) and mapped["S"] == pytest.approx(4.0, abs=0.4)
+    assert warned["S"] is None   # unscaled, every movement 100 times too small: no band to size
