@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import subprocess
 import sys
@@ -425,3 +426,25 @@ def test_a_database_in_a_folder_that_cannot_be_written_is_read_but_not_written(t
     with pytest.raises(H.StictionError, match=r"cannot create the history database's folder .*not_a_folder"):
         (tmp_path / "not_a_folder").write_text("x")
         H.History(tmp_path / "not_a_folder" / "h.sqlite")
+
+
+def test_the_loop_list_words_each_loops_last_run_by_its_verdict(tmp_path, capsys):
+    # the last run decides: a loop repaired since its sticky runs reads "no stiction" (its stored
+    # S is the fit's, not a size); a loop whose last run said stiction reads its S; a run of a
+    # release that stored no verdict reads its S as stored
+    db = tmp_path / "h.sqlite"
+    _fill(db, "FIC1", [3.0, 3.4])
+    with H.History(db) as hist:
+        hist.add_rows([H.row_from_stored(_res("FIC2", 2.5, h="a"), run_at="2026-03-01T02:00:00+00:00"),
+                       H.row_from_stored(_res("FIC2", 0.07, h="b", cls="none", p=0.02),
+                                         run_at="2026-03-02T02:00:00+00:00"),
+                       dict(H.row_from_stored(_res("FIC3", 1.25, h="c")), stiction=None)])
+        assert hist.runs("FIC2")[-1]["S_pct"] == pytest.approx(0.07)   # stored as fitted
+    assert main(["history", "--db", str(db)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"3 loop(s) in {db}:"
+    assert {ln.split()[0]: " ".join(ln.split()[1:]) for ln in out[1:]} == {
+        "FIC1": "S 3.40 %", "FIC2": "no stiction", "FIC3": "S 1.25 %"}
+    # the trend of the same loop agrees: no size for the run that said no stiction
+    assert main(["history", "FIC2", "--db", str(db), "--json"]) == 0
+    assert [r["S_pct"] for r in json.loads(capsys.readouterr().out)["runs"]] == [pytest.approx(2.5), None]

@@ -472,12 +472,18 @@ def persistence(rows: Sequence[Mapping[str, Any]], *, runs: int = PERSIST_RUNS) 
 SIZE_COLUMNS = ("S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi")
 
 
+def said_no_stiction(row: Mapping[str, Any]) -> bool:
+    """The stored run's verdict was no stiction. False for rows of releases that stored no verdict
+    (``stiction`` None): they are read by their S alone."""
+    return row.get("stiction") is not None and not row["stiction"]
+
+
 def shown_run(row: Mapping[str, Any]) -> dict[str, Any]:
     """A stored run as `stiction history` shows it: S, J and their intervals only when the run said
     stiction (docs/verdict.md), as the summary gives them. The database keeps them as stored;
     rows of releases that stored no verdict (``stiction`` None) show them as before."""
     out = dict(row)
-    if out.get("stiction") is not None and not out["stiction"]:
+    if said_no_stiction(out):
         out.update(dict.fromkeys(SIZE_COLUMNS))
     return out
 

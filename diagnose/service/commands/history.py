@@ -57,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
 def _last_verdict(row: dict) -> str:
     """The last run in a few words: "S 2.24 %" when it said stiction, "no stiction" when it did
     not (an S of 0.00 % read as a size), S alone for rows of releases that stored no verdict."""
-    if row.get("stiction") is not None and not row["stiction"]:
+    from ..history import said_no_stiction
+
+    if said_no_stiction(row):
         return "no stiction"
     return f"S {row['S_pct']:.2f} %" if row.get("S_pct") is not None else ""
