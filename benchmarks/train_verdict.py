@@ -157,6 +157,12 @@ def _sim_job(args: tuple[str, int, int, dict]) -> dict[str, Any]:
 
 def real_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
     """The labelled real recordings: the plant windows and the ISDB loops."""
+    yield from plant_records(data)
+    yield from isdb_records(data)
+
+
+def plant_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
+    """The plant's labelled two-hour windows (plant-dcs-stictiongpt)."""
     base = data / "plant-dcs-stictiongpt"
     with open(base / "labels.csv", encoding="utf-8") as fh:
         for lab in csv.DictReader(fh):
@@ -166,6 +172,11 @@ def real_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
                              pv=c["PV"][ok], sp=c["SP"][ok])
             yield ({"source": "plant", "file": lab["file"], "tag": lab["tag"], "loop_type": lab["loop_type"],
                     "sticky": lab["label"] == "stiction", "n": rec.n, "ts_s": rec.ts_s}, rec)
+
+
+def isdb_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
+    """The ISDB loops with their published comments (``integrating``: the database's column, kept
+    for the record; `_real_job` does not judge by it)."""
     base = data / "isdb-subset"
     with open(base / "labels.csv", encoding="utf-8") as fh:
         for lab in csv.DictReader(fh):
@@ -179,9 +190,13 @@ def real_records(data: Path) -> Iterable[tuple[dict[str, Any], LoopRecord]]:
 
 
 def _real_job(args: tuple[dict[str, Any], LoopRecord]) -> dict[str, Any]:
+    """A real recording's row, judged as the command judges it (`validate_real.py` too): whether the
+    process is integrating comes from the fit (or a level tag), not from a database's column the
+    command never sees. PAP4 is the loop where they differ: its fit is integrating, the ISDB says
+    it is not, and its probability is 0.33 as the command gives it (docs/verdict.md), 0.47 told."""
     info, rec = args
     row = dict(info)
-    row.update(_row_features(rec, integrating=info.get("integrating")))
+    row.update(_row_features(rec))
     return row
 
 
