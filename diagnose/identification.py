@@ -324,19 +324,17 @@ class Identification:
 
     @property
     def op_in_percent(self) -> bool:
-        """False when OP lay outside 0..100 % (mean-centred or in engineering units): S and J are
-        then in OP's own units, not in % of valve span."""
-        return not any(w.code == "op_not_percent" for w in self.warnings)
+        """False when OP is not in % of span (`op_units`): it lay outside 0..100 % (mean-centred or
+        in engineering units), or stayed within 0..1 with no stem position to scale it (a fraction
+        of span). S and J are then in OP's own units, and every text says so."""
+        return self.op_units == "% of span"
 
     @property
     def op_units(self) -> str:
         """The units of OP, and so of S, J and OP's travel: ``"% of span"``; ``"OP units"`` where OP
         lay outside 0..100 % (`op_in_percent` False); ``"fraction of span"`` where OP stayed
         within 0..1 and no stem position scaled it (warning ``data_quality.op_fraction``)."""
-        codes = {w.code for w in self.warnings}
-        if "op_not_percent" in codes:
-            return "OP units"
-        return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
+        return _op_units({w.code for w in self.warnings})
 
     @property
     def loop_oscillates(self) -> bool:
@@ -474,6 +472,13 @@ class Identification:
         return figures.plot_identification(self, kind)
 
 
+
+
+def _op_units(codes: set[str]) -> str:
+    """OP's units from a record's warning codes (`Identification.op_units`)."""
+    if "op_not_percent" in codes:
+        return "OP units"
+    return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
 
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
@@ -836,9 +841,12 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             # other evidence found stiction the model fit could not size
             cls = "unknown"
             S_out = J_out = None
+            units = _op_units({w.code for w in warnings})
+            size = {"% of span": f"S = {S:.2f} % of span", "OP units": f"S = {S:.3g} in OP's own units"}.get(
+                units, f"S = {S:.3g} in fractions of span, as OP was logged")
             warnings.append(_warn("size_unknown",
                                   f"the evidence says the valve sticks but the model fit finds no valve band "
-                                  f"(S = {S:.2f} % of span): S, J and the class cannot be given"))
+                                  f"({size}): S, J and the class cannot be given"))
         elif ctest is not None:
             alternatives = tuple(k for k in ctest["plausible"] if k != cls)
     else:

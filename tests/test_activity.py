@@ -231,6 +231,13 @@ def test_an_op_logged_as_a_fraction_is_reported_in_a_fraction_of_span():
     assert "fraction of span per day" in travel and "% of span" not in travel
     row = loop_row(d, None)
     assert row["sj_units"] == d.identification.op_units == "fraction of span" and row["sj_in_op_units"] is True
+    # S and J are in the same fractions: no text may call them % of span
+    from diagnose.service.pipeline import sj_unit
+
+    assert d.identification.op_in_percent is False
+    assert sj_unit(d.identification) == "in OP's own units (OP is not in % of span)"
+    unknown = next(w.message for w in d.identification.warnings if w.code == "size_unknown")
+    assert "in fractions of span" in unknown and "% of span" not in unknown
     # the same loop in %: the units the summary gives every other loop
     pct = loop_row(diagnose(rec, narx=False), None)
     assert pct["sj_units"] == "% of span" and pct["sj_in_op_units"] is False
