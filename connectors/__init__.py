@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 import re
-from typing import IO, Any
+from typing import IO, Any, Mapping
 
 from diagnose.errors import ConnectorError, StictionError
 from diagnose.record import LoopRecord
@@ -131,6 +131,14 @@ def _reading_options(options: dict[str, Any]) -> tuple[dict[str, Any], Any, Any]
     if "time" in options:
         options.setdefault("ts", options.pop("time"))
     return options, tagmap, progress
+
+
+def with_tag_map_options(options: Mapping[str, Any], tags: Any) -> dict[str, Any]:
+    """``options`` with the tag map ``tags``'s reading options (date order, time zone, format...)
+    filling what was not given, as `read_records` applies them where the map names a loop: for a
+    file read by the naming rule because the map names no loop in it."""
+    out, _, progress = _reading_options({**options, "tags": tags})
+    return out if progress is None else {**out, "progress": progress}
 
 
 def _shared_orders(tables: list[Any]) -> list[bool | None]:

@@ -489,14 +489,11 @@ def read_file(cfg: BatchConfig, path: Path) -> list[Any]:
         return read(tags=cfg.tags)
     except StictionError as exc:
         tag_error = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    from connectors.tagmap import load_tagmap
+    from connectors import with_tag_map_options
 
     # only the loops' names fall back to the naming rule: the map's reading options (date order,
-    # time zone, format) are the plant's and read this file too, filling what was not given, as
-    # they do where the map names a loop
-    for key, value in load_tagmap(cfg.tags).options.items():
-        if opts.get(key) is None:
-            opts[key] = value
+    # time zone, format) are the plant's and read this file too
+    opts = with_tag_map_options(opts, cfg.tags)
     try:
         records = read()
     except StictionError as exc:
