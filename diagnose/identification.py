@@ -337,6 +337,11 @@ class Identification:
         return _op_units({w.code for w in self.warnings})
 
     @property
+    def sj_units_text(self) -> str:
+        """The units of S, J and OP's travel in words, as every text gives them (`units_in_words`)."""
+        return units_in_words(self.op_units)
+
+    @property
     def loop_oscillates(self) -> bool:
         """The loop oscillates regularly at a loop's own period (a slow cycle does not count)."""
         return bool(self.oscillation.oscillating) and not self.slow_cycle
@@ -480,6 +485,15 @@ def _op_units(codes: set[str]) -> str:
         return "OP units"
     return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
 
+
+def units_in_words(op_units: str) -> str:
+    """S and J's units in words, for an `Identification.op_units` value: the one wording the
+    verdict line, the reports, the command's output and the warnings share."""
+    return {"% of span": "% of valve span",
+            "OP units": "in OP's own units, as OP is not in % of span",
+            "fraction of span": "in fractions of span, as OP was logged"}.get(
+        op_units, f"in {op_units}")
+
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
@@ -556,7 +570,8 @@ def _slips(mv_pct: np.ndarray) -> int:
 
 def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None, n_eff: float | None,
                   ins_own_noise: float | None, backlash_lr: float | None, op_noise_pct: float,
-                  op_range_pct: float, slips: int, osc: Oscillation, method: str) -> tuple[Evidence, ...]:
+                  op_range_pct: float, slips: int, osc: Oscillation, method: str,
+                  op_units: str = "% of span") -> tuple[Evidence, ...]:
     """The Hammerstein (or OP/MV valve) fit's own evidence as rows of the evidence table.
 
     ``model_fit`` carries the improvement itself and, as ``lr``, the likelihood ratio
@@ -584,10 +599,16 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     ratio = min(ratio, 100.0)
     dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct >= S_MIN_PCT else "no_stiction"
     # a band that OP hardly ever crosses is a valve that hardly moves: little for the fit to go by
+    if op_units == "% of span":
+        band, noise, travel = f"{S_pct:.2f} % of span", f"{op_noise_pct:.3g} %", f"{op_range_pct:.3g} % of span"
+    else:
+        # the same numbers in OP's own units (a fraction of span, or engineering units)
+        band = f"{S_pct:.3g} ({units_in_words(op_units)})"
+        noise, travel = f"{op_noise_pct:.3g}", f"{op_range_pct:.3g} (the same units)"
     rows.append(Evidence("valve_band", ratio, BAND_NOISE_RATIO, dec,
-                         f"fitted valve band S = {S_pct:.2f} % of span is {ratio:.1f} times OP's own "
-                         f"sample-to-sample noise ({op_noise_pct:.3g} %); the fitted valve slips {slips} "
-                         f"times as OP travels over {op_range_pct:.3g} % of span",
+                         f"fitted valve band S = {band} is {ratio:.1f} times OP's own "
+                         f"sample-to-sample noise ({noise}); the fitted valve slips {slips} "
+                         f"times as OP travels over {travel}",
                          extras={"S_pct": S_pct, "slips": float(slips),
                                  "S_over_range": S_pct / op_range_pct if op_range_pct > 0 else 1.0}))
     if S_pct > 0 and math.isfinite(S_int[1] - S_int[0]):
@@ -664,7 +685,8 @@ def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warning
                           "less certain; S and J need a usable PV, even where the stem position is recorded"))
     if integrating is None and _LEVEL_TAG.search(record.name or ""):
         integrating = True
-    evidence = run_all(op, record.pv, ts, sp=record.sp, integrating=integrating)
+    evidence = run_all(op, record.pv, ts, sp=record.sp, integrating=integrating,
+                       op_units=_op_units({w.code for w in warnings}))
     cap = min(OP_ONLY_CONFIDENCE_CAP, _confidence_caps(findings, record.n, None, "op_only", warnings))
     verdict = combine(evidence, kind="op_only", confidence_cap=cap)
     det = Detection(op_only=True, pv_unusable=reason)
@@ -814,10 +836,12 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     ins_own = None
     if valve_fit is None and not mv_still and linear.own_noise_cost > 0:
         ins_own = 1.0 - fit.own_noise_cost / linear.own_noise_cost
+    units = _op_units({w.code for w in warnings})
     fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=source.n_eff, ins_own_noise=ins_own,
                              backlash_lr=backlash_lr,
-                             op_noise_pct=op_noise, op_range_pct=op_range, slips=slips, osc=osc, method=method)
-    tests = run_all(op, pv, ts, sp=record.sp, integrating=integrating)
+                             op_noise_pct=op_noise, op_range_pct=op_range, slips=slips, osc=osc, method=method,
+                             op_units=units)
+    tests = run_all(op, pv, ts, sp=record.sp, integrating=integrating, op_units=units)
     evidence = tuple(tests) + fit_rows
     cap = _confidence_caps(findings, record.n, r2, method, warnings)
     if mv_still:
@@ -842,8 +866,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             cls = "unknown"
             S_out = J_out = None
             units = _op_units({w.code for w in warnings})
-            size = {"% of span": f"S = {S:.2f} % of span", "OP units": f"S = {S:.3g} in OP's own units"}.get(
-                units, f"S = {S:.3g} in fractions of span, as OP was logged")
+            size = f"S = {S:.2f} % of span" if units == "% of span" else f"S = {S:.3g} {units_in_words(units)}"
             warnings.append(_warn("size_unknown",
                                   f"the evidence says the valve sticks but the model fit finds no valve band "
                                   f"({size}): S, J and the class cannot be given"))

@@ -235,7 +235,12 @@ def test_an_op_logged_as_a_fraction_is_reported_in_a_fraction_of_span():
     from diagnose.service.pipeline import sj_unit
 
     assert d.identification.op_in_percent is False
-    assert sj_unit(d.identification) == "in OP's own units (OP is not in % of span)"
+    assert sj_unit(d.identification) == "in fractions of span, as OP was logged"
+    assert "% of valve span" not in d.verdict_text
+    # nor the evidence table's notes that give an amount of OP travel
+    band = next(e.note for e in d.identification.evidence if e.test == "valve_band")
+    assert "in fractions of span" in band and "% of span" not in band
+    assert not any("% of span" in e.note or "% of OP span" in e.note for e in d.identification.evidence)
     unknown = next(w.message for w in d.identification.warnings if w.code == "size_unknown")
     assert "in fractions of span" in unknown and "% of span" not in unknown
     # the same loop in %: the units the summary gives every other loop

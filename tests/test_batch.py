@@ -526,6 +526,25 @@ def test_no_pdf_announces_no_pdf(plant, tmp_path, capsys):
     assert ".pdf" not in out and not list((tmp_path / "o1").rglob("*.pdf"))
     assert main(base + ["--out", str(tmp_path / "o2")]) == 0
     assert ".pdf" in capsys.readouterr().out and (tmp_path / "o2" / "summary.pdf").exists()
+    assert len(list((tmp_path / "o2" / "loops").rglob("*.pdf"))) == 1
+
+
+def test_no_pdf_over_an_earlier_run_leaves_no_pdf_of_that_run(plant, tmp_path):
+    # a PDF from the run before would sit beside this run's summary and loop reports and disagree
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "FIC3.csv").write_bytes((plant / "logs" / "FIC3.csv").read_bytes())
+    base = ["batch", str(logs), "--out", str(tmp_path / "o"), "--workers", "1", "--no-narx", "--no-history",
+            "--quiet"]
+    assert main(base) == 0
+    assert len(list((tmp_path / "o").rglob("*.pdf"))) == 2
+    # the loop's data change, so its reports are written again, without a PDF
+    lines = (logs / "FIC3.csv").read_text().splitlines(keepends=True)
+    (logs / "FIC3.csv").write_text("".join(lines[:-200]))
+    assert main(base + ["--no-pdf"]) == 0
+    assert not list((tmp_path / "o").rglob("*.pdf"))
+    assert (tmp_path / "o" / "summary.md").is_file() and list((tmp_path / "o" / "loops").rglob("*.md"))
+    assert len(set(B.summary_run_ids(tmp_path / "o").values())) == 1
 
 
 def _children(pid: int) -> list[int]:

@@ -260,9 +260,14 @@ class Prepared:
     sp : array (n,), optional
         Setpoint; when it moves, the control error SP - PV replaces PV where a test reads the
         error (Horch, Choudhury, Singhal-Salsbury).
+    op_units : str
+        OP's units (`diagnose.identification.Identification.op_units`): ``"% of span"``, or
+        ``"OP units"`` / ``"fraction of span"`` for an OP logged otherwise. Only the notes that
+        give an amount of OP travel read it (`op_amount`).
     """
 
-    def __init__(self, op, pv, ts_s, sp=None) -> None:
+    def __init__(self, op, pv, ts_s, sp=None, op_units: str = "% of span") -> None:
+        self.op_units = op_units
         self.problem: tuple[str, str] | None = None
         self.pv_ok, self.pv_reason = True, ""
         self.cache: dict = {}       # results several tests share (e.g. one curve fit of OP)
@@ -297,6 +302,12 @@ class Prepared:
             self.sp = None      # an unusable setpoint is ignored: the tests fall back to PV
 
     # -- signals -----------------------------------------------------------------------------
+    def op_amount(self, v: float) -> str:
+        """An amount of OP travel in words, in OP's own units."""
+        if self.op_units == "% of span":
+            return f"{v:.2f} % of span"
+        return f"{v:.3g} in OP's own units" if self.op_units == "OP units" else f"{v:.3g} of span (OP logged as a fraction)"
+
     @cached_property
     def op_d(self) -> np.ndarray:
         return detrend(self.op)

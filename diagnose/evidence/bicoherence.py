@@ -219,4 +219,4 @@ def _choudhury_bicoherence(p: Prepared) -> Evidence:
     ex.update(apparent_stiction_pct=chord, ellipse_op_extent_pct=extent)
     return Evidence(TEST, nli, NLI_THRESHOLD, STICTION,
                     f"The loop is nonlinear (NGI {ngi:.4f} > {NGI_THRESHOLD}, NLI {nli:.3f} > {NLI_THRESHOLD}); the "
-                    f"filtered PV-OP ellipse gives an apparent stiction of {chord:.2f} % of OP span.", extras=ex)
+                    f"filtered PV-OP ellipse gives an apparent stiction of {p.op_amount(chord)}.", extras=ex)

@@ -27,7 +27,8 @@ _TESTS = {
 TESTS = tuple(_TESTS)
 
 
-def run_all(op, pv, ts_s: float, *, sp=None, integrating: bool | None = None) -> tuple[Evidence, ...]:
+def run_all(op, pv, ts_s: float, *, sp=None, integrating: bool | None = None,
+            op_units: str = "% of span") -> tuple[Evidence, ...]:
     """Every evidence test on one record, in the order of `TESTS`; never raises.
 
     Parameters
@@ -44,6 +45,9 @@ def run_all(op, pv, ts_s: float, *, sp=None, integrating: bool | None = None) ->
         True for a level or other integrating loop, False for a self-regulating one. The caller
         knows it (the fitted process model, the tag type); with None the tests that need it say
         they cannot judge, and the others run.
+    op_units : str
+        OP's units, where OP is not in % of span (``"OP units"``, ``"fraction of span"``): the
+        notes that give an amount of OP travel say it in these units.
 
     Returns
     -------
@@ -51,7 +55,7 @@ def run_all(op, pv, ts_s: float, *, sp=None, integrating: bool | None = None) ->
         One per test; a test that cannot run on the record says ``cannot_judge`` and why.
     """
     try:
-        p = Prepared(op, pv, ts_s, sp)
+        p = Prepared(op, pv, ts_s, sp, op_units=op_units)
     except Exception as exc:  # noqa: BLE001 - a record no test can read is a cannot-judge, not a crash
         return tuple(cannot_judge(t, "bad_input", f"The record could not be read ({type(exc).__name__}: {exc}).")
                      for t in TESTS)

@@ -165,7 +165,7 @@ def _kano_stuck(p: Prepared, integrating: bool | None) -> Evidence:
         return Evidence(TEST, idx, THRESHOLD, STICTION,
                         f"{what} stays still while OP travels and then jumps ({res['slips']:.0f} slips; stuck "
                         f"index {idx:.2f} >= {THRESHOLD}), as a sticky valve does; OP moved about "
-                        f"{res['apparent_S_pct']:.2f} % before each slip.", extras=res)
+                        f"{p.op_amount(res['apparent_S_pct'])} before each slip.", extras=res)
     return Evidence(TEST, idx, THRESHOLD, NO_STICTION,
                     f"{what} follows OP without stuck-then-jump stretches (stuck index {idx:.2f} < {THRESHOLD}).",
                     extras=res)

@@ -392,6 +392,9 @@ def write_loop_outputs(cfg: BatchConfig, diag: Diagnosis, loop_id: str, *,
         from .pdf import to_pdf
 
         atomic_write(d / f"{loop_id}.pdf", to_pdf(blocks, pngs, title=f"Stiction report {loop_id}"))
+    else:
+        # an earlier run's PDF would sit beside this run's Markdown and JSON and say something else
+        (d / f"{loop_id}.pdf").unlink(missing_ok=True)
     # figures, Markdown, PDF
     diag = replace(diag, timings_s={**diag.timings_s, "report": time.perf_counter() - t0})
     report = f"loops/{loop_id}/{loop_id}.md"
@@ -925,6 +928,9 @@ def _csv_cell(value: Any) -> Any:
 #: that the one machines read names the run whose set is complete.
 SUMMARY_FILES = ("summary.csv", "summary.md", "summary.pdf", "summary.json")
 _SUMMARY_STAGE = "summary-next"
+#: Beside a staged set, ``NAME.absent`` says the set has no ``NAME`` (a run without PDFs): moving
+#: the set into place removes the earlier run's file of that name.
+_ABSENT = ".absent"
 _RUN_MARK = re.compile(r"<!-- stiction run (\S+) -->")
 
 
@@ -978,6 +984,9 @@ def write_summary(out_dir: Path, rows: Sequence[Mapping[str, Any]], *, pdf: bool
     (stage / "complete").unlink(missing_ok=True)   # never beside a set that is not whole
     for name, data in files.items():
         atomic_write(stage / name, data)
+    for name in SUMMARY_FILES:
+        if name not in files:
+            atomic_write(stage / f"{name}{_ABSENT}", run_id)
     atomic_write(stage / "complete", run_id)
     finish_summary(out_dir)
     return run_id
@@ -994,12 +1003,17 @@ def finish_summary(out_dir: str | os.PathLike) -> None:
         _drop(stage)
         return
     for name in SUMMARY_FILES:
-        if (stage / name).is_file():
-            try:
+        try:
+            if (stage / name).is_file():
                 os.replace(stage / name, out / name)
-            except OSError as exc:
-                raise DataError(f"{out / name}: cannot write: {exc.strerror or exc}") from None
-            _sync_dir(out)   # the renames reach the disk in this order: summary.json last
+            elif (stage / f"{name}{_ABSENT}").is_file():
+                # a set without this file (``--no-pdf``): an earlier run's would pass for this one's
+                (out / name).unlink(missing_ok=True)
+            else:   # moved already by a batch cut off while finishing this set
+                continue
+        except OSError as exc:
+            raise DataError(f"{out / name}: cannot write: {exc.strerror or exc}") from None
+        _sync_dir(out)   # the renames reach the disk in this order: summary.json last
     _drop(stage)
 
 

@@ -261,8 +261,8 @@ class Diagnosis:
 
 
 def sj_unit(ident: Identification) -> str:
-    """The unit S and J are in, in words."""
-    return "% of valve span" if ident.op_in_percent else "in OP's own units (OP is not in % of span)"
+    """The unit S and J are in, in words (`Identification.sj_units_text`)."""
+    return ident.sj_units_text
 
 
 #: data-quality warnings the severity does not count
@@ -315,7 +315,7 @@ def verdict_text(ident: Identification, warnings: Sequence[Note] = ()) -> str:
     S, J = ident.S_pct, ident.J_pct
     if ident.valve_not_moving and ident.fitted_S_pct is not None:
         # the class is "unknown" because it was not judged: say why, and the bound S has
-        unit = f" {sj_unit(ident)}" if not ident.op_in_percent else " % of valve span"
+        unit = f" {sj_unit(ident)}"
         return (f"Stiction: the valve never moved while OP travelled {ident.fitted_S_pct:.2f}{unit}, so S is "
                 f"at least that; J and the class are not judged{sure}.")
     if S is None or J is None:
@@ -343,7 +343,7 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = (),
     period_s = ident.oscillation.period_s
     period = f" with a period of {duration(period_s)}" if period_s else ""
     pct = ident.op_in_percent
-    span = " % of its span" if pct else " (in OP's own units: OP is not in % of span)"
+    span = " % of its span" if pct else f" ({sj_unit(ident)})"
     # a valve called sticky on at least half of three or more recent runs: a habit, not one window
     habit = None
     if sticky_runs is not None and sticky_runs[1] >= 3 and 2 * sticky_runs[0] >= sticky_runs[1]:

@@ -267,7 +267,7 @@ def _source_line(diag: Diagnosis) -> str:
 
 def _found_rows(diag: Diagnosis) -> list[list[str]]:
     ident = diag.identification
-    unit = "% of span" if ident.op_in_percent else "in OP's own units (OP is not in % of span)"
+    unit = "% of span" if ident.op_in_percent else ident.sj_units_text
     meaning = NOT_MOVING_MEANING if ident.valve_not_moving else CLASS_MEANING.get(ident.cls)
     alt = (f" (the data also allow: {', '.join(ident.class_alternatives)})" if ident.class_alternatives else "")
     rows = [["Class", ident.cls + (f": {meaning}" if meaning else "") + alt]]

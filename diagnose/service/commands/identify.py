@@ -38,14 +38,14 @@ def summary(ident: Identification) -> str:
         si = ident.S_interval_pct or (float("nan"), float("nan"))
         ji = ident.J_interval_pct or (float("nan"), float("nan"))
         src = " from OP/MV" if ident.method == "op_mv" else ""
-        unit = "% of valve span" if ident.op_in_percent else "in OP's own units: OP is not in % of span"
+        unit = ident.sj_units_text
         pct = " %" if ident.op_in_percent else ""
         lines.append(f"  S = {ident.S_pct:.2f}{pct} [{si[0]:.2f}, {si[1]:.2f}]   J = {ident.J_pct:.2f}{pct} "
                      f"[{ji[0]:.2f}, {ji[1]:.2f}]  ({unit}{src})")
         if ident.class_alternatives:
             lines.append(f"  the data also allow class {' or '.join(ident.class_alternatives)}")
     elif ident.stiction and ident.valve_not_moving and ident.fitted_S_pct is not None:
-        pct = " %" if ident.op_in_percent else " (OP's own units)"
+        pct = " %" if ident.op_in_percent else f" ({ident.sj_units_text})"
         lines.append(f"  S >= {ident.fitted_S_pct:.2f}{pct} (OP's travel; the stem never moved, so J and the class "
                      "are not judged)")
     if ident.evidence:
