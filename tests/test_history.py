@@ -448,3 +448,20 @@ def test_the_loop_list_words_each_loops_last_run_by_its_verdict(tmp_path, capsys
     # the trend of the same loop agrees: no size for the run that said no stiction
     assert main(["history", "FIC2", "--db", str(db), "--json"]) == 0
     assert [r["S_pct"] for r in json.loads(capsys.readouterr().out)["runs"]] == [pytest.approx(2.5), None]
+
+
+def test_a_database_locked_past_the_wait_is_busy_not_broken(tmp_path):
+    db = tmp_path / "h.sqlite"
+    H.History(db).close()
+    conn = sqlite3.connect(db, isolation_level=None)
+    conn.execute("BEGIN EXCLUSIVE")
+    try:
+        with pytest.raises(H.HistoryBusy) as err:
+            H.History(db, busy_timeout_s=0.2)
+    finally:
+        conn.execute("ROLLBACK")
+        conn.close()
+    msg = str(err.value)
+    assert msg.startswith(f"{db}: ") and "locked by another process" in msg and "not a usable" not in msg
+    with H.History(db) as hist:   # usable again once the lock is gone
+        assert hist.runs("ANY") == []

@@ -501,6 +501,51 @@ def test_a_history_locked_by_another_writer_does_not_stop_the_polling(tmp_path):
     assert stored == {f"window:{w}" for _, w in results}
 
 
+def test_a_history_locked_when_the_monitor_starts_delays_neither_start_nor_polling(tmp_path):
+    """A history another process holds locked as the monitor starts is busy, not broken: the
+    monitor says so in one line, starts polling within its short wait (not SQLite's 30 s), and
+    stores the windows once the lock is released."""
+    import asyncio
+    import io
+    import sqlite3
+
+    from diagnose.service.history import History
+    from diagnose.service.monitor import STARTUP_DB_WAIT_S, Monitor
+
+    port = free_port()
+    cfg = tmp_path / "plant.toml"
+    cfg.write_text(default_config_text(port, 1, period_s=0.025, window_samples=100))
+    db = tmp_path / "h.sqlite"
+    History(db).close()
+    sim = _start_sim(port)
+    results: list[str] = []
+    log = io.StringIO()
+    # another process's transaction, released by a timer thread
+    conn = sqlite3.connect(db, timeout=5, isolation_level=None, check_same_thread=False)
+    conn.execute("BEGIN EXCLUSIVE")
+    release = threading.Timer(5.0, lambda: conn.execute("COMMIT"))
+    try:
+        t0 = time.monotonic()
+        mon = Monitor(cfg, tmp_path / "out", db=db, log=log, workers=1,
+                      on_result=lambda res: results.append(res.window))
+        started_s = time.monotonic() - t0
+        release.start()
+        stats = asyncio.run(mon.run(8.0))
+    finally:
+        release.cancel()
+        release.join()
+        conn.close()
+        _stop(sim)
+    text = log.getvalue()
+    assert STARTUP_DB_WAIT_S <= started_s < STARTUP_DB_WAIT_S + 5, started_s
+    said = [ln for ln in text.splitlines() if "polling starts without" in ln]
+    assert len(said) == 1 and str(db) in said[0] and "Traceback" not in text, text
+    assert stats.diagnosed == len(results) >= 2 and stats.errors == [], (stats, text)
+    with sqlite3.connect(db) as c:
+        stored = {r[0] for r in c.execute("SELECT input_hash FROM runs WHERE loop = 'SIM000'")}
+    assert stored == {f"window:{w}" for w in results}
+
+
 def test_results_waiting_for_a_locked_history_are_bounded_and_stored_at_the_stop(tmp_path, monkeypatch):
     """While another writer holds the history, at most HISTORY_QUEUE results wait for it (one more
     is not stored, said in its line, and the window's line is not held up); closing the monitor

@@ -215,6 +215,19 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
     }
 
 
+#: How long a write waits for a lock another process holds (a batch's transaction, a backup).
+BUSY_TIMEOUT_S = 30.0
+
+
+class HistoryBusy(StictionError):
+    """The history database stayed locked by another process for longer than the wait allowed."""
+
+
+def _is_busy(exc: sqlite3.Error) -> bool:
+    text = str(exc).lower()
+    return isinstance(exc, sqlite3.OperationalError) and ("locked" in text or "busy" in text)
+
+
 class History:
     """The results database.
 
@@ -224,9 +237,13 @@ class History:
         SQLite file; `default_db_path()` when None. Parent folders are created.
     readonly : bool
         Open an existing database for reading only (raises when it does not exist).
+    busy_timeout_s : float
+        How long opening and each write wait for a lock another process holds; past it,
+        `HistoryBusy` (a busy database is not a broken one).
     """
 
-    def __init__(self, path: str | os.PathLike | None = None, *, readonly: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike | None = None, *, readonly: bool = False,
+                 busy_timeout_s: float = BUSY_TIMEOUT_S) -> None:
         self.path = Path(path) if path is not None else default_db_path()
         if self.path.is_dir():  # sqlite says only "disk I/O error" of a folder
             raise StictionError(f"{self.path}: is a folder; --db takes the database file (for example "
@@ -239,7 +256,7 @@ class History:
                 self.conn = self._connect_readonly()
             else:
                 self._check_writable()
-                self.conn = sqlite3.connect(self.path, timeout=30)
+                self.conn = sqlite3.connect(self.path, timeout=busy_timeout_s)
                 self.conn.execute("PRAGMA journal_mode=WAL")
                 self.conn.execute("PRAGMA synchronous=NORMAL")
                 with self.conn:
@@ -249,6 +266,10 @@ class History:
                                       (str(SCHEMA_VERSION),))
             self._columns = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         except sqlite3.DatabaseError as exc:
+            if _is_busy(exc):
+                raise HistoryBusy(f"{self.path}: the history database stayed locked by another process (a "
+                                  f"batch storing its results, a backup) for {busy_timeout_s:g} s; run again "
+                                  "when it is done") from None
             raise StictionError(f"{self.path}: not a usable history database ({exc}); give another "
                                 "path with --db") from None
         self.conn.row_factory = sqlite3.Row

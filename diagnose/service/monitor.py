@@ -50,6 +50,9 @@ OUTAGE_AFTER_S = 1.0
 #: Results that may wait for the history database (locked by another writer, a slow disk); one
 #: more is not stored, said in its line, rather than held in memory without end.
 HISTORY_QUEUE = 256
+#: How long the monitor's start waits for a history database another process holds locked before
+#: it polls without the loops' earlier runs (the writer's thread then waits for the lock, as SQLite does).
+STARTUP_DB_WAIT_S = 2.0
 
 
 def _utc(t_s: float) -> str:
@@ -300,11 +303,22 @@ class Monitor:
         self._recent: dict[str, deque] = {}
         self.history_writer: HistoryWriter | None = None
         if history:
-            from .history import History
+            from .history import History, HistoryBusy, default_db_path
 
-            with History(db) as hist:   # a bad --db is a one-line error before polling starts
-                self.db_path = hist.path
-                self._seed_recent(hist)
+            try:
+                # a bad --db is a one-line error before polling starts
+                with History(db, busy_timeout_s=STARTUP_DB_WAIT_S) as hist:
+                    self.db_path = hist.path
+                    self._seed_recent(hist)
+            except HistoryBusy:
+                # locked, not broken: polling starts now, and the writer's thread waits for the lock
+                self.db_path = Path(db) if db is not None else default_db_path()
+                for name in self.config.loops:
+                    self._recent[history_loop(name)] = deque(maxlen=PERSIST_RUNS)
+                self._say(f"{self.db_path}: the history database is locked by another process (a batch "
+                          f"storing its results, a backup) for over {STARTUP_DB_WAIT_S:g} s: polling starts "
+                          "without the loops' earlier runs, and this run's results are stored when the lock "
+                          "is released")
             self.history_writer = HistoryWriter(self.db_path, self._not_stored)
         self.metrics = None
         if metrics_port is not None:
@@ -328,7 +342,8 @@ class Monitor:
             self._recent[loop] = deque(runs, maxlen=PERSIST_RUNS)
 
     def _say(self, msg: str) -> None:
-        # one write per line, under a lock: the history's thread says its failures too
+        # one write per line, under a lock: the poller's callbacks, the diagnoses and the history's
+        # thread all log here
         with self._say_lock:
             self.log.write(msg + "\n")
             self.log.flush()
@@ -358,8 +373,8 @@ class Monitor:
             if dev.up is False:
                 self.stats.reconnects += 1
                 what = "reconnected" if dev.ever_read else "first answer"
-                print(f"{_utc(t_s)} device {dev.name} ({dev.where}): {what} after {t_s - dev.since_s:.1f} s "
-                      "without data", file=self.log, flush=True)
+                self._say(f"{_utc(t_s)} device {dev.name} ({dev.where}): {what} after {t_s - dev.since_s:.1f} s "
+                          "without data")
             if dev.up is not True:
                 dev.up, dev.since_s = True, t_s
             dev.ever_read = True
@@ -376,9 +391,8 @@ class Monitor:
                 self.stats.outages += 1
                 dev.outages += 1
             dev.up, dev.since_s = False, dev.missing_since_s
-            print(f"{_utc(t_s)} device {dev.name} ({dev.where}): "
-                  f"{'outage' if dev.ever_read else 'no answer'}: {err or 'no data'}; retrying",
-                  file=self.log, flush=True)
+            self._say(f"{_utc(t_s)} device {dev.name} ({dev.where}): "
+                      f"{'outage' if dev.ever_read else 'no answer'}: {err or 'no data'}; retrying")
         dev.last_error = err or dev.last_error
 
     # ------------------------------------------------------------------------------ windows
@@ -410,7 +424,7 @@ class Monitor:
         # back with every poll: each is logged once per loop
         if (loop, str(exc)) not in self._said:
             self._said.add((loop, str(exc)))
-            print(f"{_utc(time.time())} {loop}: {exc}", file=self.log, flush=True)
+            self._say(f"{_utc(time.time())} {loop}: {exc}")
 
     def _on_window(self, record: Any) -> None:
         self.stats.windows += 1
@@ -436,8 +450,7 @@ class Monitor:
         self._pending.discard(fut)
         if fut.cancelled():
             self.stats.dropped += 1
-            print(f"{name}: window not diagnosed: the monitor stopped before its diagnosis began",
-                  file=self.log, flush=True)
+            self._say(f"{name}: window not diagnosed: the monitor stopped before its diagnosis began")
             return
         try:
             res = fut.result()
@@ -466,7 +479,7 @@ class Monitor:
         self.stats.failed += 1
         msg = f"{name}: window not diagnosed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
         self.stats.errors.append(msg)
-        print(msg, file=self.log, flush=True)
+        self._say(msg)
         if self.metrics is not None:
             self.metrics.failed(name)
 
@@ -477,12 +490,12 @@ class Monitor:
         name = signal.Signals(signum).name
         if self.stats.signal is None:
             self.stats.signal = signum
-            print(f"{_utc(time.time())} {name}: stopping; the partial windows of {self.min_samples} samples or "
-                  f"more are diagnosed first ({name} again drops those not yet begun)", file=self.log, flush=True)
+            self._say(f"{_utc(time.time())} {name}: stopping; the partial windows of {self.min_samples} samples or "
+                      f"more are diagnosed first ({name} again drops those not yet begun)")
             if self._poll_task is not None:
                 self._poll_task.cancel()
             return
-        print(f"{_utc(time.time())} {name} again: dropping the windows not yet begun", file=self.log, flush=True)
+        self._say(f"{_utc(time.time())} {name} again: dropping the windows not yet begun")
         for fut in list(self._pending):
             fut.cancel()
 
@@ -526,11 +539,10 @@ class Monitor:
             for dev in self.devices.values():
                 if not dev.ever_read:
                     self.stats.never_answered.append(dev.name)
-                    print(f"device {dev.name} ({dev.where}) never answered in {duration(self.stats.wall_s)}: "
-                          f"{dev.last_error or 'no data'}", file=self.log, flush=True)
+                    self._say(f"device {dev.name} ({dev.where}) never answered in {duration(self.stats.wall_s)}: "
+                              f"{dev.last_error or 'no data'}")
                 elif dev.up is False:
-                    print(f"device {dev.name} ({dev.where}) still down at the end, since {_utc(dev.since_s)}",
-                          file=self.log, flush=True)
+                    self._say(f"device {dev.name} ({dev.where}) still down at the end, since {_utc(dev.since_s)}")
             self.close()
         return self.stats
 
