@@ -250,29 +250,32 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     f = np.sign(dy)
     k_mov = np.flatnonzero(moving) + 1            # samples at which the stem moved
     half = float(np.median(f[k_mov - 1] * (u[k_mov] - y[k_mov])))
-    S_lo, S_hi, J_lo, J_hi = 0.0, math.inf, 0.0, math.inf
-    stays = 0
-    # a stay runs from a moving sample k (the valve stops after it) to the next moving sample j
-    nxt = np.r_[k_mov[1:], -1]
-    for k, j in zip(k_mov, nxt):
-        if j < 0:
-            break
-        fk = f[k - 1]
-        xss = u[k]
-        if j == k + 1:
-            if f[j - 1] != fk:           # stopped and reversed within one sample: beyond S
-                S_hi = min(S_hi, -fk * (u[j] - xss))
-            continue                     # kept moving: no stay
-        stays += 1
-        d = u[k + 1:j] - xss
-        S_lo = max(S_lo, float(np.max(-fk * d)))
-        J_lo = max(J_lo, float(np.max(fk * d)))
-        dj = u[j] - xss
-        if f[j - 1] != fk:
-            S_hi = min(S_hi, float(-fk * dj))
-        else:
-            S_lo = max(S_lo, float(-fk * dj))
-            J_hi = min(J_hi, float(fk * dj))
+    # a stay runs from a moving sample k (the valve stops after it) to the next moving sample j;
+    # all stays at once (this runs at every dead time tried)
+    ks, js = k_mov[:-1], k_mov[1:]
+    fk, fj = f[ks - 1], f[js - 1]
+    xss = u[ks]
+    dj = u[js] - xss
+    rev = fj != fk
+    held = js > ks + 1              # j == k + 1: the stem kept moving, no stay
+    stays = int(np.count_nonzero(held))
+    # stopped and reversed within one sample, or reversed after a stay: beyond S
+    S_hi = float(np.min(-fk[rev] * dj[rev], initial=math.inf))
+    # a restart after a stay: beyond J, and within S against the last direction
+    fwd = held & ~rev
+    J_hi = float(np.min(fk[fwd] * dj[fwd], initial=math.inf))
+    S_lo = float(np.max(-fk[fwd] * dj[fwd], initial=0.0))
+    J_lo = 0.0
+    if stays:
+        # during a stay the input stayed within S against the last direction and within J along
+        # it: the extremes of u over u[k+1:j] (u - x_ss rounds monotonically in u, so the extremes
+        # of the differences are the differences of the extremes)
+        bounds = np.column_stack([ks[held] + 1, js[held]]).ravel()
+        lo_u = np.minimum.reduceat(u, bounds)[::2] - xss[held]
+        hi_u = np.maximum.reduceat(u, bounds)[::2] - xss[held]
+        up = fk[held] > 0
+        S_lo = max(S_lo, float(np.max(np.where(up, -lo_u, hi_u))))
+        J_lo = max(J_lo, float(np.max(np.where(up, hi_u, -lo_u))))
     if stays == 0 or S_lo > S_hi or J_lo > J_hi:
         return None
     return S_lo, S_hi, J_lo, J_hi, half
