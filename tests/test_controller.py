@@ -65,3 +65,27 @@ def test_gaps_in_the_setpoint_do_not_break_the_estimate():
     sp[100:130] = np.nan
     a = controller_action(rec.op, rec.pv, rec.ts_s, sp=sp)
     assert a.sign == 1 and a.r2 > 0.99
+
+
+def test_a_pid_law_gives_its_sign_where_the_pi_regression_cannot():
+    """A temperature loop under PID with a sensor filter (the independent simulator's TIC00024,
+    seed 9): the PI regression leaves the derivative kick unexplained and finds no consistent
+    sign, so the fit took the controller path (a negative gain, PV = -OP / Kc) and missed the
+    sticky valve. The PID regression finds the reverse action, and the fit the plant."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.plantsim import make_loop
+    from diagnose.controller import _regression
+    from diagnose.record import LoopRecord
+
+    loop = make_loop("two_parameter", 9, 24, definition="identifiable")
+    assert loop.meta["tuning"] == "imc_pid" and loop.meta["Td_s"] > 0 and loop.meta["gain_sign"] == 1
+    e = loop.sp - loop.pv
+    assert _regression(loop.op, e, loop.ts_s, derivative=False).sign == 0
+    a = controller_action(loop.op, loop.pv, loop.ts_s, sp=loop.sp)
+    assert a.sign == 1 and a.r2 > 0.9 and np.isfinite(a.Td_s) and a.Td_s > 0
+    assert a.to_dict()["Td_s"] == pytest.approx(a.Td_s)
+    res = identify(LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp))
+    assert res.process.gain > 0 and res.stiction
