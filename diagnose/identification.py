@@ -494,6 +494,7 @@ def units_in_words(op_units: str) -> str:
             "fraction of span": "in fractions of span, as OP was logged"}.get(
         op_units, f"in {op_units}")
 
+
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
