@@ -268,8 +268,7 @@ class History:
         except sqlite3.DatabaseError as exc:
             if _is_busy(exc):
                 raise HistoryBusy(f"{self.path}: the history database stayed locked by another process (a "
-                                  f"batch storing its results, a backup) for {busy_timeout_s:g} s; run again "
-                                  "when it is done") from None
+                                  f"batch storing its results, a backup) for {busy_timeout_s:g} s") from None
             raise StictionError(f"{self.path}: not a usable history database ({exc}); give another "
                                 "path with --db") from None
         self.conn.row_factory = sqlite3.Row
@@ -304,6 +303,9 @@ class History:
                                     "(or not yours); give another path with --db (or --no-history)")
 
     def _failed(self, exc: sqlite3.Error, doing: str) -> StictionError:
+        if _is_busy(exc):   # busy, not damaged: nothing to check in the file
+            return HistoryBusy(f"{self.path}: the history database stayed locked by another process (a batch "
+                               f"storing its results, a backup) while {doing}")
         return StictionError(f"{self.path}: history database error while {doing} ({exc}); "
                              "check the file (`sqlite3 FILE 'PRAGMA integrity_check'`) or give another --db")
 
