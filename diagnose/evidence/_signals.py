@@ -306,7 +306,9 @@ class Prepared:
         """An amount of OP travel in words, in OP's own units."""
         if self.op_units == "% of span":
             return f"{v:.2f} % of span"
-        return f"{v:.3g} in OP's own units" if self.op_units == "OP units" else f"{v:.3g} of span (OP logged as a fraction)"
+        if self.op_units == "OP units":
+            return f"{v:.3g} in OP's own units"
+        return f"{v:.3g} of span (OP logged as a fraction)"
 
     @cached_property
     def op_d(self) -> np.ndarray:
