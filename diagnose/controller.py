@@ -93,7 +93,7 @@ def controller_action(op_pct, pv, ts_s: float, sp=None) -> ControllerAction:
     if pi.sign:
         return pi
     pid = _regression(x, e, ts_s, derivative=True)
-    return pid if pid.sign else (pi if pi.r2 > 0 else none)
+    return pid if pid.sign else pi
 
 
 def _regression(x: np.ndarray, e: np.ndarray, ts_s: float, *, derivative: bool) -> ControllerAction:

@@ -338,8 +338,9 @@ class Identification:
 
     @property
     def sj_units_text(self) -> str:
-        """The units of S, J and OP's travel in words, as every text gives them (`units_in_words`)."""
-        return units_in_words(self.op_units)
+        """The units of S, J and OP's travel in words, as every text gives them
+        (`diagnose.quality.units_in_words`)."""
+        return quality.units_in_words(self.op_units)
 
     @property
     def loop_oscillates(self) -> bool:
@@ -486,15 +487,6 @@ def _op_units(codes: set[str]) -> str:
     return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
 
 
-def units_in_words(op_units: str) -> str:
-    """S and J's units in words, for an `Identification.op_units` value: the one wording the
-    verdict line, the reports, the command's output and the warnings share."""
-    return {"% of span": "% of valve span",
-            "OP units": "in OP's own units, as OP is not in % of span",
-            "fraction of span": "in fractions of span, as OP was logged"}.get(
-        op_units, f"in {op_units}")
-
-
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
@@ -601,13 +593,11 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct >= S_MIN_PCT else "no_stiction"
     # a band that OP hardly ever crosses is a valve that hardly moves: little for the fit to go by
     if op_units == "% of span":
-        band, noise, travel = f"{S_pct:.2f} % of span", f"{op_noise_pct:.3g} %", f"{op_range_pct:.3g} % of span"
-    else:
-        # the same numbers in OP's own units (a fraction of span, or engineering units)
-        band = f"{S_pct:.3g} ({units_in_words(op_units)})"
+        noise, travel = f"{op_noise_pct:.3g} %", f"{op_range_pct:.3g} % of span"
+    else:   # the same numbers in OP's own units (a fraction of span, or engineering units)
         noise, travel = f"{op_noise_pct:.3g}", f"{op_range_pct:.3g} (the same units)"
     rows.append(Evidence("valve_band", ratio, BAND_NOISE_RATIO, dec,
-                         f"fitted valve band S = {band} is {ratio:.1f} times OP's own "
+                         f"fitted valve band S = {quality.op_amount(S_pct, op_units)} is {ratio:.1f} times OP's own "
                          f"sample-to-sample noise ({noise}); the fitted valve slips {slips} "
                          f"times as OP travels over {travel}",
                          extras={"S_pct": S_pct, "slips": float(slips),
@@ -866,11 +856,9 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             # other evidence found stiction the model fit could not size
             cls = "unknown"
             S_out = J_out = None
-            units = _op_units({w.code for w in warnings})
-            size = f"S = {S:.2f} % of span" if units == "% of span" else f"S = {S:.3g} {units_in_words(units)}"
             warnings.append(_warn("size_unknown",
                                   f"the evidence says the valve sticks but the model fit finds no valve band "
-                                  f"({size}): S, J and the class cannot be given"))
+                                  f"(S = {quality.op_amount(S, units)}): S, J and the class cannot be given"))
         elif ctest is not None:
             alternatives = tuple(k for k in ctest["plausible"] if k != cls)
     else:

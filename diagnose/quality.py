@@ -221,6 +221,22 @@ def op_saturation(op: np.ndarray) -> Finding | None:
 FILE_FORMATS = ("wide", "long", "ragged", "influx", "dcs")
 
 
+def units_in_words(op_units: str) -> str:
+    """S and J's units in words, for an `Identification.op_units` value (``"% of span"``, ``"OP
+    units"``, ``"fraction of span"``): the one wording the verdict line, the reports, the command's
+    output, the warnings and the evidence notes share."""
+    return {"% of span": "% of valve span",
+            "OP units": "in OP's own units, as OP is not in % of span",
+            "fraction of span": "in fractions of span, as OP was logged"}.get(op_units, f"in {op_units}")
+
+
+def op_amount(value: float, op_units: str = "% of span") -> str:
+    """An amount of OP travel (a valve band, a stuck stretch) in words, in OP's own units."""
+    if op_units == "% of span":
+        return f"{value:.2f} % of span"
+    return f"{value:.3g} ({units_in_words(op_units)})"
+
+
 def op_scale_advice(record: LoopRecord) -> str:
     """How whoever made ``record`` gives OP in % of span: a tag map for a file (its ``range``
     scales OP, and the export stays as it is), a keyword for a DataFrame or arrays (Python, where

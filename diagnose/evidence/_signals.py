@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import kernels
 from ..oscillation import acf
+from ..quality import op_amount
 
 MIN_SAMPLES = 32          # below this no test judges anything
 MIN_CYCLES = 2.0          # oscillation tests need at least this many periods in the record
@@ -303,12 +304,8 @@ class Prepared:
 
     # -- signals -----------------------------------------------------------------------------
     def op_amount(self, v: float) -> str:
-        """An amount of OP travel in words, in OP's own units."""
-        if self.op_units == "% of span":
-            return f"{v:.2f} % of span"
-        if self.op_units == "OP units":
-            return f"{v:.3g} in OP's own units"
-        return f"{v:.3g} of span (OP logged as a fraction)"
+        """An amount of OP travel in words, in OP's own units (`diagnose.quality.op_amount`)."""
+        return op_amount(v, self.op_units)
 
     @cached_property
     def op_d(self) -> np.ndarray:

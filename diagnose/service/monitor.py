@@ -305,20 +305,15 @@ class Monitor:
         if history:
             from .history import History, HistoryBusy, default_db_path
 
+            self.db_path = Path(db) if db is not None else default_db_path()
             try:
                 # a bad --db is a one-line error before polling starts
-                with History(db, busy_timeout_s=STARTUP_DB_WAIT_S) as hist:
-                    self.db_path = hist.path
+                with History(self.db_path, busy_timeout_s=STARTUP_DB_WAIT_S) as hist:
                     self._seed_recent(hist)
-            except HistoryBusy:
+            except HistoryBusy as exc:
                 # locked, not broken: polling starts now, and the writer's thread waits for the lock
-                self.db_path = Path(db) if db is not None else default_db_path()
-                for name in self.config.loops:
-                    self._recent[history_loop(name)] = deque(maxlen=PERSIST_RUNS)
-                self._say(f"{self.db_path}: the history database is locked by another process (a batch "
-                          f"storing its results, a backup) for over {STARTUP_DB_WAIT_S:g} s: polling starts "
-                          "without the loops' earlier runs, and this run's results are stored when the lock "
-                          "is released")
+                self._say(f"{exc}: polling starts without the loops' earlier runs, and this run's results "
+                          "are stored when the lock is released")
             self.history_writer = HistoryWriter(self.db_path, self._not_stored)
         self.metrics = None
         if metrics_port is not None:
