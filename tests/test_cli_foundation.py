@@ -182,6 +182,28 @@ def test_a_reader_that_stops_reading_ends_the_command_quietly(tmp_path):
         os.close(w)
 
 
+def test_the_installed_program_skips_teardown_but_runs_exit_handlers_and_keeps_exit_codes(tmp_path):
+    # `console` ends the process with os._exit: exit handlers must still run, stdout must be whole,
+    # and every exit code must come through
+    loop = tmp_path / "loop.csv"
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", "600", "--out", str(loop)]) == 0
+    mark = tmp_path / "exit-handler-ran"
+    code = ("import atexit, sys; from diagnose.service.cli import console; "
+            f"atexit.register(lambda: open({str(mark)!r}, 'w').close()); "
+            "sys.argv = ['stiction', *sys.argv[1:]]; console()")
+    for argv, rc in ((["identify", str(loop), "--json"], 0), (["identify", str(tmp_path / "none.csv")], 1),
+                     (["identify", "--no-such-option"], 2)):
+        if mark.exists():
+            mark.unlink()
+        proc = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == rc, (argv, proc.stderr)
+        assert mark.exists(), argv
+        if rc == 0:
+            assert json.loads(proc.stdout)["n_samples"] == 600
+        else:
+            assert proc.stderr.strip() and "Traceback" not in proc.stderr
+
+
 def test_an_export_whose_pv_is_all_bad_is_judged_from_op_alone(tmp_path, capsys):
     # a dead transmitter exported as "Bad": the loop is not refused; OP's shape is judged
     good = tmp_path / "loop.csv"

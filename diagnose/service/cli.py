@@ -11,11 +11,13 @@ shows the Python traceback.
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
 import os
 import signal
 import sys
-from typing import Sequence
+import threading
+from typing import NoReturn, Sequence
 
 from ..errors import StictionError
 
@@ -106,5 +108,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+def console() -> NoReturn:
+    """The installed ``stiction`` program: `main`, then the end of the process.
+
+    Once a command has returned, everything it wrote is closed or flushed; what is left is the
+    interpreter freeing every object of numpy, pandas and the kernels one by one, a few tenths of a
+    second on a slow core that the user waits for and nothing needs. So the process ends here
+    without that teardown, after the exit handlers have run and stdout and stderr are flushed.
+    Where another thread still runs (nothing of ours leaves one, but a plug-in might), the normal
+    exit joins it instead.
+    """
+    rc = main()
+    if threading.active_count() > 1:
+        sys.exit(rc)
+    atexit._run_exitfuncs()  # temporary folders, logging, child processes: as at a normal exit
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        rc = _quiet_exit()
+    except (OSError, ValueError):
+        rc = rc or 1
+    try:
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    os._exit(rc)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console()
