@@ -14,7 +14,7 @@ from diagnose.errors import DataError
 from diagnose.physics import REGISTRY, PhysicsHypothesis, explain, locate
 from diagnose.physics.concealed import EFFECTS, concealed_loop
 from diagnose.physics.hypotheses import PlainModel, register
-from diagnose.physics.model import Stage, Structure, predict, train_sse
+from diagnose.physics.model import Candidates, Pool, Stage, Structure, mesh, predict, train_sse
 from diagnose.physics.search import fit_initial_state, refine_plain
 from diagnose.physics.plant import (AsymmetricStictionValve, AugmentedValve, CharacteristicProcess,
                                     DriftingStictionValve, LaggedValve, equal_percentage)
@@ -82,6 +82,67 @@ def test_fused_training_sse_equals_simulate_then_least_squares():
         y_hat, _, _ = predict(stage, s)
         e = (y - y_hat)[: stage.n_fit][train[: stage.n_fit]]
         assert g == pytest.approx(float(e @ e), rel=1e-6)
+
+
+@pytest.mark.parametrize("kind, period", [("foptd", None), ("soptd", 45.0), ("integrating", None),
+                                          ("integrating", 80.0)])
+def test_candidate_columns_score_and_read_back_as_the_structures_they_stand_for(kind, period):
+    # a grid held as columns must score bit for bit as the same structures one by one, read back
+    # as those structures, and list them in the order of the nested loops
+    rng = np.random.default_rng(11)
+    x = _walk(900, 11)
+    y = 0.6 * x + rng.normal(0, 0.4, x.size)
+    train = np.zeros(x.size, bool)
+    train[50:700] = True
+    stage = Stage("loop", x, y, 1.0, train, gain_sign=1)
+    proc = ProcessModel(kind, 1.0, 8.0, 2.0, 0.0, **({"tau2_s": 3.0} if kind == "soptd" else {}))
+    base = Structure(S_up_pct=2.0, J_up_pct=1.0, S_dn_pct=2.0, J_dn_pct=1.0, tau_lag_s=2.0, char_c=0.5,
+                     process=proc, period_s=period, y0_pct=float(x[0]) + 0.5, xs0_pct=float(x[0]) + 1.0)
+    S = np.array([1.5, 2.0, 3.1])
+    r = np.array([0.0, 0.5])
+    y0 = np.array([np.nan, float(x[0]) - 0.3])
+    tau = np.array([4.0, 9.5])
+    s_, r_, f_, y_, t_ = mesh(S, r, (1, -1), y0, tau)
+    cols = dict(S_up_pct=s_, S_dn_pct=0.8 * s_, J_up_pct=s_ * r_, J_dn_pct=s_ * r_, f0=f_, y0_pct=y_,
+                tau_s=t_, delay_s=3.0)
+    if period is not None:
+        cols["period_s"] = period * (1.0 + 0.1 * r_)
+    grid = Candidates(base, **cols)
+    loops = [base.replace(S_up_pct=s, S_dn_pct=0.8 * s, J_up_pct=s * rr, J_dn_pct=s * rr, f0=f,
+                          y0_pct=None if np.isnan(yy) else float(yy),
+                          process=ProcessModel(kind, 1.0, t, 3.0, 0.0, **({"tau2_s": 3.0} if kind == "soptd" else {})),
+                          **({} if period is None else {"period_s": period * (1.0 + 0.1 * rr)}))
+             for s in S for rr in r for f in (1, -1) for yy in y0 for t in tau]
+    assert len(grid) == len(loops) == 48
+    for i in (0, 7, 30, -1):
+        got, want = grid[i], loops[i]
+        assert got.process.tau_s == want.process.tau_s and got.process.kind == kind
+        assert (got.S_up_pct, got.J_up_pct, got.f0, got.y0_pct, got.xs0_pct, got.period_s) == \
+            (want.S_up_pct, want.J_up_pct, want.f0, want.y0_pct, want.xs0_pct, want.period_s)
+    one_by_one = train_sse(stage, loops)
+    assert np.array_equal(train_sse(stage, grid), one_by_one)
+    # mixed with single structures, in a pool: the same numbers in the pool's flat order
+    pool = Pool([loops[5], grid, base])
+    assert len(pool) == 50 and pool[0] is loops[5] and pool[-1] is base and pool[6].S_up_pct == loops[5].S_up_pct
+    assert np.array_equal(train_sse(stage, pool), np.concatenate([one_by_one[5:6], one_by_one,
+                                                                  train_sse(stage, [base])]))
+
+
+def test_candidate_columns_refuse_what_a_structure_would_not_take():
+    base = Structure.plain(1.0, 0.5, 1, ProcessModel("foptd", 1.0, 5.0, 1.0, 0.0))
+    with pytest.raises(TypeError, match="cannot vary"):
+        Candidates(base, process=[1.0])
+    with pytest.raises(TypeError, match="load period"):
+        Candidates(base, period_s=[30.0])
+    with pytest.raises(TypeError, match="soptd"):
+        Candidates(base, tau2_s=[3.0])
+    with pytest.raises(DataError, match=">= 0 seconds"):
+        Candidates(base, delay_s=[-1.0])
+    with pytest.raises(IndexError):
+        Candidates(base, S_up_pct=[1.0, 2.0])[2]
+    stage = Stage("loop", _walk(300), _walk(300, 1), 1.0, np.ones(300, bool))
+    with pytest.raises(DataError, match="S and J"):
+        train_sse(stage, Candidates(base, S_up_pct=[1.0, -0.5]))
 
 
 @pytest.mark.parametrize("gain_sign", [0, 1, -1])

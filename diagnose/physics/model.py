@@ -20,11 +20,13 @@ over the whole record. The searches that fit structures are in `diagnose.physics
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import functools
+import math
 import operator
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterable, Sequence, Union
 
 import numpy as np
 
@@ -242,48 +244,209 @@ def _row(s: Structure) -> tuple:
                                np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
 
 
-def train_sse(stage: Stage, structs: Sequence[Structure]) -> np.ndarray:
+#: The fields a `Candidates` column may set, and their column in the kernels' parameter rows
+#: (`_row`); ``period_s`` is passed beside the rows.
+_ROW_COLUMN = {"S_up_pct": 0, "J_up_pct": 1, "S_dn_pct": 2, "J_dn_pct": 3, "dS_pct_per_s": 4,
+               "dJ_pct_per_s": 5, "f0": 6, "tau_lag_s": 7, "char_c": 8, "tau_s": 9, "tau2_s": 10,
+               "delay_s": 11, "y0_pct": 12, "xs0_pct": 13, "period_s": None}
+
+
+class Candidates(Sequence[Structure]):
+    """Structures that differ from one ``base`` only in numeric fields, held as columns.
+
+    A search grid holds tens of thousands of candidates; as columns they reach the kernels without
+    a Python object each (building those cost more than a second of every explain), and a
+    `Structure` is made only for a candidate read back (``cands[i]``).
+
+    Parameters
+    ----------
+    base : Structure
+        Every field not given as a column, the process kind and whether there is a load.
+    **columns : array_like
+        Values per candidate, broadcast together and flattened in C order (so
+        ``Candidates(b, **dict(zip(names, mesh(a1, a2))))`` lists them as the nested loops
+        ``for v1 in a1 for v2 in a2`` would). Any of the valve's fields (``S_up_pct`` ...
+        ``xs0_pct``, NaN for None in ``y0_pct`` and ``xs0_pct``; ``f0`` as +-1), ``tau_lag_s``,
+        ``char_c``, ``period_s`` (only where ``base`` has a load) and the process's ``tau_s``,
+        ``tau2_s`` (second-order processes) and ``delay_s``, seconds.
+    """
+
+    __slots__ = ("base", "columns", "_n")
+
+    def __init__(self, base: Structure, **columns):
+        bad = set(columns) - set(_ROW_COLUMN)
+        if bad:
+            raise TypeError(f"Candidates cannot vary {sorted(bad)}")
+        if "period_s" in columns and base.period_s is None:
+            raise TypeError("period_s varies only around a base that has a load period")
+        if "tau2_s" in columns and base.process.kind != "soptd":
+            raise TypeError("tau2_s varies only around a second-order (soptd) process")
+        arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in columns.values()))
+        self.base = base
+        self.columns = {k: np.ascontiguousarray(a).reshape(-1) for k, a in zip(columns, arrays)}
+        self._n = int(arrays[0].size) if arrays else 1
+        for k in _PROCESS_TIMES & set(columns):
+            if not np.all(self.columns[k] >= 0):
+                raise DataError("process time constants and dead time must be >= 0 seconds")
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(self._n))]
+        i = operator.index(i)
+        if not -self._n <= i < self._n:
+            raise IndexError("candidate index out of range")
+        i %= self._n
+        kw, times = {}, {}
+        for k, col in self.columns.items():
+            v = float(col[i])
+            if k in _PROCESS_TIMES:
+                times[k] = v
+            elif k == "f0":
+                kw[k] = int(v)
+            elif k in ("y0_pct", "xs0_pct"):
+                kw[k] = None if math.isnan(v) else v
+            else:
+                kw[k] = v
+        if times:
+            kw["process"] = with_times(self.base.process, **times)
+        return self.base.replace(**kw)
+
+    def rows(self) -> np.ndarray:
+        """The kernels' parameter rows (`_row`), shape (n, 14)."""
+        P = np.empty((self._n, 14))
+        P[:] = _row(self.base)
+        for k, col in self.columns.items():
+            j = _ROW_COLUMN[k]
+            if j is not None:
+                P[:, j] = col
+        # as in `_row`: the OP at which the valve stuck counts only with the position it stuck at
+        P[:, 13] = np.where(np.isnan(P[:, 12]), np.nan, P[:, 13])
+        return P
+
+    def periods(self) -> np.ndarray | None:
+        """The load period of each candidate, seconds (None: no load)."""
+        if self.base.period_s is None:
+            return None
+        col = self.columns.get("period_s")
+        return np.full(self._n, float(self.base.period_s)) if col is None else col
+
+
+def mesh(*axes) -> list[np.ndarray]:
+    """Every combination of the axes' values, one flat array per axis, in the order of nested loops
+    over them (the first axis outermost): the columns of a grid of `Candidates`."""
+    return [g.reshape(-1) for g in np.meshgrid(*(np.asarray(a, dtype=np.float64) for a in axes), indexing="ij")]
+
+
+class Pool(Sequence[Structure]):
+    """Structures and `Candidates` side by side, read and scored as one flat sequence."""
+
+    __slots__ = ("parts", "_ends")
+
+    def __init__(self, items: Iterable[Union[Structure, Candidates]]):
+        if isinstance(items, Pool):
+            self.parts, self._ends = items.parts, items._ends
+            return
+        self.parts = [items] if isinstance(items, Candidates) else list(items)
+        ends, total = [], 0
+        for p in self.parts:
+            total += len(p) if isinstance(p, Candidates) else 1
+            ends.append(total)
+        self._ends = ends
+
+    def __len__(self) -> int:
+        return self._ends[-1] if self._ends else 0
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = operator.index(i)
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError("candidate index out of range")
+        i %= n
+        k = bisect.bisect_right(self._ends, i)
+        part = self.parts[k]
+        return part[i - (self._ends[k - 1] if k else 0)] if isinstance(part, Candidates) else part
+
+    def table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Parameter rows (n, 14), whether each candidate has a load, whether its process is
+        integrating, and its load's angular frequency (rad/s; NaN without a load)."""
+        rows, load, integ, freq = [], [], [], []
+        singles: list[Structure] = []
+
+        def flush():
+            if singles:
+                rows.append(np.array([_row(s) for s in singles], dtype=np.float64).reshape(len(singles), 14))
+                load.append(np.array([s.period_s is not None for s in singles]))
+                integ.append(np.array([s.process.kind == "integrating" for s in singles]))
+                freq.append(np.array([np.nan if s.period_s is None else 2.0 * np.pi / s.period_s for s in singles],
+                                     dtype=np.float64))
+                singles.clear()
+
+        for p in self.parts:
+            if not isinstance(p, Candidates):
+                singles.append(p)
+                continue
+            flush()
+            m = len(p)
+            rows.append(p.rows())
+            per = p.periods()
+            load.append(np.full(m, per is not None))
+            integ.append(np.full(m, p.base.process.kind == "integrating"))
+            freq.append(np.full(m, np.nan) if per is None else 2.0 * np.pi / per)
+        flush()
+        if not rows:
+            return np.empty((0, 14)), np.empty(0, bool), np.empty(0, bool), np.empty(0)
+        return np.concatenate(rows), np.concatenate(load), np.concatenate(integ), np.concatenate(freq)
+
+
+def train_sse(stage: Stage, structs: Iterable[Union[Structure, Candidates]]) -> np.ndarray:
     """Training sum of squared errors of each structure (simulated through the training part).
 
-    One fused compiled pass per candidate (`diagnose.kernels.fused_sse`, `fused_sse_load` for
+    ``structs``: structures, `Candidates` or a `Pool` of both, scored in their flat order. One
+    fused compiled pass per candidate (`diagnose.kernels.fused_sse`, `fused_sse_load` for
     candidates with a load: the valve step, characteristic, lags, least squares): memory does not
     grow with the number of candidates times the record length.
     """
     n = stage.n_fit
-    structs = list(structs)
+    P_all, load_all, integ_all, freq_all = Pool(structs).table()
     x = np.ascontiguousarray(stage.x[:n], dtype=np.float64)
     tr = np.ascontiguousarray(stage.train[:n], dtype=np.float64)
     yv = np.ascontiguousarray(stage.y[:n], dtype=np.float64)
     ts = float(stage.ts_s)
-    out = np.empty(len(structs))
-    groups: dict = {}
-    for i, s in enumerate(structs):
-        # candidates with a load take its sine and cosine per candidate (a search over periods, or
-        # the posterior's draws, would otherwise be one call per period)
-        groups.setdefault((s.period_s is not None, s.process.kind == "integrating"), []).append(i)
-    for (load, integ), idx in groups.items():
-        sub = [structs[i] for i in idx]
-        m = len(sub)
-        P = np.array([_row(s) for s in sub], dtype=np.float64).reshape(m, 14)
-        if np.any(P[:, :4] < 0) or not np.all(np.isfinite(P[:, :4])):
-            raise DataError("S and J must be finite and >= 0 % of span")
-        tl = P[:, 7]
-        a_lag = np.where(tl > 0, np.exp(-ts / np.where(tl > 0, tl, 1.0)), 0.0)
-        t1 = P[:, 9]
-        a1 = np.where(t1 > 0, np.exp(-ts / np.where(t1 > 0, t1, 1.0)), 0.0)
-        t2 = P[:, 10]
-        a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
-        d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
-        params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
-                                  P[:, 12], P[:, 13]])
-        ig = np.full(m, integ, np.bool_)
-        if load:
-            wl = np.array([2.0 * np.pi / s.period_s for s in sub])
-            out[idx] = kernels.fused_sse_load(x, params, P[:, 8], a1, a2, d, ig, ts, wl, integ, yv, tr,
-                                              float(stage.gain_sign))
-        else:
-            E = _time_column(ts, n, integ)
-            out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, ig, ts, E, yv, tr, float(stage.gain_sign))
+    out = np.empty(P_all.shape[0])
+    # candidates with a load take its sine and cosine per candidate (a search over periods, or the
+    # posterior's draws, would otherwise be one call per period)
+    for load in (False, True):
+        for integ in (False, True):
+            idx = np.flatnonzero((load_all == load) & (integ_all == integ))
+            if idx.size == 0:
+                continue
+            P = P_all[idx]
+            m = idx.size
+            if np.any(P[:, :4] < 0) or not np.all(np.isfinite(P[:, :4])):
+                raise DataError("S and J must be finite and >= 0 % of span")
+            tl = P[:, 7]
+            a_lag = np.where(tl > 0, np.exp(-ts / np.where(tl > 0, tl, 1.0)), 0.0)
+            t1 = P[:, 9]
+            a1 = np.where(t1 > 0, np.exp(-ts / np.where(t1 > 0, t1, 1.0)), 0.0)
+            t2 = P[:, 10]
+            a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
+            d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
+            params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
+                                      P[:, 12], P[:, 13]])
+            ig = np.full(m, integ, np.bool_)
+            if load:
+                out[idx] = kernels.fused_sse_load(x, params, P[:, 8], a1, a2, d, ig, ts,
+                                                  np.ascontiguousarray(freq_all[idx]), integ, yv, tr,
+                                                  float(stage.gain_sign))
+            else:
+                E = _time_column(ts, n, integ)
+                out[idx] = kernels.fused_sse(x, params, P[:, 8], a1, a2, d, ig, ts, E, yv, tr,
+                                             float(stage.gain_sign))
     return out
 
 

@@ -26,12 +26,13 @@ from typing import Sequence
 import numpy as np
 
 from ..process_model import ProcessModel
-from .model import IDENTITY, Stage, Structure, train_sse, with_times
+from .model import IDENTITY, Candidates, Pool, Stage, Structure, mesh, train_sse, with_times
 
 
-def best_distinct(cands: list, sse, key, k: int) -> list:
+def best_distinct(cands: Sequence[Structure], sse, key, k: int) -> list:
     """The ``k`` cheapest candidates whose ``key`` differs: on rough costs, distinct starting points
-    rather than neighbours of one."""
+    rather than neighbours of one. ``cands``: a sequence of structures (a `Pool` or `Candidates`
+    makes a structure only for those looked at)."""
     out, seen = [], set()
     for i in np.argsort(sse):
         c = cands[int(i)]
@@ -45,8 +46,9 @@ def best_distinct(cands: list, sse, key, k: int) -> list:
     return out
 
 
-def best_of(stage: Stage, structs: Sequence[Structure]) -> tuple[Structure, float]:
-    structs = list(structs)
+def best_of(stage: Stage, structs) -> tuple[Structure, float]:
+    """The cheapest of ``structs`` (structures and `Candidates`) and its training SSE."""
+    structs = Pool(structs)
     sse = train_sse(stage, structs)
     sse = np.where(np.isfinite(sse), sse, np.inf)
     i = int(np.argmin(sse))
@@ -99,10 +101,11 @@ def refine_sj(stage: Stage, struct: Structure, *, s_span: float = 0.12, n_s: int
     """Local symmetric (S, J) grid (and f0) around ``struct``, other parameters fixed."""
     S, J = struct.S_up_pct, struct.J_up_pct
     fs = (1, -1) if both_f0 else (struct.f0,)
-    cands = [struct.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=j, J_dn_pct=j, f0=f)
-             for s, j in sj_local(S, J, s_span=s_span, n_s=n_s, j_span=j_span, n_j=n_j) for f in fs]
-    cands.append(struct)
-    return best_of(stage, cands)
+    sj = np.array(sj_local(S, J, s_span=s_span, n_s=n_s, j_span=j_span, n_j=n_j)).reshape(-1, 2)
+    i, f = mesh(np.arange(sj.shape[0]), fs)
+    k = i.astype(np.intp)
+    grid = Candidates(struct, S_up_pct=sj[k, 0], S_dn_pct=sj[k, 0], J_up_pct=sj[k, 1], J_dn_pct=sj[k, 1], f0=f)
+    return best_of(stage, [grid, struct])
 
 
 def refine_plain(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Structure, float]:
@@ -131,10 +134,10 @@ def global_sj(stage: Stage, struct: Structure, span: float | None = None, step: 
     hi = max(0.8 * span, 0.3)
     S_grid = np.exp(np.arange(math.log(0.2), math.log(hi) + 1e-9, math.log1p(step)))
     ratios = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.45)
-    cands = [struct.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f)
-             for s in S_grid for r in ratios for f in (1, -1)]
-    cands += [struct.replace(S_up_pct=0.0, S_dn_pct=0.0, J_up_pct=0.0, J_dn_pct=0.0), struct]
-    best = best_of(stage, cands)[0]
+    s, r, f = mesh(S_grid, ratios, (1, -1))
+    grid = Candidates(struct, S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f)
+    best = best_of(stage, [grid, struct.replace(S_up_pct=0.0, S_dn_pct=0.0, J_up_pct=0.0, J_dn_pct=0.0),
+                           struct])[0]
     return refine_sj(stage, best, s_span=0.03, n_s=7, j_span=0.15, n_j=7)[0]
 
 
@@ -152,10 +155,10 @@ def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -
     if local and struct.y0_pct is not None:
         c = struct.y0_pct
         ys = c + (np.arange(-0.1, 0.101, 0.02) if valve else np.linspace(-0.1, 0.1, 9) * s_max)
-        cands = [struct.replace(y0_pct=float(y)) for y in ys]
+        cands = [Candidates(struct, y0_pct=ys)]
         if struct.xs0_pct is not None:
             b0 = best_of(stage, cands + [struct])[0]
-            cands += [b0.replace(xs0_pct=float(b0.xs0_pct + d)) for d in np.linspace(-0.1, 0.1, 11) * s_max]
+            cands.append(Candidates(b0, xs0_pct=b0.xs0_pct + np.linspace(-0.1, 0.1, 11) * s_max))
         return best_of(stage, cands + [struct])
     best, sse = best_of(stage, start_grid(stage, struct))
     if best.y0_pct is None:
@@ -164,13 +167,12 @@ def fit_initial_state(stage: Stage, struct: Structure, *, local: bool = False) -
     # slip (a valve that has not moved since some other disturbance)
     y0 = best.y0_pct
     dy = np.arange(-0.2, 0.201, 0.05) if valve else np.linspace(-0.12, 0.12, 7) * s_max
-    cands = [best.replace(y0_pct=float(y0 + e), xs0_pct=float(y0 + e + d * s_max), f0=f)
-             for e in dy for d in np.linspace(-1.3, 1.3, 53) for f in (1, -1)] + [best]
-    best, sse = best_of(stage, cands)
+    e, d, f = mesh(dy, np.linspace(-1.3, 1.3, 53), (1, -1))
+    best, sse = best_of(stage, [Candidates(best, y0_pct=y0 + e, xs0_pct=y0 + e + d * s_max, f0=f), best])
     return fit_initial_state(stage, best, local=True)
 
 
-def start_grid(stage: Stage, struct: Structure) -> list[Structure]:
+def start_grid(stage: Stage, struct: Structure) -> Pool:
     """The first grid of `fit_initial_state`: the stem stuck at points around OP's first sample
     (+-1.2 times the largest S or J; on the valve stage also finely around the first measured stem
     positions), after a motion either way, with the input where a moving valve stops; at rest at
@@ -182,8 +184,9 @@ def start_grid(stage: Stage, struct: Structure) -> list[Structure]:
         # the target is the stem position itself: a fine grid around its first samples (the
         # first slip's timing is sharp in where the stem stuck)
         ys = np.append(ys, float(np.median(stage.y[:3])) + np.arange(-0.4, 0.401, 0.02))
-    cands = [struct.replace(y0_pct=float(np.clip(y, 0.0, 100.0)), xs0_pct=None, f0=f) for y in ys for f in (1, -1)]
-    return cands + [struct.replace(y0_pct=None, xs0_pct=None, f0=f) for f in (1, -1)] + [struct]
+    y, f = mesh(np.clip(ys, 0.0, 100.0), (1, -1))
+    return Pool([Candidates(struct, y0_pct=y, xs0_pct=np.nan, f0=f),
+                 Candidates(struct, y0_pct=np.nan, xs0_pct=np.nan, f0=(1, -1)), struct])
 
 
 def y0_options(stage: Stage, reference: Structure) -> list:
@@ -195,6 +198,12 @@ def y0_options(stage: Stage, reference: Structure) -> list:
         if reference.y0_pct is None or abs(reference.y0_pct - y0) > 0.05:
             out.append({"y0_pct": y0, "xs0_pct": None})
     return out
+
+
+def y0_columns(y0s: list[dict], i) -> dict[str, np.ndarray]:
+    """`y0_options`' starts as `Candidates` columns: start ``i[k]`` for candidate ``k``."""
+    i = np.asarray(i, dtype=np.intp)
+    return {k: np.array([np.nan if y0[k] is None else y0[k] for y0 in y0s], float)[i] for k in ("y0_pct", "xs0_pct")}
 
 
 def with_sj(struct: Structure, S: float, J: float, f0: int | None = None) -> Structure:
@@ -234,21 +243,20 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None, *, pro
         e0 = getattr(best, extra) if extra else 0.0
         ems = (0.7, 0.85, 1.0, 1.15, 1.3) if e0 else (1.0,)
         cands = []
+        m, r, f = mesh(1.0 + np.linspace(-0.12, 0.12, 49), np.linspace(0.0, 1.45, 30), (1, -1))
         for em in ems:
             kw, de = _extra_scale(extra, e0, em)
             dS = dS0 * de
-            for m in 1.0 + np.linspace(-0.12, 0.12, 49):
-                for r in np.linspace(0.0, 1.45, 30):
-                    cands += [best.replace(S_up_pct=S0 * m, S_dn_pct=S0 * m, J_up_pct=S0 * m * r,
-                                           J_dn_pct=S0 * m * r, dS_pct_per_s=dS * m, dJ_pct_per_s=dS * m * r,
-                                           f0=f, **kw) for f in (1, -1)]
+            cands.append(Candidates(best, S_up_pct=S0 * m, S_dn_pct=S0 * m, J_up_pct=S0 * m * r,
+                                    J_dn_pct=S0 * m * r, dS_pct_per_s=dS * m, dJ_pct_per_s=dS * m * r,
+                                    f0=f, **kw))
         b, _ = best_of(stage, cands + [best])
         S1, J1 = b.S_up_pct, max(b.J_up_pct, 0.02)
         dS1, dJ1 = b.dS_pct_per_s, b.dJ_pct_per_s
-        cands = [b.replace(S_up_pct=S1 * m, S_dn_pct=S1 * m, J_up_pct=J1 * mj, J_dn_pct=J1 * mj,
-                           dS_pct_per_s=dS1 * m, dJ_pct_per_s=dJ1 * mj)
-                 for m in 1.0 + np.linspace(-0.02, 0.02, 41) for mj in 1.0 + np.linspace(-0.08, 0.08, 17)]
-        return best_of(stage, cands + [b])[0]
+        m, mj = mesh(1.0 + np.linspace(-0.02, 0.02, 41), 1.0 + np.linspace(-0.08, 0.08, 17))
+        grid = Candidates(b, S_up_pct=S1 * m, S_dn_pct=S1 * m, J_up_pct=J1 * mj, J_dn_pct=J1 * mj,
+                          dS_pct_per_s=dS1 * m, dJ_pct_per_s=dJ1 * mj)
+        return best_of(stage, [grid, b])[0]
 
     def joint(best: Structure) -> Structure:
         # S, J and the extra together in fine steps: the one-at-a-time steps above stop short of a
@@ -257,11 +265,11 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None, *, pro
         dS0, dJ0 = best.dS_pct_per_s, best.dJ_pct_per_s
         ems = 1.0 + np.linspace(-0.1, 0.1, 11) if e0 else (1.0,)
         cands = []
+        m, mj = mesh(1.0 + np.linspace(-0.01, 0.01, 9), 1.0 + np.linspace(-0.3, 0.3, 25))
         for em in ems:
             kw, de = _extra_scale(extra, e0, em)
-            cands += [best.replace(S_up_pct=S0 * m, S_dn_pct=S0 * m, J_up_pct=J0 * mj, J_dn_pct=J0 * mj,
-                                   dS_pct_per_s=dS0 * m * de, dJ_pct_per_s=dJ0 * mj * de, **kw)
-                      for m in 1.0 + np.linspace(-0.01, 0.01, 9) for mj in 1.0 + np.linspace(-0.3, 0.3, 25)]
+            cands.append(Candidates(best, S_up_pct=S0 * m, S_dn_pct=S0 * m, J_up_pct=J0 * mj, J_dn_pct=J0 * mj,
+                                    dS_pct_per_s=dS0 * m * de, dJ_pct_per_s=dJ0 * mj * de, **kw))
         return best_of(stage, cands + [best])[0]
 
     best = polish(stage, profile_ratio(stage, struct, extra) if profile else struct, one_round)
@@ -290,7 +298,7 @@ def profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Structu
                    for r in np.linspace(0.0, 1.45, 30)]
     # every value with the first start grid in one pass; the best few get the whole start search
     grids = [start_grid(stage, c) for c in combos]
-    sse = train_sse(stage, [g for grid in grids for g in grid]).reshape(len(combos), -1)
+    sse = train_sse(stage, [part for grid in grids for part in grid.parts]).reshape(len(combos), -1)
     sse = np.where(np.isfinite(sse), sse, np.inf).min(axis=1)
     fitted = [fit_initial_state(stage, combos[int(i)]) for i in np.argsort(sse, kind="stable")[:PROFILE_FULL]]
     # the start itself first: it is kept unless a profiled value trains strictly better
@@ -325,17 +333,15 @@ def joint_process_polish(stage: Stage, struct: Structure, effect: str, rounds: i
     def one_round(best: Structure) -> Structure:
         p = best.process
         if effect == "char_c":
-            c0 = best.char_c
-            extra = [{"char_c": float(c0 + 0.3 * d)} for d in steps if abs(c0 + 0.3 * d) > 1e-6]
+            c = best.char_c + 0.3 * steps
+            name, values = "char_c", c[np.abs(c) > 1e-6]
         else:
-            f1 = 1.0 / best.period_s
-            extra = [{"period_s": float(1.0 / (f1 + 0.1 * d / T))} for d in steps if f1 + 0.1 * d / T > 0]
+            f = 1.0 / best.period_s + 0.1 * steps / T
+            name, values = "period_s", 1.0 / f[f > 0]
         d0 = int(round(p.delay_s / ts))
         tau0 = max(p.tau_s, ts)
-        cands = [best.replace(process=with_times(p, tau_s=tau0 * m, delay_s=dd * ts), **e)
-                 for m in taus for dd in range(max(d0 - 2, 0), d0 + 3)
-                 for e in extra]
-        b, _ = best_of(stage, cands + [best])
+        m, dd, e = mesh(taus, range(max(d0 - 2, 0), d0 + 3), values)
+        b, _ = best_of(stage, [Candidates(best, tau_s=tau0 * m, delay_s=dd * ts, **{name: e}), best])
         b, _ = refit_dynamics(stage, b, rounds=1)
         return refine_sj(stage, b, s_span=0.06, n_s=13, j_span=0.2, n_j=9)[0]
 
@@ -387,14 +393,25 @@ def valve_dynamics_starts(stage: Stage, reference: Structure, valves: list[dict]
     p0 = reference.process
     taus = sorted(set(np.geomspace(stage.ts_s, max(T / 8, 2 * stage.ts_s), 5).tolist() + [max(p0.tau_s, stage.ts_s)]))
     d0 = int(round(p0.delay_s / stage.ts_s))
-    dyn = [ProcessModel("foptd", 1.0, float(t), d * stage.ts_s, 0.0)
-           for t in taus for d in sorted({0, 2, 4, 7, d0})]
     if stage.fixed_dynamics:
-        dyn = [reference.process]
+        base, tau, delay = reference, [reference.process.tau_s], [reference.process.delay_s]
+    else:
+        tau, delay = mesh(taus, sorted({0, 2, 4, 7, d0}))
+        delay = delay * stage.ts_s
+        base = reference.replace(process=ProcessModel("foptd", 1.0, float(tau[0]), 0.0, 0.0))
     y0s = y0_options(stage, reference)
-    cands = [reference.replace(f0=f, process=p, **v, **y0)
-             for p in dyn for v in valves for f in (1, -1) for y0 in y0s]
-    sse = train_sse(stage, cands).reshape(len(dyn), -1)
+    # the keyword sets as columns (a field a set leaves out keeps the reference's value; a valve's
+    # and a start's keys never overlap, as in ``replace(**v, **y0)``)
+    none = lambda v: np.nan if v is None else v  # noqa: E731
+    iv, f, iy = (a.astype(np.intp) for a in mesh(range(len(valves)), (1, -1), range(len(y0s))))
+    cols = {}
+    for sets, i in ((valves, iv), (y0s, iy)):
+        for name in sorted({name for kw in sets for name in kw}):
+            cols[name] = np.array([none(kw.get(name, getattr(reference, name))) for kw in sets], float)[i]
+    n_v = iv.size
+    parts = [Candidates(base, tau_s=t, delay_s=d, f0=f, **cols) for t, d in zip(tau, delay)]
+    cands = Pool(parts)
+    sse = train_sse(stage, cands).reshape(len(parts), n_v)
     out = []
     for i in np.argsort(sse.min(axis=1))[:k]:
         st = cands[int(i) * sse.shape[1] + int(np.argmin(sse[i]))]
@@ -439,13 +456,14 @@ def coarse_starts(stage: Stage, n_starts: int = 3, template: Structure | None = 
     taus = np.geomspace(stage.ts_s, max(T / 8, 2 * stage.ts_s), 5)
     dyn = [ProcessModel("foptd", 1.0, float(t), d * stage.ts_s, 0.0) for t in taus
            for d in (0, 2, 4, 7, 12)]
-    valves = [Structure.plain(s, s * r, f, IDENTITY) for s in S_grid for r in ratios for f in (1, -1)
-              if not (s == 0 and (r > 0 or f < 0))]
-    if template is not None:
-        valves = [template.replace(S_up_pct=v.S_up_pct, S_dn_pct=v.S_dn_pct, J_up_pct=v.J_up_pct,
-                                   J_dn_pct=v.J_dn_pct, f0=v.f0) for v in valves]
-    cands = [v.replace(process=p) for p in dyn for v in valves]
-    sse = train_sse(stage, cands).reshape(len(dyn), len(valves))
+    s, r, f = mesh(S_grid, ratios, (1, -1))
+    keep = ~((s == 0) & ((r > 0) | (f < 0)))
+    s, r, f = s[keep], r[keep], f[keep]
+    base = (template if template is not None else Structure.plain(0.0, 0.0, 1, IDENTITY)).replace(process=dyn[0])
+    cands = Pool([Candidates(base, S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f,
+                             tau_s=p.tau_s, delay_s=p.delay_s) for p in dyn])
+    n_v = s.size
+    sse = train_sse(stage, cands).reshape(len(dyn), n_v)
     best_per_dyn = sse.min(axis=1)
-    return [(float(best_per_dyn[i]), cands[int(i) * len(valves) + int(np.argmin(sse[i]))])
+    return [(float(best_per_dyn[i]), cands[int(i) * n_v + int(np.argmin(sse[i]))])
             for i in np.argsort(best_per_dyn)[:n_starts]]

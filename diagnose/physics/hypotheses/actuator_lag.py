@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from ..model import Structure, train_sse, with_times
-from ..search import best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_options
+from ..model import Candidates, Structure, mesh, train_sse, with_times
+from ..search import best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_columns, y0_options
 from .base import VALVE_SIDE, PhysicsHypothesis
 
 
@@ -51,10 +51,10 @@ class ActuatorLag(PhysicsHypothesis):
             span = float(np.ptp(stage.x[: stage.n_fit]))
             S_grid = np.exp(np.arange(math.log(0.2), math.log(max(0.8 * span, 0.3)) + 1e-9, math.log1p(0.03)))
             y0s = y0_options(stage, reference)
-            g = [reference.replace(S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f,
-                                   tau_lag_s=float(t), **y0)
-                 for t in taus for s in S_grid for r in (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.2, 1.45)
-                 for f in (1, -1) for y0 in y0s]
+            t, s, r, f, iy = mesh(taus, S_grid, (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.2, 1.45), (1, -1),
+                                  range(len(y0s)))
+            g = Candidates(reference, S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f,
+                           tau_lag_s=t, **y0_columns(y0s, iy))
             gs = train_sse(stage, g)
             for i in np.argsort(gs)[:2]:
                 st = refine_sj(stage, g[int(i)], s_span=0.04, n_s=9, j_span=0.15, n_j=7)[0]

@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from ..model import Stage, Structure, train_sse
-from ..search import best_distinct, best_of, polish, refit_dynamics, valve_dynamics_starts, y0_options
+from ..model import Candidates, Stage, Structure, mesh, train_sse
+from ..search import best_distinct, best_of, polish, refit_dynamics, valve_dynamics_starts, y0_columns, y0_options
 from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 
 
@@ -36,9 +36,10 @@ class AsymmetricStiction(PhysicsHypothesis):
         # best two can both sit beside another basin)
         g_s = S * np.exp(np.arange(math.log(0.3), math.log(1.9), math.log1p(0.07)))
         y0s = y0_options(stage, reference)
-        g = [reference.replace(S_up_pct=su, S_dn_pct=sd, J_up_pct=su * ru, J_dn_pct=sd * rd, f0=f, **y0)
-             for su in g_s for sd in g_s for ru in (0.1, 0.4, 0.7, 1.0) for rd in (0.1, 0.4, 0.7, 1.0)
-             for f in (1, -1) for y0 in y0s]
+        ratios = (0.1, 0.4, 0.7, 1.0)
+        su, sd, ru, rd, f, iy = mesh(g_s, g_s, ratios, ratios, (1, -1), range(len(y0s)))
+        g = Candidates(reference, S_up_pct=su, S_dn_pct=sd, J_up_pct=su * ru, J_dn_pct=sd * rd, f0=f,
+                       **y0_columns(y0s, iy))
         gs = train_sse(stage, g)
         grid_starts = best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 8)
         n_first = len(starts) + 2
@@ -79,16 +80,14 @@ class AsymmetricStiction(PhysicsHypothesis):
                 Jx = getattr(best, f"J_{side}_pct")
                 r = Jx / Sx if Sx > 0 else 0.5
                 fs = (1, -1) if rnd == 0 else (best.f0,)
-                cands = [best.replace(**{f"S_{side}_pct": Sx * m, f"J_{side}_pct": Sx * m * rr}, f0=f)
-                         for m in (wide if rnd == 0 else 1.0 + np.linspace(-0.08, 0.08, 17))
-                         for rr in {r, 0.5 * r, min(1.5 * r, 1.5)} for f in fs]
-                cands.append(best)
-                best, _ = best_of(stage, cands)
+                m, rr, f = mesh(wide if rnd == 0 else 1.0 + np.linspace(-0.08, 0.08, 17),
+                                list({r, 0.5 * r, min(1.5 * r, 1.5)}), fs)
+                grid = Candidates(best, **{f"S_{side}_pct": Sx * m, f"J_{side}_pct": Sx * m * rr}, f0=f)
+                best, _ = best_of(stage, [grid, best])
                 Sx = getattr(best, f"S_{side}_pct")
-                cands = [best.replace(**{f"S_{side}_pct": Sx * m, f"J_{side}_pct": Sx * rr})
-                         for m in 1.0 + np.linspace(-0.03, 0.03, 5) for rr in np.linspace(0.0, 1.5, 31)]
-                cands.append(best)
-                best, _ = best_of(stage, cands)
+                m, rr = mesh(1.0 + np.linspace(-0.03, 0.03, 5), np.linspace(0.0, 1.5, 31))
+                grid = Candidates(best, **{f"S_{side}_pct": Sx * m, f"J_{side}_pct": Sx * rr})
+                best, _ = best_of(stage, [grid, best])
             best, _ = refit_dynamics(stage, best, rounds=1)
         return best
 
@@ -119,19 +118,17 @@ def fine_asym(stage: Stage, struct: Structure) -> Structure:
     then the initial state; twice. The one-direction scans step S by 1-2 %, and 1 % off in S moves
     every slip."""
     def one_round(best: Structure) -> Structure:
-        cands = [best.replace(S_up_pct=best.S_up_pct * m, S_dn_pct=best.S_dn_pct * m,
-                              J_up_pct=best.J_up_pct * m * mj, J_dn_pct=best.J_dn_pct * m * mj, f0=f)
-                 for m in 1.0 + np.linspace(-0.06, 0.06, 25) for mj in (0.9, 1.0, 1.1) for f in (1, -1)]
-        b, _ = best_of(stage, cands + [best])
+        m, mj, f = mesh(1.0 + np.linspace(-0.06, 0.06, 25), (0.9, 1.0, 1.1), (1, -1))
+        grid = Candidates(best, S_up_pct=best.S_up_pct * m, S_dn_pct=best.S_dn_pct * m,
+                          J_up_pct=best.J_up_pct * m * mj, J_dn_pct=best.J_dn_pct * m * mj, f0=f)
+        b, _ = best_of(stage, [grid, best])
         for side in ("up", "dn"):
             S0 = max(getattr(b, f"S_{side}_pct"), 0.05)
-            cands = [b.replace(**{f"S_{side}_pct": S0 * m, f"J_{side}_pct": S0 * m * r})
-                     for m in 1.0 + np.linspace(-0.06, 0.06, 25) for r in np.linspace(0.0, 1.45, 30)]
-            b, _ = best_of(stage, cands + [b])
+            m, r = mesh(1.0 + np.linspace(-0.06, 0.06, 25), np.linspace(0.0, 1.45, 30))
+            b, _ = best_of(stage, [Candidates(b, **{f"S_{side}_pct": S0 * m, f"J_{side}_pct": S0 * m * r}), b])
             S1, J1 = getattr(b, f"S_{side}_pct"), max(getattr(b, f"J_{side}_pct"), 0.02)
-            cands = [b.replace(**{f"S_{side}_pct": S1 * m, f"J_{side}_pct": J1 * mj})
-                     for m in 1.0 + np.linspace(-0.01, 0.01, 21) for mj in 1.0 + np.linspace(-0.08, 0.08, 17)]
-            b, _ = best_of(stage, cands + [b])
+            m, mj = mesh(1.0 + np.linspace(-0.01, 0.01, 21), 1.0 + np.linspace(-0.08, 0.08, 17))
+            b, _ = best_of(stage, [Candidates(b, **{f"S_{side}_pct": S1 * m, f"J_{side}_pct": J1 * mj}), b])
         return b
 
     return polish(stage, struct, one_round)

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from ..model import Stage, Structure, train_sse
+from ..model import Candidates, Pool, Stage, Structure, mesh, train_sse
 from ..search import (best_distinct, best_of, dynamics_starts, fine_valve, fit_initial_state, refit_dynamics,
-                      valve_dynamics_starts, y0_options)
+                      valve_dynamics_starts, y0_columns, y0_options)
 from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 
 
@@ -71,14 +71,14 @@ class TimeVaryingFriction(PhysicsHypothesis):
         r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
         # J/S 0 (a deadband) among them: the polish rounds scale J and cannot reach 0 from a band
         ratios = sorted({round(r0, 3), 0.0, 0.3, 0.6, 0.9})
-        cands = [reference] + list(extra)
+        parts = [reference] + list(extra)
         y0s = y0_options(stage, reference)
         for Sc in centres:
-            cands += [reference.replace(S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r, f0=f,
-                                        dS_pct_per_s=s0 * (q - 1.0) / T, dJ_pct_per_s=s0 * r * (q - 1.0) / T,
-                                        **y0)
-                      for s0 in Sc * m_start for q in q_end for r in ratios for f in (1, -1)
-                      for y0 in y0s]
+            s0, q, r, f, iy = mesh(Sc * m_start, q_end, ratios, (1, -1), range(len(y0s)))
+            parts.append(Candidates(reference, S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r, f0=f,
+                                    dS_pct_per_s=s0 * (q - 1.0) / T, dJ_pct_per_s=s0 * r * (q - 1.0) / T,
+                                    **y0_columns(y0s, iy)))
+        cands = Pool(parts)
         sse = train_sse(stage, cands)
         # the cost is rough (the valve's initial state and every slip's timing): the best few
         # distinct drifts each get their initial state fitted. Distinct in J/S too: scored from the
