@@ -88,9 +88,12 @@ def main(argv=None) -> int:
     base_env = dict(os.environ)
     cached_env = dict(base_env)
     cached_env.pop("PYTHONDONTWRITEBYTECODE", None)
-    main_code = "import sys; from diagnose.service.cli import main; sys.exit(main())"
-    isa0_code = ("import sys, diagnose.kernels as k; k.set_isa(0); from diagnose.service.cli import main; "
-                 "sys.exit(main())")
+    # the installed program's entry point (`console`, which skips the interpreter's teardown), or
+    # `main` in a tree that predates it: each tree as its users ran it
+    entry = ("import diagnose.service.cli as c; f = getattr(c, 'console', None); "
+             "f() if f else sys.exit(c.main())")
+    main_code = f"import sys; {entry}"
+    isa0_code = f"import sys, diagnose.kernels as k; k.set_isa(0); {entry}"
     with tempfile.TemporaryDirectory() as tmp:
         data = make_loop(Path(tmp), args.n)
         tail = ["identify", str(data), "--json"]
