@@ -587,3 +587,86 @@ def test_results_waiting_for_a_locked_history_are_bounded_and_stored_at_the_stop
     assert 1 <= len(refused) <= 4 and len(stored) + len(refused) == 6, text
     assert all(f"SIM000 w{i}: Stiction" in text for i in range(6)), text
     assert "waiting for the history database" in text
+
+
+def _lock_for(db, seconds: float) -> tuple[threading.Thread, threading.Event]:
+    """Another process's write lock (a batch's transaction, a backup) on ``db`` for ``seconds``."""
+    import sqlite3
+
+    locked = threading.Event()
+
+    def hold():
+        conn = sqlite3.connect(db, timeout=5, isolation_level=None)
+        conn.execute("BEGIN EXCLUSIVE")
+        locked.set()
+        time.sleep(seconds)
+        conn.execute("COMMIT")
+        conn.close()
+
+    t = threading.Thread(target=hold)
+    t.start()
+    assert locked.wait(10)
+    return t, locked
+
+
+def _windows(n: int) -> list:
+    from dataclasses import replace
+
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=600, noise_std=0.03, load_walk_std=0.02, seed=4, name="FIC 4")
+    diag = diagnose(rec.replace(start="2026-02-01T00:00:00Z"), narx=False)
+    return [replace(diag, input_hash=f"window:{i}") for i in range(n)]
+
+
+def test_results_that_wait_out_a_long_lock_are_stored_when_it_goes(tmp_path):
+    # a lock held longer than the writer's wait for it: the results are kept and tried again, not lost
+    from diagnose.service.monitor import HistoryWriter
+
+    db = tmp_path / "h.sqlite"
+    History(db).close()
+    said, failed = [], []
+    writer = HistoryWriter(db, lambda d, why: failed.append(why), said.append, busy_timeout_s=0.3, retry_s=0.2)
+    diags = _windows(5)
+    locker, _ = _lock_for(db, 2.5)
+    try:
+        for d in diags[:3]:
+            assert writer.put(d, "2026-02-02T00:00:00+00:00") is None
+        time.sleep(1.0)                 # the first try has waited out its 0.3 s: they wait
+        assert writer.waiting() == 3
+        for d in diags[3:]:             # results that arrive meanwhile join them
+            assert writer.put(d, "2026-02-02T00:00:00+00:00") is None
+    finally:
+        locker.join()
+    writer.flush()
+    writer.close()
+    assert failed == []
+    assert len(said) == 2 and "stayed locked by another process" in said[0] and "wait and are stored" in said[0]
+    assert said[1].startswith("history: the") and "stored" in said[1]
+    import sqlite3
+
+    with sqlite3.connect(db) as conn:
+        stored = sorted(r[0] for r in conn.execute("SELECT input_hash FROM runs WHERE loop = 'FIC_4'"))
+    assert stored == [f"window:{i}" for i in range(5)]
+
+
+def test_results_still_locked_out_at_the_stop_are_said_not_stored(tmp_path):
+    from diagnose.service.monitor import HistoryWriter
+
+    db = tmp_path / "h.sqlite"
+    History(db).close()
+    said, failed = [], []
+    writer = HistoryWriter(db, lambda d, why: failed.append((d.input_hash, why)), said.append,
+                           busy_timeout_s=0.2, retry_s=0.1)
+    locker, _ = _lock_for(db, 2.0)
+    try:
+        for d in _windows(2):
+            writer.put(d, "2026-02-02T00:00:00+00:00")
+        time.sleep(0.6)
+        writer.close()                  # the monitor stops while the lock is still held
+        assert sorted(h for h, _ in failed) == ["window:0", "window:1"]
+        assert all("stayed locked by another process" in why for _, why in failed)
+        assert writer.waiting() == 0
+    finally:
+        locker.join()

@@ -50,6 +50,9 @@ OUTAGE_AFTER_S = 1.0
 #: Results that may wait for the history database (locked by another writer, a slow disk); one
 #: more is not stored, said in its line, rather than held in memory without end.
 HISTORY_QUEUE = 256
+#: Seconds between the writer's tries to store results that waited out a lock (each try itself
+#: waits up to the history's busy timeout for the lock).
+HISTORY_RETRY_S = 5.0
 #: How long the monitor's start waits for a history database another process holds locked before
 #: it polls without the loops' earlier runs (the writer's thread then waits for the lock, as SQLite does).
 STARTUP_DB_WAIT_S = 2.0
@@ -170,14 +173,23 @@ class HistoryWriter:
     SQLite waits up to 30 s for a database another process holds locked (a batch's transaction, a
     backup); on the polling thread that wait would miss polls. Results queue here (at most
     `HISTORY_QUEUE`) and the thread stores what has gathered in one transaction, so a lock costs one
-    wait for all of them, not one per window. A result that cannot be stored costs its row only,
-    said in one line through ``failed(diag, reason)``. The database is opened by the thread at its
-    first result (an sqlite connection belongs to its thread) and again after a failed open.
+    wait for all of them, not one per window. A lock held longer than the wait (`HistoryBusy`) keeps
+    the results: they are tried again every `HISTORY_RETRY_S` with what has gathered since, said
+    once through ``say`` while they wait and once when they are stored; at most `HISTORY_QUEUE`
+    wait, and beyond that the oldest are given up. A result that cannot be stored (a damaged
+    database, or still locked when the monitor stops) costs its row only, said in one line through
+    ``failed(diag, reason)``. The database is opened by the thread at its first result (an sqlite
+    connection belongs to its thread) and again after a failed open.
     """
 
-    def __init__(self, path: str | os.PathLike | None, failed: Callable[[Any, str], None]) -> None:
+    def __init__(self, path: str | os.PathLike | None, failed: Callable[[Any, str], None],
+                 say: Callable[[str], None] | None = None, *, busy_timeout_s: float | None = None,
+                 retry_s: float = HISTORY_RETRY_S) -> None:
         self.path = path
         self.failed = failed
+        self.say = say or (lambda msg: None)
+        self.busy_timeout_s = busy_timeout_s
+        self.retry_s = retry_s
         self._q: queue.Queue = queue.Queue(HISTORY_QUEUE)
         self._thread = threading.Thread(target=self._run, name="stiction-history", daemon=True)
         self._thread.start()
@@ -206,35 +218,66 @@ class HistoryWriter:
             self._thread.join()
 
     def _run(self) -> None:
-        from .history import History, row_from_diagnosis
+        from .history import History, HistoryBusy, row_from_diagnosis
 
         hist: Any = None
         stop = False
+        waiting: list = []      # results kept through a lock, oldest first; their task_done waits too
         while not stop:
-            items = [self._q.get()]
+            try:
+                items = [self._q.get(timeout=self.retry_s if waiting else None)]
+            except queue.Empty:
+                items = []
             while True:
                 try:
                     items.append(self._q.get_nowait())
                 except queue.Empty:
                     break
-            results = [it for it in items if it is not None]
-            stop = len(results) < len(items)
+            stop = any(it is None for it in items)
+            batch = waiting + [it for it in items if it is not None]
+            done = [None] * (len(items) - len(batch) + len(waiting))   # the stop mark's task_done
             try:
-                if results:
+                if batch:
                     if hist is None:
-                        hist = History(self.path)
-                    hist.add_rows([row_from_diagnosis(d, run_at=t) for d, t in results])
+                        hist = (History(self.path) if self.busy_timeout_s is None
+                                else History(self.path, busy_timeout_s=self.busy_timeout_s))
+                    hist.add_rows([row_from_diagnosis(d, run_at=t) for d, t in batch])
+                    if waiting:
+                        self.say(f"history: the {len(waiting)} result(s) that waited for the lock are stored")
+                done += batch
+                waiting = []
+            except HistoryBusy as exc:
+                # locked, not broken: keep them for the next try (or give them up at the stop)
+                if stop:
+                    self._give_up(batch, str(exc))
+                    done += batch
+                    waiting = []
+                else:
+                    if not waiting:
+                        self.say(f"{exc}: {len(batch)} result(s) wait and are stored when it is released")
+                    over = max(0, len(batch) - HISTORY_QUEUE)
+                    self._give_up(batch[:over], f"more than {HISTORY_QUEUE} results waited for the lock")
+                    done += batch[:over]
+                    waiting = batch[over:]
+                    if hist is not None:
+                        hist.close()
+                        hist = None
             except Exception as exc:  # the database, not the monitor, is in trouble: its rows are lost
                 why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
                 if not isinstance(exc, StictionError):
                     why = f"{type(exc).__name__}: {why}"
-                for d, _ in results:
-                    self.failed(d, why)
+                self._give_up(batch, why)
+                done += batch
+                waiting = []
             finally:
-                for _ in items:
+                for _ in done:
                     self._q.task_done()
         if hist is not None:
             hist.close()
+
+    def _give_up(self, results: list, why: str) -> None:
+        for d, _ in results:
+            self.failed(d, why)
 
 
 class Monitor:
@@ -314,7 +357,7 @@ class Monitor:
                 # locked, not broken: polling starts now, and the writer's thread waits for the lock
                 self._say(f"{exc}: polling starts without the loops' earlier runs, and this run's results "
                           "are stored when the lock is released")
-            self.history_writer = HistoryWriter(self.db_path, self._not_stored)
+            self.history_writer = HistoryWriter(self.db_path, self._not_stored, self._say)
         self.metrics = None
         if metrics_port is not None:
             from .metrics import Metrics
