@@ -733,12 +733,14 @@ def test_predictive_mean_is_seeded_and_keeps_a_plain_model_plain():
     assert np.array_equal(a.y_hat, b.y_hat) and a.y_hat.shape == (stage.n,)
     names, p0, scales = _free_parameters(plain, stage)
     assert names == ["S", "J"] and np.all(scales > 0)
-    drawn = _build(plain, names, p0 * 1.1)
-    assert drawn.S_up_pct == drawn.S_dn_pct and drawn.J_up_pct == drawn.J_dn_pct
+    draws = _build(plain, names, np.vstack([p0 * 1.1, p0 * 0.9]))
+    assert len(draws) == 2 and draws[1].S_up_pct == pytest.approx(0.9 * p0[0])
+    for drawn in draws:
+        assert drawn.S_up_pct == drawn.S_dn_pct and drawn.J_up_pct == drawn.J_dn_pct
     asym = plain.replace(S_dn_pct=2.0, dS_pct_per_s=1e-4, dJ_pct_per_s=2e-5)
     names, p0, _ = _free_parameters(asym, stage)
     assert names == ["S", "S_dn", "J", "dS", "dJ"]
-    assert _build(asym, names, p0).S_dn_pct == 2.0
+    assert _build(asym, names, p0[None])[0].S_dn_pct == 2.0
 
 
 def test_predictive_mean_averages_only_what_the_training_data_leave_free():

@@ -177,19 +177,14 @@ def _design(z: np.ndarray, struct: Structure, ts_s: float, n: int) -> np.ndarray
     return np.column_stack(cols)
 
 
-def stems(stage: Stage, structs: Sequence[Structure], n: int | None = None) -> np.ndarray:
-    """Simulated stem positions (rows) of many structures over the stage's input."""
+def stems(stage: Stage, structs, n: int | None = None) -> np.ndarray:
+    """Simulated stem positions (rows) of many structures (structures, `Candidates` or a `Pool`)
+    over the stage's input."""
     n = stage.n if n is None else n
-    x = stage.x[:n]
-    arr = lambda f: np.array([f(s) for s in structs], dtype=float)  # noqa: E731
-    return augmented_valve(x, S_up=arr(lambda s: s.S_up_pct), J_up=arr(lambda s: s.J_up_pct),
-                           S_dn=arr(lambda s: s.S_dn_pct), J_dn=arr(lambda s: s.J_dn_pct),
-                           dS_pct_per_s=arr(lambda s: s.dS_pct_per_s),
-                           dJ_pct_per_s=arr(lambda s: s.dJ_pct_per_s),
-                           f0=arr(lambda s: s.f0), tau_lag_s=arr(lambda s: s.tau_lag_s),
-                           y0_pct=arr(lambda s: np.nan if s.y0_pct is None else s.y0_pct),
-                           xs0_pct=arr(lambda s: np.nan if s.xs0_pct is None else s.xs0_pct),
-                           ts_s=stage.ts_s)
+    P = Pool(structs).table()[0]
+    return augmented_valve(stage.x[:n], S_up=P[:, 0], J_up=P[:, 1], S_dn=P[:, 2], J_dn=P[:, 3],
+                           dS_pct_per_s=P[:, 4], dJ_pct_per_s=P[:, 5], f0=P[:, 6], tau_lag_s=P[:, 7],
+                           y0_pct=P[:, 12], xs0_pct=P[:, 13], ts_s=stage.ts_s)
 
 
 def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):

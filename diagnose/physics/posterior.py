@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import Stage, Structure, predict, stems, train_sse, with_times
+from .model import Candidates, Stage, Structure, predict, stems, train_sse
 
 #: relative widths of the first (exploring) cloud, in units of each parameter's scale
 EXPLORE_WIDTHS = (0.3, 1.0, 3.0)
@@ -91,26 +91,27 @@ def _free_parameters(s: Structure, stage: Stage):
     return names, np.array(vals, float), np.array(scales, float)
 
 
-def _build(s: Structure, names: list[str], p: np.ndarray) -> Structure:
-    d = dict(zip(names, p))
-    S_up = max(d["S"], 0.0)
-    J_up = max(d["J"], 0.0)
-    kw = {"S_up_pct": S_up, "S_dn_pct": max(d["S_dn"], 0.0) if "S_dn" in d else S_up,
-          "J_up_pct": J_up, "J_dn_pct": max(d["J_dn"], 0.0) if "J_dn" in d else J_up}
+def _build(s: Structure, names: list[str], P: np.ndarray) -> Candidates:
+    """The structures of parameter sets ``P`` (rows, in the order of ``names``) around ``s``."""
+    d = dict(zip(names, np.asarray(P, dtype=float).T))
+    S_up = np.maximum(d["S"], 0.0)
+    J_up = np.maximum(d["J"], 0.0)
+    cols = {"S_up_pct": S_up, "S_dn_pct": np.maximum(d["S_dn"], 0.0) if "S_dn" in d else S_up,
+            "J_up_pct": J_up, "J_dn_pct": np.maximum(d["J_dn"], 0.0) if "J_dn" in d else J_up}
     if "dS" in d:
-        kw.update(dS_pct_per_s=d["dS"], dJ_pct_per_s=d["dJ"])
+        cols.update(dS_pct_per_s=d["dS"], dJ_pct_per_s=d["dJ"])
     if "lag" in d:
-        kw["tau_lag_s"] = max(d["lag"], 0.0)
+        cols["tau_lag_s"] = np.maximum(d["lag"], 0.0)
     if "c" in d:
-        kw["char_c"] = d["c"]
+        cols["char_c"] = d["c"]
     if "period" in d:
-        kw["period_s"] = max(d["period"], 0.1 * s.period_s)   # never collapses
+        cols["period_s"] = np.maximum(d["period"], 0.1 * s.period_s)   # never collapses
     if "tau" in d:
-        kw["process"] = with_times(s.process, tau_s=max(d["tau"], 1e-3))
-    return s.replace(**kw)
+        cols["tau_s"] = np.maximum(d["tau"], 1e-3)
+    return Candidates(s, **cols)
 
 
-def _log_likelihood(stage: Stage, cands: list[Structure], n_eff: float, sse_min: float | None = None):
+def _log_likelihood(stage: Stage, cands: Candidates, n_eff: float, sse_min: float | None = None):
     sse = train_sse(stage, cands)
     sse = np.where(np.isfinite(sse), sse, np.inf)
     m = float(np.min(sse)) if sse_min is None else min(sse_min, float(np.min(sse)))
@@ -140,7 +141,7 @@ def _first_moves(stm: np.ndarray) -> np.ndarray:
     return first
 
 
-def _memory_burn(stage: Stage, cands: list[Structure], w: np.ndarray) -> Stage:
+def _memory_burn(stage: Stage, cands: Candidates, w: np.ndarray) -> Stage:
     """The stage with the training samples before the valve forgets its initial state left out.
 
     The initial state (where the valve stuck, which way it last moved) is fitted with the centre
@@ -201,7 +202,7 @@ def predictive_mean(stage: Stage, struct: Structure, n_eff: float, *, seed: int 
     n_eff = max(n_eff, 1.0)
     widths = rng.choice(np.asarray(EXPLORE_WIDTHS), size=(n_explore, 1))
     P = np.vstack([p0, p0 + rng.standard_normal((n_explore, k)) * widths * sc])
-    cands = [_build(struct, names, p) for p in P]
+    cands = _build(struct, names, P)
     w = _weights(_log_likelihood(stage, cands, n_eff)[0])
     if n_adapt > 0:
         stage = _memory_burn(stage, cands, w)
@@ -215,7 +216,7 @@ def predictive_mean(stage: Stage, struct: Structure, n_eff: float, *, seed: int 
         L = np.linalg.cholesky(C)
         Z = rng.standard_normal((n_draw, k))
         P = mu + (Z @ L.T) * sc
-        cands = [_build(struct, names, p) for p in P]
+        cands = _build(struct, names, P)
         ll2, sse_min = _log_likelihood(stage, cands, n_eff, sse_min)
         w = _weights(ll2 + 0.5 * np.sum(Z ** 2, axis=1))   # likelihood / proposal density
     ess = float(1.0 / np.sum(w ** 2))
