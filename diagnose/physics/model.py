@@ -250,8 +250,9 @@ class Candidates(Sequence[Structure]):
     """Structures that differ from one ``base`` only in numeric fields, held as columns.
 
     A search grid holds tens of thousands of candidates; as columns they reach the kernels without
-    a Python object each (building those cost more than a second of every explain), and a
-    `Structure` is made only for a candidate read back (``cands[i]``).
+    a Python object each (building one per candidate, under the interpreter lock the other search
+    threads wait for, was a large share of an explain), and a `Structure` is made only for a
+    candidate read back (``cands[i]``).
 
     Parameters
     ----------

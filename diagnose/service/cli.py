@@ -112,8 +112,8 @@ def console() -> NoReturn:
     """The installed ``stiction`` program: `main`, then the end of the process.
 
     Once a command has returned, everything it wrote is closed or flushed; what is left is the
-    interpreter freeing every object of numpy, pandas and the kernels one by one, a few tenths of a
-    second on a slow core that the user waits for and nothing needs. So the process ends here
+    interpreter freeing every object of numpy, pandas and the kernels one by one, which the user
+    waits for (noticeably on a slow core) and nothing needs. So the process ends here
     without that teardown, after the exit handlers have run and stdout and stderr are flushed.
     Where another thread still runs (nothing of ours leaves one, but a plug-in might), the normal
     exit joins it instead.

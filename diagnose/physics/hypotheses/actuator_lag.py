@@ -8,7 +8,8 @@ import math
 import numpy as np
 
 from ..model import Candidates, Structure, mesh, train_sse, with_times
-from ..search import best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_columns, y0_options
+from ..search import (best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_columns,
+                      y0_options)
 from .base import VALVE_SIDE, PhysicsHypothesis
 
 

@@ -7,7 +7,8 @@ import math
 import numpy as np
 
 from ..model import Candidates, Stage, Structure, mesh, train_sse
-from ..search import best_distinct, best_of, polish, refit_dynamics, valve_dynamics_starts, y0_columns, y0_options
+from ..search import (best_distinct, best_of, polish, refit_dynamics, valve_dynamics_starts, y0_columns,
+                      y0_options)
 from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 
 
