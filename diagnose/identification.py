@@ -337,6 +337,18 @@ class Identification:
         return _op_units({w.code for w in self.warnings})
 
     @property
+    def pct_per_op_unit(self) -> float:
+        """% of span per unit of S and J: 100 where OP was logged as a fraction of span, else 1
+        (OP in %, or in units whose span is unknown: there S is weighed as if in %)."""
+        return _percent_per_op_unit(self.op_units)
+
+    @property
+    def sj_digits(self) -> int:
+        """Decimals S and J are written with: two in % (and in OP's own units), four in fractions
+        of span (the same resolution)."""
+        return 4 if self.op_units == "fraction of span" else 2
+
+    @property
     def sj_units_text(self) -> str:
         """The units of S, J and OP's travel in words, as every text gives them
         (`diagnose.quality.units_in_words`)."""
@@ -487,6 +499,12 @@ def _op_units(codes: set[str]) -> str:
     return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
 
 
+def _percent_per_op_unit(op_units: str) -> float:
+    """% of span per unit of OP: 100 for OP logged as a fraction of span; 1 for OP in % and for OP
+    in units whose span is unknown (there the % floors are taken as they are)."""
+    return 100.0 if op_units == "fraction of span" else 1.0
+
+
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
@@ -574,6 +592,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     the shared noise model is the linear loop's choice, and where the valve explains slow error
     the linear loop leaves, that choice filters out the very error the valve explains."""
     rows = []
+    pct = _percent_per_op_unit(op_units)    # the floors below are in % of span
     src = "the valve fitted on the stem position" if method == "op_mv" else "the valve + process model"
     if ins is not None:
         dec = "stiction" if ins > INSAMPLE_THRESHOLD else "no_stiction"
@@ -590,7 +609,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
         rows.append(Evidence("model_fit", ins, INSAMPLE_THRESHOLD, dec, note, extras=extras))
     ratio = S_pct / op_noise_pct if op_noise_pct > 0 else (100.0 if S_pct > 0 else 0.0)
     ratio = min(ratio, 100.0)
-    dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct >= S_MIN_PCT else "no_stiction"
+    dec = "stiction" if ratio >= BAND_NOISE_RATIO and S_pct * pct >= S_MIN_PCT else "no_stiction"
     # a band that OP hardly ever crosses is a valve that hardly moves: little for the fit to go by
     if op_units == "% of span":
         noise, travel = f"{op_noise_pct:.3g} %", f"{op_range_pct:.3g} % of span"
@@ -604,7 +623,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
                                  "S_over_range": S_pct / op_range_pct if op_range_pct > 0 else 1.0}))
     if S_pct > 0 and math.isfinite(S_int[1] - S_int[0]):
         width = (S_int[1] - S_int[0]) / S_pct
-        dec = "stiction" if width <= SHARP_REL_WIDTH and S_pct >= SHARP_MIN_S_PCT else "undetermined"
+        dec = "stiction" if width <= SHARP_REL_WIDTH and S_pct * pct >= SHARP_MIN_S_PCT else "undetermined"
         rows.append(Evidence("band_sharpness", min(width, 10.0), SHARP_REL_WIDTH, dec,
                              f"the 95 % interval of S is {100 * width:.0f} % of S wide (a real band sits in a "
                              "narrow valley of the fit's error; a spurious one on a flat surface)"))
@@ -810,15 +829,18 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             S_int, J_int = fit.S_interval_pct, fit.J_interval_pct
             rmse, r2 = fit.rmse, fit.r2
             ins = (1.0 - fit.cost / linear.cost) if linear.cost > 0 else 0.0
-        if class_test and valve_fit is None and S >= S_MIN_PCT:
+        # the floors are in % of span; S is in OP's units
+        pct = _percent_per_op_unit(_op_units({w.code for w in warnings}))
+        if class_test and valve_fit is None and S * pct >= S_MIN_PCT:
             ctest = search.class_test(op, pv, ts, fit, float(fit_opts.get("burn_frac", 0.05)),
-                                      fit_opts.get("gain_sign"), threads=fit_opts.get("threads"))
+                                      fit_opts.get("gain_sign"), threads=fit_opts.get("threads"),
+                                      pct_per_unit=pct)
             if ctest["cls"] is not None or ctest["cost"] < ctest["cost_fit"]:
                 # the verdict's evidence stays that of the fit (no credit for the extra freedom)
                 S, J = ctest["S_pct"], ctest["J_pct"]
                 S_int = (min(S_int[0], S), max(S_int[1], S))
                 J_int = (min(J_int[0], J), max(J_int[1], J))
-            if S >= SHARP_MIN_S_PCT and stiction_class(S, J) == "deadband":
+            if S * pct >= SHARP_MIN_S_PCT and stiction_class(S * pct, J * pct) == "deadband":
                 backlash_lr = _backlash_lr(fit, linear, ctest)
     op_noise = _op_noise_pct(op)
     source = valve_fit.hammerstein if valve_fit is not None else fit
@@ -851,8 +873,9 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         cls = "unknown"
         S_out = J_out = None
     elif stiction:
-        cls = stiction_class(S, J)
-        if cls == "none" or S < S_SIZE_MIN_PCT:
+        p = _percent_per_op_unit(units)
+        cls = stiction_class(S * p, J * p)
+        if cls == "none" or S * p < S_SIZE_MIN_PCT:
             # other evidence found stiction the model fit could not size
             cls = "unknown"
             S_out = J_out = None

@@ -261,8 +261,8 @@ def _op_fraction(record: LoopRecord) -> Finding | None:
     if lo < 0.0 or hi > 1.0 or hi - lo < FRACTION_MIN_MOVE:
         return None
     return Finding("op_fraction", f"OP stays within 0..1 ({lo:.3g} to {hi:.3g}): it looks logged as a fraction "
-                   "of span, not in %, which makes every valve movement look 100 times too small and hides "
-                   f"stiction; {op_scale_advice(record)}", "warning", {"min": lo, "max": hi})
+                   "of span, not in %, so S, J and OP's travel are given in fractions of span (0.03 is 3 %) "
+                   f"and the result is less certain; {op_scale_advice(record)}", "warning", {"min": lo, "max": hi})
 
 
 def fraction_op_tracks_mv(op: np.ndarray, mv: np.ndarray) -> bool:

@@ -848,7 +848,7 @@ class ClassTestConfig:
 
 def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: float = 0.05,
                gain_sign: float | None = None, cfg: ClassTestConfig = ClassTestConfig(),
-               threads: int | None = None) -> dict[str, Any]:
+               threads: int | None = None, pct_per_unit: float = 1.0) -> dict[str, Any]:
     """Re-examine J with the valve's initial stuck point free, and test the special shapes.
 
     A real valve at the start of a record is stuck wherever its history left it, and a sticky valve
@@ -862,7 +862,9 @@ def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: floa
     bound ``cost_free (1 + chi2 / nu)`` of the free fit (``nu`` = the fit's effective residuals - 2).
 
     ``fit`` is a `diagnose.fit.HammersteinFit`; the grids are scored on up to ``threads`` threads
-    (`diagnose.parallel.thread_count`; the result does not depend on it).
+    (`diagnose.parallel.thread_count`; the result does not depend on it). ``pct_per_unit``: % of
+    span per unit of OP (100 for OP logged as a fraction of span), for the classes' tolerances,
+    which are in % of span.
 
     Returns
     -------
@@ -906,12 +908,12 @@ def class_test(op: np.ndarray, pv: np.ndarray, ts_s: float, fit, burn_frac: floa
     per_ratio = [(np.inf, 1.0, x0)] * ratios.shape[0]      # best (cost, f0, first OP) per J/S
     by_class: dict[str, float] = {}      # best cost per class shape (for the plausible set)
     # the fit's own shape is plausible by construction, even where no grid point of it is as good
-    fit_cls = str(stiction_classes(np.array([S0]), np.array([fit.J_pct]))[0])
+    fit_cls = str(stiction_classes(np.array([S0]) * pct_per_unit, np.array([fit.J_pct]) * pct_per_unit)[0])
     if fit_cls != "none":
         by_class[fit_cls] = c_fit
 
     def keep(c, Sv, Jv, Rv, F, xs0):
-        names = stiction_classes(Sv, Jv)
+        names = stiction_classes(Sv * pct_per_unit, Jv * pct_per_unit)
         for name in np.unique(names[names != "none"]):
             cm = float(c[names == name].min())
             if cm < by_class.get(str(name), np.inf):

@@ -217,7 +217,7 @@ def test_an_op_logged_as_a_fraction_is_reported_in_a_fraction_of_span():
     # so neither the report nor the summary row may call OP's travel "% of span"
     from diagnose.service.batch import loop_row
     from diagnose.service.pipeline import diagnose
-    from diagnose.service.report import loop_markdown
+    from diagnose.service.report import S_MEANING, loop_markdown
     from diagnose.simulate import sticky_loop
     from diagnose.quality import assess
 
@@ -241,8 +241,10 @@ def test_an_op_logged_as_a_fraction_is_reported_in_a_fraction_of_span():
     band = next(e.note for e in d.identification.evidence if e.test == "valve_band")
     assert "in fractions of span" in band and "% of span" not in band
     assert not any("% of span" in e.note or "% of OP span" in e.note for e in d.identification.evidence)
-    unknown = next(w.message for w in d.identification.warnings if w.code == "size_unknown")
-    assert "in fractions of span" in unknown and "% of span" not in unknown
+    # sized in fractions (the % floors converted), and every place that gives S says so
+    assert d.identification.S_pct is not None and 0.0 < d.identification.S_pct < 0.1
+    s_row = next(ln for ln in loop_markdown(d).splitlines() if ln.startswith(f"| {S_MEANING}"))
+    assert f"{d.identification.S_pct:.4f} in fractions of span" in s_row and "% of span" not in s_row
     # the same loop in %: the units the summary gives every other loop
     pct = loop_row(diagnose(rec, narx=False), None)
     assert pct["sj_units"] == "% of span" and pct["sj_in_op_units"] is False

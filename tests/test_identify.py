@@ -278,6 +278,28 @@ def test_a_fraction_op_beside_a_stem_position_in_percent_is_scaled_by_it():
     assert "op_rescaled" not in {w.code for w in no_mv.warnings}
 
 
+def test_a_fraction_op_without_a_stem_position_is_sized_in_fractions_of_span():
+    # OP logged 0..1 and nothing to scale it by: the tool does not rescale it, but the floors and
+    # the class tolerances are in % of span, so S, J and the class must come out as for the same
+    # data in %, in fractions (they used to be "size unknown": S = 0.03 lay under every % floor)
+    from diagnose.service.pipeline import recommended_action, severity, verdict_text
+
+    for S, J, seed, cls in ((3.0, 1.0, 5, "undershoot"), (2.0, 3.0, 7, "overshoot")):
+        rec = sticky_loop(S, J, n=3000, noise_std=0.05, load_walk_std=0.02, seed=seed,
+                          kind="soptd" if J > S else "foptd").replace(mv=None)
+        pct, frac = identify(rec), identify(_fraction_op(rec))
+        codes = {w.code for w in frac.warnings}
+        assert "data_quality.op_fraction" in codes and "size_unknown" not in codes
+        assert frac.op_units == "fraction of span" and frac.pct_per_op_unit == 100.0
+        assert frac.stiction and frac.cls == pct.cls == cls
+        assert frac.S_pct == pytest.approx(S / 100, rel=0.05) and frac.J_pct == pytest.approx(J / 100, rel=0.3)
+        text = verdict_text(frac)
+        assert f"S = {frac.S_pct:.4f}, J = {frac.J_pct:.4f} in fractions of span" in text and "(minor)" not in text
+        assert "Have the valve inspected" in recommended_action(frac)
+        # ranked as the same valve in % would be (the probability and S weigh alike)
+        assert severity(frac).size == pytest.approx(severity(pct).size, abs=1.0)
+
+
 def test_the_report_pipeline_uses_the_scaled_op():
     from diagnose.service import pipeline
 

@@ -203,4 +203,5 @@ def test_the_tag_map_the_op_fraction_advice_gives_reads_op_in_percent(tmp_path, 
     assert "data_quality.op_fraction" not in codes and "op_not_percent" not in codes
     assert mapped["stiction"] and mapped["S"] == pytest.approx(plain["S"], abs=0.05)
     assert mapped["J"] == pytest.approx(plain["J"], abs=0.05) and mapped["S"] == pytest.approx(4.0, abs=0.4)
-    assert warned["S"] is None   # unscaled, every movement 100 times too small: no band to size
+    # unscaled, S and J come out in fractions of span (the same valve), the units said with them
+    assert warned["S"] == pytest.approx(plain["S"] / 100, rel=0.05) and warned["class"] == plain["class"]

@@ -286,7 +286,7 @@ def severity(ident: Identification, warnings: Sequence[Note] = ()) -> Severity:
     tool's model bank covers the valve, not how bad the valve is.
     """
     sticky = ident.stiction
-    S = (ident.S_pct or 0.0) if sticky else 0.0
+    S = (ident.S_pct or 0.0) * ident.pct_per_op_unit if sticky else 0.0
     p = ident.stiction_probability
     if p is None:
         p = min(max(ident.confidence, 0.0), 1.0) if sticky else 0.0
@@ -323,9 +323,10 @@ def verdict_text(ident: Identification, warnings: Sequence[Note] = ()) -> str:
     elif ident.op_in_percent:
         size = f"S = {S:.2f} %, J = {J:.2f} % of valve span"
     else:
-        size = f"S = {S:.2f}, J = {J:.2f} {sj_unit(ident)}"
+        d = ident.sj_digits
+        size = f"S = {S:.{d}f}, J = {J:.{d}f} {sj_unit(ident)}"
     word = "Possible stiction" if hedged or conf < 0.5 else "Stiction"
-    minor = " (minor)" if S is not None and S < S_MINOR_PCT else ""
+    minor = " (minor)" if S is not None and S * ident.pct_per_op_unit < S_MINOR_PCT else ""
     return f"{word}{minor}: {size}, class {ident.cls}{sure}."
 
 
@@ -338,6 +339,8 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = (),
 
     S = ident.S_pct or 0.0
     J = ident.J_pct or 0.0
+    k = ident.pct_per_op_unit          # S and J in OP's units; the thresholds are in % of span
+    d = 1 if k == 1.0 else 3           # a tenth of a per cent either way
     conf = ident.confidence
     codes = {w.code for w in warnings}
     period_s = ident.oscillation.period_s
@@ -359,19 +362,19 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = (),
     elif ident.stiction and ident.S_pct is None:
         parts.append("The evidence says the valve sticks but its size could not be measured: have the "
                      "valve stroke-tested (or record the stem position) at the next opportunity.")
-    elif ident.stiction and conf >= 0.5 and S >= S_MINOR_PCT:
-        jump = f" and jumps by {J:.1f}{' %' if pct else ''}" if J >= 0.05 else ""
-        parts.append(f"Have the valve inspected at the next opportunity: it sticks by about {S:.1f}{span}"
+    elif ident.stiction and conf >= 0.5 and S * k >= S_MINOR_PCT:
+        jump = f" and jumps by {J:.{d}f}{' %' if pct else ''}" if J * k >= 0.05 else ""
+        parts.append(f"Have the valve inspected at the next opportunity: it sticks by about {S:.{d}f}{span}"
                      f"{jump}. Check the packing (over-tightened or worn), the actuator and the positioner.")
         if ident.loop_oscillates:
             parts.append(f"Until then the stick-slip cycle{period} can be eased by reducing the "
                          "controller's integral action (longer integral time) or by a stiction "
                          "compensator; do not simply raise the gain.")
     elif ident.stiction and habit:
-        parts.append(f"Stiction is small or uncertain in this run (S about {S:.1f}{span}), but {habit}: "
+        parts.append(f"Stiction is small or uncertain in this run (S about {S:.{d}f}{span}), but {habit}: "
                      "have the valve stroke-tested at the next opportunity.")
     elif ident.stiction:
-        parts.append(f"Stiction is small or uncertain (S about {S:.1f}{span}): keep the loop on "
+        parts.append(f"Stiction is small or uncertain (S about {S:.{d}f}{span}): keep the loop on "
                      "the watch list and compare with the next nightly run before acting.")
     elif habit:
         parts.append(f"This run shows no stiction, but {habit}: keep the valve on the watch list (one "
@@ -425,7 +428,8 @@ def select_narx(ident: Identification) -> tuple[Selection | None, Note | None]:
     bank = _bank()
     if bank is None:
         raise ModuleNotFoundError("the NARX-SP bank (diagnose.narx) is not installed")
-    sel = bank.select(S, J)
+    k = ident.pct_per_op_unit     # the bank's models are in % of span
+    sel = bank.select(S * k, J * k)
     return sel, sel.warning()
 
 
@@ -443,7 +447,9 @@ def _narx_stage(record: LoopRecord, ident: Identification,
     try:
         bank = _bank()
         assert bank is not None
-        mv_hat = np.asarray(bank.free_run(sel, record.op), dtype=float)
+        # the bank's models take OP in % of span; the stem comes back in OP's own units
+        k = ident.pct_per_op_unit
+        mv_hat = np.asarray(bank.free_run(sel, record.op * k), dtype=float) / k
     except Exception as exc:
         notes.append(Note("service.narx_failed", f"NARX-SP free run failed: {exc}"))
         return sel, NarxRun()

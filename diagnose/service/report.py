@@ -276,8 +276,9 @@ def _found_rows(diag: Diagnosis) -> list[list[str]]:
         rows += [[S_MEANING, f"0 (no stiction); the data allow at most {fmt(ident.S_interval_pct[1])} {unit}"],
                  [J_MEANING, f"0 (no stiction); the data allow at most {fmt(ident.J_interval_pct[1])} {unit}"]]
     elif ident.S_pct is not None and ident.J_pct is not None:
-        rows += [[S_MEANING, f"{fmt(ident.S_pct)} {unit}, interval {fmt_interval(ident.S_interval_pct)}"],
-                 [J_MEANING, f"{fmt(ident.J_pct)} {unit}, interval {fmt_interval(ident.J_interval_pct)}"]]
+        sp = f".{ident.sj_digits}f"
+        rows += [[S_MEANING, f"{fmt(ident.S_pct, sp)} {unit}, interval {fmt_interval(ident.S_interval_pct, sp)}"],
+                 [J_MEANING, f"{fmt(ident.J_pct, sp)} {unit}, interval {fmt_interval(ident.J_interval_pct, sp)}"]]
     elif ident.valve_not_moving and ident.fitted_S_pct is not None:
         rows += [[S_MEANING, f"at least {fmt(ident.fitted_S_pct)} {unit} (OP travelled that far and the stem "
                              "never moved)"],
@@ -536,6 +537,11 @@ def _row_units(row: Mapping[str, Any]) -> str:
     return row.get("sj_units") or ("OP units" if row.get("sj_in_op_units") else "% of span")
 
 
+def _sj_spec(units: str) -> str:
+    """The format of S and J in a summary row's units (`Identification.sj_digits`)."""
+    return ".4f" if units == "fraction of span" else ".2f"
+
+
 def _in_units(text: str, units: str) -> str:
     """A summary cell of S, J or travel: a value not in % of span says what it is in."""
     return text if text == "-" or units == "% of span" else f"{text} ({units})"
@@ -593,7 +599,8 @@ def summary_blocks(rows: Sequence[Mapping[str, Any]], *, title: str = "Plant sti
         # the degradation is S's trend over the loop's records: beside S, not a data-quality warning
         rising = " (degrading)" if r.get("degradation") else ""
         table.append([fmt(r.get("rank"), "d"), name, fmt(r.get("severity"), ".1f"), fmt(r.get("class")),
-                      _in_units(fmt(r.get("S_pct")), units) + rising, _in_units(fmt(r.get("J_pct")), units),
+                      _in_units(fmt(r.get("S_pct"), _sj_spec(units)), units) + rising,
+                      _in_units(fmt(r.get("J_pct"), _sj_spec(units)), units),
                       # as the loop's own report words them: a rounded "100%" reads as a certainty
                       percent(r.get("stiction_probability")) + _runs_note(r.get("sticky_runs")),
                       percent(r.get("confidence")),

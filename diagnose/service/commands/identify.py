@@ -40,8 +40,9 @@ def summary(ident: Identification) -> str:
         src = " from OP/MV" if ident.method == "op_mv" else ""
         unit = ident.sj_units_text
         pct = " %" if ident.op_in_percent else ""
-        lines.append(f"  S = {ident.S_pct:.2f}{pct} [{si[0]:.2f}, {si[1]:.2f}]   J = {ident.J_pct:.2f}{pct} "
-                     f"[{ji[0]:.2f}, {ji[1]:.2f}]  ({unit}{src})")
+        d = ident.sj_digits
+        lines.append(f"  S = {ident.S_pct:.{d}f}{pct} [{si[0]:.{d}f}, {si[1]:.{d}f}]   J = {ident.J_pct:.{d}f}{pct} "
+                     f"[{ji[0]:.{d}f}, {ji[1]:.{d}f}]  ({unit}{src})")
         if ident.class_alternatives:
             lines.append(f"  the data also allow class {' or '.join(ident.class_alternatives)}")
     elif ident.stiction and ident.valve_not_moving and ident.fitted_S_pct is not None:
