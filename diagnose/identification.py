@@ -398,6 +398,7 @@ class Identification:
             "class_alternatives": list(self.class_alternatives),
             "S": finite_or_none(self.S_pct),
             "J": finite_or_none(self.J_pct),
+            "sj_units": self.op_units,
             "S_interval": _pair(self.S_interval_pct),
             "J_interval": _pair(self.J_interval_pct),
             "process": self.process.to_dict() if self.process is not None else {},

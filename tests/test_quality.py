@@ -205,3 +205,4 @@ def test_the_tag_map_the_op_fraction_advice_gives_reads_op_in_percent(tmp_path, 
     assert mapped["J"] == pytest.approx(plain["J"], abs=0.05) and mapped["S"] == pytest.approx(4.0, abs=0.4)
     # unscaled, S and J come out in fractions of span (the same valve), the units said with them
     assert warned["S"] == pytest.approx(plain["S"] / 100, rel=0.05) and warned["class"] == plain["class"]
+    assert (warned["sj_units"], mapped["sj_units"], plain["sj_units"]) == ("fraction of span", "% of span", "% of span")
