@@ -670,3 +670,27 @@ def test_results_still_locked_out_at_the_stop_are_said_not_stored(tmp_path):
         assert writer.waiting() == 0
     finally:
         locker.join()
+
+
+def test_metrics_give_s_and_j_in_percent_of_span_for_an_op_logged_as_a_fraction():
+    # the gauges are named and documented in % of span: a loop whose OP arrives as 0..1 (S and J
+    # in fractions) must not publish S = 0.03 for a 3 % band
+    from diagnose.quality import assess
+    from diagnose.service.metrics import Metrics
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=3000, noise_std=0.05, load_walk_std=0.02, seed=5, name="FV1").replace(mv=None)
+    frac = rec.replace(op=rec.op / 100.0)
+    frac = frac.with_findings(*assess(frac))
+    d = diagnose(frac, narx=False)
+    assert d.identification.op_units == "fraction of span" and d.identification.S_pct < 0.1
+    m = Metrics(0)
+    try:
+        m.observe("FV1", d)
+        S = m.registry.get_sample_value("stiction_s_pct", {"loop": "FV1"})
+        J = m.registry.get_sample_value("stiction_j_pct", {"loop": "FV1"})
+    finally:
+        m.close()
+    assert S == pytest.approx(100 * d.identification.S_pct) and S == pytest.approx(3.0, abs=0.3)
+    assert J == pytest.approx(100 * d.identification.J_pct)

@@ -76,7 +76,11 @@ class Metrics:
         that showed stiction and how many were counted, `diagnose.service.history.sticky_runs`)."""
         ident = diag.identification
         share = None if not sticky_runs else sticky_runs[0] / sticky_runs[1]
-        for gauge, value in ((self.S, ident.S_pct), (self.J, ident.J_pct), (self.confidence, ident.confidence),
+        # the gauges are in % of span; S and J are in OP's units (a fraction of span, say)
+        k = ident.pct_per_op_unit
+        S = None if ident.S_pct is None else ident.S_pct * k
+        J = None if ident.J_pct is None else ident.J_pct * k
+        for gauge, value in ((self.S, S), (self.J, J), (self.confidence, ident.confidence),
                              (self.severity, diag.severity.score), (self.probability, ident.stiction_probability),
                              (self.sticky_share, share)):
             if value is not None:
