@@ -338,15 +338,14 @@ class Identification:
 
     @property
     def pct_per_op_unit(self) -> float:
-        """% of span per unit of S and J: 100 where OP was logged as a fraction of span, else 1
-        (OP in %, or in units whose span is unknown: there S is weighed as if in %)."""
-        return _percent_per_op_unit(self.op_units)
+        """% of span per unit of S and J (`diagnose.quality.pct_per_op_unit`): 100 where OP was
+        logged as a fraction of span, else 1."""
+        return quality.pct_per_op_unit(self.op_units)
 
     @property
     def sj_digits(self) -> int:
-        """Decimals S and J are written with: two in % (and in OP's own units), four in fractions
-        of span (the same resolution)."""
-        return 4 if self.op_units == "fraction of span" else 2
+        """Decimals S and J are written with (`diagnose.quality.sj_decimals`)."""
+        return quality.sj_decimals(self.op_units)
 
     @property
     def sj_units_text(self) -> str:
@@ -500,12 +499,6 @@ def _op_units(codes: set[str]) -> str:
     return "fraction of span" if "data_quality.op_fraction" in codes else "% of span"
 
 
-def _percent_per_op_unit(op_units: str) -> float:
-    """% of span per unit of OP: 100 for OP logged as a fraction of span; 1 for OP in % and for OP
-    in units whose span is unknown (there the % floors are taken as they are)."""
-    return 100.0 if op_units == "fraction of span" else 1.0
-
-
 def _warn(code: str, message: str) -> Note:
     return Note(code, message)
 
@@ -593,7 +586,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     the shared noise model is the linear loop's choice, and where the valve explains slow error
     the linear loop leaves, that choice filters out the very error the valve explains."""
     rows = []
-    pct = _percent_per_op_unit(op_units)    # the floors below are in % of span
+    pct = quality.pct_per_op_unit(op_units)    # the floors below are in % of span
     src = "the valve fitted on the stem position" if method == "op_mv" else "the valve + process model"
     if ins is not None:
         dec = "stiction" if ins > INSAMPLE_THRESHOLD else "no_stiction"
@@ -750,6 +743,9 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
                               f"OP spans {float(np.min(op)):g}..{float(np.max(op)):g}, outside 0..100 % of "
                               "span (mean-centred or in engineering units?); it was shifted into the span, "
                               "so S and J are in OP's own units"))
+    # what S and J come out in: the floors and the class tolerances below are in % of span
+    units = _op_units({w.code for w in warnings})
+    pct = quality.pct_per_op_unit(units)
     if any(f.code == "pv_missing" for f in findings):
         pv_ok, pv_reason = False, "the file holds no usable PV value"
     else:
@@ -830,8 +826,6 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             S_int, J_int = fit.S_interval_pct, fit.J_interval_pct
             rmse, r2 = fit.rmse, fit.r2
             ins = (1.0 - fit.cost / linear.cost) if linear.cost > 0 else 0.0
-        # the floors are in % of span; S is in OP's units
-        pct = _percent_per_op_unit(_op_units({w.code for w in warnings}))
         if class_test and valve_fit is None and S * pct >= S_MIN_PCT:
             ctest = search.class_test(op, pv, ts, fit, float(fit_opts.get("burn_frac", 0.05)),
                                       fit_opts.get("gain_sign"), threads=fit_opts.get("threads"),
@@ -850,7 +844,6 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     ins_own = None
     if valve_fit is None and not mv_still and linear.own_noise_cost > 0:
         ins_own = 1.0 - fit.own_noise_cost / linear.own_noise_cost
-    units = _op_units({w.code for w in warnings})
     fit_rows = _fit_evidence(S_pct=float(S), S_int=S_int, ins=ins, n_eff=source.n_eff, ins_own_noise=ins_own,
                              backlash_lr=backlash_lr,
                              op_noise_pct=op_noise, op_range_pct=op_range, slips=slips, osc=osc, method=method,
@@ -874,9 +867,8 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         cls = "unknown"
         S_out = J_out = None
     elif stiction:
-        p = _percent_per_op_unit(units)
-        cls = stiction_class(S * p, J * p)
-        if cls == "none" or S * p < S_SIZE_MIN_PCT:
+        cls = stiction_class(S * pct, J * pct)
+        if cls == "none" or S * pct < S_SIZE_MIN_PCT:
             # other evidence found stiction the model fit could not size
             cls = "unknown"
             S_out = J_out = None

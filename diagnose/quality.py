@@ -230,6 +230,18 @@ def units_in_words(op_units: str) -> str:
             "fraction of span": "in fractions of span, as OP was logged"}.get(op_units, f"in {op_units}")
 
 
+def pct_per_op_unit(op_units: str) -> float:
+    """% of span per unit of OP (and so of S and J): 100 for OP logged as a fraction of span; 1 for
+    OP in % and for OP in units whose span is unknown (there the % floors are taken as they are)."""
+    return 100.0 if op_units == "fraction of span" else 1.0
+
+
+def sj_decimals(op_units: str) -> int:
+    """Decimals S and J are written with: two in % (and in OP's own units), four in fractions of
+    span (the same resolution)."""
+    return 4 if op_units == "fraction of span" else 2
+
+
 def op_amount(value: float, op_units: str = "% of span") -> str:
     """An amount of OP travel (a valve band, a stuck stretch) in words, in OP's own units."""
     if op_units == "% of span":

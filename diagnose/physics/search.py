@@ -11,6 +11,7 @@ points, local grids and rounds of them polish.
 * `refit_dynamics`, `sj_local`, `refine_sj`, `refine_plain`, `global_sj`: the plain model's
   dynamics and valve, locally or on a global (S, J, f0) grid;
 * `fit_initial_state`, `y0_options`: the valve's unknown state at the first sample;
+* `keyword_columns`: keyword sets (valves, starting states) as `Candidates` columns;
 * `polish`, `fine_valve`, `profile_ratio`, `joint_process_polish`: fine polish rounds (the valve
   stage's sharp cost in S; an effect traded against the process dynamics);
 * `dynamics_starts`, `valve_dynamics_starts`, `coarse_starts`, `grid_baseline`: global starts of
@@ -200,10 +201,16 @@ def y0_options(stage: Stage, reference: Structure) -> list:
     return out
 
 
-def y0_columns(y0s: list[dict], i) -> dict[str, np.ndarray]:
-    """`y0_options`' starts as `Candidates` columns: start ``i[k]`` for candidate ``k``."""
+def keyword_columns(sets: list[dict], i, reference: Structure) -> dict[str, np.ndarray]:
+    """Keyword sets for `Structure.replace` as `Candidates` columns: set ``i[k]`` for candidate
+    ``k``; None as NaN, and a field a set leaves out keeps ``reference``'s value."""
     i = np.asarray(i, dtype=np.intp)
-    return {k: np.array([np.nan if y0[k] is None else y0[k] for y0 in y0s], float)[i] for k in ("y0_pct", "xs0_pct")}
+    cols = {}
+    for name in sorted({name for kw in sets for name in kw}):
+        vals = [kw.get(name, getattr(reference, name)) for kw in sets]
+        cols[name] = np.array([np.nan if v is None else v for v in vals], float)[i]
+    return cols
+
 
 
 def with_sj(struct: Structure, S: float, J: float, f0: int | None = None) -> Structure:
@@ -400,14 +407,9 @@ def valve_dynamics_starts(stage: Stage, reference: Structure, valves: list[dict]
         delay = delay * stage.ts_s
         base = reference.replace(process=ProcessModel("foptd", 1.0, float(tau[0]), 0.0, 0.0))
     y0s = y0_options(stage, reference)
-    # the keyword sets as columns (a field a set leaves out keeps the reference's value; a valve's
-    # and a start's keys never overlap, as in ``replace(**v, **y0)``)
-    none = lambda v: np.nan if v is None else v  # noqa: E731
-    iv, f, iy = (a.astype(np.intp) for a in mesh(range(len(valves)), (1, -1), range(len(y0s))))
-    cols = {}
-    for sets, i in ((valves, iv), (y0s, iy)):
-        for name in sorted({name for kw in sets for name in kw}):
-            cols[name] = np.array([none(kw.get(name, getattr(reference, name))) for kw in sets], float)[i]
+    # a valve's and a start's keys never overlap, as in ``replace(**v, **y0)``
+    iv, f, iy = mesh(range(len(valves)), (1, -1), range(len(y0s)))
+    cols = {**keyword_columns(valves, iv, reference), **keyword_columns(y0s, iy, reference)}
     n_v = iv.size
     parts = [Candidates(base, tau_s=t, delay_s=d, f0=f, **cols) for t, d in zip(tau, delay)]
     cands = Pool(parts)

@@ -267,8 +267,7 @@ class History:
             self._columns = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         except sqlite3.DatabaseError as exc:
             if _is_busy(exc):
-                raise HistoryBusy(f"{self.path}: the history database stayed locked by another process (a "
-                                  f"batch storing its results, a backup) for {busy_timeout_s:g} s") from None
+                raise self._busy(f"for {busy_timeout_s:g} s") from None
             raise StictionError(f"{self.path}: not a usable history database ({exc}); give another "
                                 "path with --db") from None
         self.conn.row_factory = sqlite3.Row
@@ -302,10 +301,13 @@ class History:
                 raise StictionError(f"{self.path}: cannot write the history database: {what} is read-only "
                                     "(or not yours); give another path with --db (or --no-history)")
 
+    def _busy(self, when: str) -> HistoryBusy:
+        return HistoryBusy(f"{self.path}: the history database stayed locked by another process (a batch "
+                           f"storing its results, a backup) {when}")
+
     def _failed(self, exc: sqlite3.Error, doing: str) -> StictionError:
         if _is_busy(exc):   # busy, not damaged: nothing to check in the file
-            return HistoryBusy(f"{self.path}: the history database stayed locked by another process (a batch "
-                               f"storing its results, a backup) while {doing}")
+            return self._busy(f"while {doing}")
         return StictionError(f"{self.path}: history database error while {doing} ({exc}); "
                              "check the file (`sqlite3 FILE 'PRAGMA integrity_check'`) or give another --db")
 

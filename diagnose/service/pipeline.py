@@ -340,7 +340,7 @@ def recommended_action(ident: Identification, warnings: Sequence[Note] = (),
     S = ident.S_pct or 0.0
     J = ident.J_pct or 0.0
     k = ident.pct_per_op_unit          # S and J in OP's units; the thresholds are in % of span
-    d = 1 if k == 1.0 else 3           # a tenth of a per cent either way
+    d = ident.sj_digits - 1            # a tenth of a per cent either way
     conf = ident.confidence
     codes = {w.code for w in warnings}
     period_s = ident.oscillation.period_s

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..activity import BAND_SIGMAS
 from ..plain import count, duration, number, percent, percent_change
+from ..quality import sj_decimals
 from .history import persistence, shown_run, verdict_of
 
 if TYPE_CHECKING:
@@ -538,8 +539,8 @@ def _row_units(row: Mapping[str, Any]) -> str:
 
 
 def _sj_spec(units: str) -> str:
-    """The format of S and J in a summary row's units (`Identification.sj_digits`)."""
-    return ".4f" if units == "fraction of span" else ".2f"
+    """The format of S and J in a summary row's units (`diagnose.quality.sj_decimals`)."""
+    return f".{sj_decimals(units)}f"
 
 
 def _in_units(text: str, units: str) -> str:

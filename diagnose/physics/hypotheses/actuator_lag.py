@@ -8,8 +8,8 @@ import math
 import numpy as np
 
 from ..model import Candidates, Structure, mesh, train_sse, with_times
-from ..search import (best_of, fine_valve, global_sj, refine_sj, refit_dynamics, sj_local, with_sj, y0_columns,
-                      y0_options)
+from ..search import (best_of, fine_valve, global_sj, keyword_columns, refine_sj, refit_dynamics, sj_local,
+                      with_sj, y0_options)
 from .base import VALVE_SIDE, PhysicsHypothesis
 
 
@@ -55,7 +55,7 @@ class ActuatorLag(PhysicsHypothesis):
             t, s, r, f, iy = mesh(taus, S_grid, (0.0, 0.2, 0.4, 0.6, 0.8, 0.9, 1.0, 1.2, 1.45), (1, -1),
                                   range(len(y0s)))
             g = Candidates(reference, S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f,
-                           tau_lag_s=t, **y0_columns(y0s, iy))
+                           tau_lag_s=t, **keyword_columns(y0s, iy, reference))
             gs = train_sse(stage, g)
             for i in np.argsort(gs)[:2]:
                 st = refine_sj(stage, g[int(i)], s_span=0.04, n_s=9, j_span=0.15, n_j=7)[0]

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ..model import Candidates, Stage, Structure, mesh, train_sse
-from ..search import (best_distinct, best_of, polish, refit_dynamics, valve_dynamics_starts, y0_columns,
+from ..search import (best_distinct, best_of, keyword_columns, polish, refit_dynamics, valve_dynamics_starts,
                       y0_options)
 from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 
@@ -40,7 +40,7 @@ class AsymmetricStiction(PhysicsHypothesis):
         ratios = (0.1, 0.4, 0.7, 1.0)
         su, sd, ru, rd, f, iy = mesh(g_s, g_s, ratios, ratios, (1, -1), range(len(y0s)))
         g = Candidates(reference, S_up_pct=su, S_dn_pct=sd, J_up_pct=su * ru, J_dn_pct=sd * rd, f0=f,
-                       **y0_columns(y0s, iy))
+                       **keyword_columns(y0s, iy, reference))
         gs = train_sse(stage, g)
         grid_starts = best_distinct(g, gs, lambda c: (round(c.S_up_pct, 6), round(c.S_dn_pct, 6)), 8)
         n_first = len(starts) + 2

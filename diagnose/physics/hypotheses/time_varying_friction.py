@@ -8,8 +8,8 @@ import math
 import numpy as np
 
 from ..model import Candidates, Pool, Stage, Structure, mesh, train_sse
-from ..search import (best_distinct, best_of, dynamics_starts, fine_valve, fit_initial_state, refit_dynamics,
-                      valve_dynamics_starts, y0_columns, y0_options)
+from ..search import (best_distinct, best_of, dynamics_starts, fine_valve, fit_initial_state, keyword_columns,
+                      refit_dynamics, valve_dynamics_starts, y0_options)
 from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 
 
@@ -77,7 +77,7 @@ class TimeVaryingFriction(PhysicsHypothesis):
             s0, q, r, f, iy = mesh(Sc * m_start, q_end, ratios, (1, -1), range(len(y0s)))
             parts.append(Candidates(reference, S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r, f0=f,
                                     dS_pct_per_s=s0 * (q - 1.0) / T, dJ_pct_per_s=s0 * r * (q - 1.0) / T,
-                                    **y0_columns(y0s, iy)))
+                                    **keyword_columns(y0s, iy, reference)))
         cands = Pool(parts)
         sse = train_sse(stage, cands)
         # the cost is rough (the valve's initial state and every slip's timing): the best few
