@@ -39,7 +39,7 @@ from .fit import HammersteinFit, fit_hammerstein
 from .notes import Note
 from .objective import MIN_SAMPLES
 from .oscillation import Oscillation, oscillation_context
-from .plain import finite_or_none
+from .plain import finite_or_none, op_amount, pct_per_op_unit, sj_decimals, units_in_words
 from .process_model import ProcessModel
 from .record import Finding, LoopRecord
 from .stiction_model import stiction_class
@@ -338,20 +338,20 @@ class Identification:
 
     @property
     def pct_per_op_unit(self) -> float:
-        """% of span per unit of S and J (`diagnose.quality.pct_per_op_unit`): 100 where OP was
+        """% of span per unit of S and J (`diagnose.plain.pct_per_op_unit`): 100 where OP was
         logged as a fraction of span, else 1."""
-        return quality.pct_per_op_unit(self.op_units)
+        return pct_per_op_unit(self.op_units)
 
     @property
     def sj_digits(self) -> int:
-        """Decimals S and J are written with (`diagnose.quality.sj_decimals`)."""
-        return quality.sj_decimals(self.op_units)
+        """Decimals S and J are written with (`diagnose.plain.sj_decimals`)."""
+        return sj_decimals(self.op_units)
 
     @property
     def sj_units_text(self) -> str:
         """The units of S, J and OP's travel in words, as every text gives them
-        (`diagnose.quality.units_in_words`)."""
-        return quality.units_in_words(self.op_units)
+        (`diagnose.plain.units_in_words`)."""
+        return units_in_words(self.op_units)
 
     @property
     def loop_oscillates(self) -> bool:
@@ -586,7 +586,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     the shared noise model is the linear loop's choice, and where the valve explains slow error
     the linear loop leaves, that choice filters out the very error the valve explains."""
     rows = []
-    pct = quality.pct_per_op_unit(op_units)    # the floors below are in % of span
+    pct = pct_per_op_unit(op_units)    # the floors below are in % of span
     src = "the valve fitted on the stem position" if method == "op_mv" else "the valve + process model"
     if ins is not None:
         dec = "stiction" if ins > INSAMPLE_THRESHOLD else "no_stiction"
@@ -610,7 +610,7 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
     else:   # the same numbers in OP's own units (a fraction of span, or engineering units)
         noise, travel = f"{op_noise_pct:.3g}", f"{op_range_pct:.3g} (the same units)"
     rows.append(Evidence("valve_band", ratio, BAND_NOISE_RATIO, dec,
-                         f"fitted valve band S = {quality.op_amount(S_pct, op_units)} is {ratio:.1f} times OP's own "
+                         f"fitted valve band S = {op_amount(S_pct, op_units)} is {ratio:.1f} times OP's own "
                          f"sample-to-sample noise ({noise}); the fitted valve slips {slips} "
                          f"times as OP travels over {travel}",
                          extras={"S_pct": S_pct, "slips": float(slips),
@@ -745,7 +745,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
                               "so S and J are in OP's own units"))
     # what S and J come out in: the floors and the class tolerances below are in % of span
     units = _op_units({w.code for w in warnings})
-    pct = quality.pct_per_op_unit(units)
+    pct = pct_per_op_unit(units)
     if any(f.code == "pv_missing" for f in findings):
         pv_ok, pv_reason = False, "the file holds no usable PV value"
     else:
@@ -874,7 +874,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             S_out = J_out = None
             warnings.append(_warn("size_unknown",
                                   f"the evidence says the valve sticks but the model fit finds no valve band "
-                                  f"(S = {quality.op_amount(S, units)}): S, J and the class cannot be given"))
+                                  f"(S = {op_amount(S, units)}): S, J and the class cannot be given"))
         elif ctest is not None:
             alternatives = tuple(k for k in ctest["plausible"] if k != cls)
     else:

@@ -1,6 +1,8 @@
 """Plain numbers for reports and command output: durations in s, min, h or days, values without
 exponents. Every report, summary and command summary formats times and values through here, so
-one loop's tau reads the same in its report, the plant summary and the terminal."""
+one loop's tau reads the same in its report, the plant summary and the terminal; and the units S
+and J are given in (% of span, OP's own units, a fraction of span), so that every text sizes a
+valve alike."""
 
 from __future__ import annotations
 
@@ -97,3 +99,33 @@ def percent(fraction: Any, none: str = "-") -> str:
     if 0 < v < 0.005:
         return "< 1 %"
     return f"{100.0 * v:.0f} %"
+
+
+# -- S and J's units: `Identification.op_units` ("% of span", "OP units", "fraction of span") --
+
+def units_in_words(op_units: str) -> str:
+    """S and J's units in words, for an `Identification.op_units` value (``"% of span"``, ``"OP
+    units"``, ``"fraction of span"``): the one wording the verdict line, the reports, the command's
+    output, the warnings and the evidence notes share."""
+    return {"% of span": "% of valve span",
+            "OP units": "in OP's own units, as OP is not in % of span",
+            "fraction of span": "in fractions of span, as OP was logged"}.get(op_units, f"in {op_units}")
+
+
+def pct_per_op_unit(op_units: str) -> float:
+    """% of span per unit of OP (and so of S and J): 100 for OP logged as a fraction of span; 1 for
+    OP in % and for OP in units whose span is unknown (there the % floors are taken as they are)."""
+    return 100.0 if op_units == "fraction of span" else 1.0
+
+
+def sj_decimals(op_units: str) -> int:
+    """Decimals S and J are written with: two in % (and in OP's own units), four in fractions of
+    span (the same resolution)."""
+    return 4 if op_units == "fraction of span" else 2
+
+
+def op_amount(value: float, op_units: str = "% of span") -> str:
+    """An amount of OP travel (a valve band, a stuck stretch) in words, in OP's own units."""
+    if op_units == "% of span":
+        return f"{value:.2f} % of span"
+    return f"{value:.3g} ({units_in_words(op_units)})"

@@ -221,34 +221,6 @@ def op_saturation(op: np.ndarray) -> Finding | None:
 FILE_FORMATS = ("wide", "long", "ragged", "influx", "dcs")
 
 
-def units_in_words(op_units: str) -> str:
-    """S and J's units in words, for an `Identification.op_units` value (``"% of span"``, ``"OP
-    units"``, ``"fraction of span"``): the one wording the verdict line, the reports, the command's
-    output, the warnings and the evidence notes share."""
-    return {"% of span": "% of valve span",
-            "OP units": "in OP's own units, as OP is not in % of span",
-            "fraction of span": "in fractions of span, as OP was logged"}.get(op_units, f"in {op_units}")
-
-
-def pct_per_op_unit(op_units: str) -> float:
-    """% of span per unit of OP (and so of S and J): 100 for OP logged as a fraction of span; 1 for
-    OP in % and for OP in units whose span is unknown (there the % floors are taken as they are)."""
-    return 100.0 if op_units == "fraction of span" else 1.0
-
-
-def sj_decimals(op_units: str) -> int:
-    """Decimals S and J are written with: two in % (and in OP's own units), four in fractions of
-    span (the same resolution)."""
-    return 4 if op_units == "fraction of span" else 2
-
-
-def op_amount(value: float, op_units: str = "% of span") -> str:
-    """An amount of OP travel (a valve band, a stuck stretch) in words, in OP's own units."""
-    if op_units == "% of span":
-        return f"{value:.2f} % of span"
-    return f"{value:.3g} ({units_in_words(op_units)})"
-
-
 def op_scale_advice(record: LoopRecord) -> str:
     """How whoever made ``record`` gives OP in % of span: a tag map for a file (its ``range``
     scales OP, and the export stays as it is), a keyword for a DataFrame or arrays (Python, where

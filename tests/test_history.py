@@ -476,3 +476,79 @@ def test_a_database_locked_past_the_wait_is_busy_not_broken(tmp_path):
     assert "integrity_check" not in str(err.value)
     assert hist.add_rows([H.row_from_stored(_res("FIC1", 1.0))]) == 1   # stored once the lock is gone
     hist.close()
+
+
+def _fraction(loop: str, S: float, start: str, h: str) -> dict:
+    """A stored result of a loop whose OP was logged as a fraction of span (S and J in fractions)."""
+    return {**_dated(loop, S, start, h), "J": S / 2, "S_interval": [S * 0.9, S * 1.1],
+            "J_interval": [S * 0.4, S * 0.6], "sj_units": "fraction of span"}
+
+
+def test_runs_in_fractions_of_span_keep_their_units_in_the_trend_and_degradation(tmp_path, capsys):
+    db = tmp_path / "h.sqlite"
+    with H.History(db) as hist:
+        for month, S in (("01", 0.020), ("02", 0.025), ("03", 0.031)):
+            hist.add_rows([H.row_from_stored(_fraction("FV2", S, f"2026-{month}-10T00:00:00Z", h=month))])
+        rows = hist.runs("FV2")
+    assert [r["sj_units"] for r in rows] == ["fraction of span"] * 3
+    assert [H.size_pct(r) for r in rows] == pytest.approx([2.0, 2.5, 3.1])
+    # S grew by 0.5 and 0.6 % of span a run: read in fractions, the steps (0.005) would be no growth
+    warn = H.degradation(rows)
+    assert warn and "from 2.00 % to 3.10 % of span" in warn
+    text = H.format_trend("FV2", rows)
+    head, first = text.splitlines()[1:3]
+    assert "S %" not in head and head.rstrip().endswith("S, J units")
+    assert "0.0200" in first and "[0.0180, 0.0220]" in first and "0.0100" in first
+    assert first.rstrip().endswith("fraction of span")
+    assert main(["history", "--db", str(db)]) == 0
+    assert "S 0.0310 (fraction of span)" in capsys.readouterr().out
+    from diagnose.service.figures import history as history_figure
+
+    assert history_figure(rows)[:4] == b"\x89PNG"
+    # runs in % of span print as they always did
+    pct = H.format_trend("FIC1", [H.row_from_stored(_res("FIC1", 2.5))])
+    assert " S % " in pct.splitlines()[1] and "units" not in pct
+
+
+def test_the_loop_report_gives_a_fraction_run_s_history_in_its_units():
+    from diagnose.service.report import loop_blocks
+
+    rows = [H.row_from_stored(_fraction("FV2", S, f"2026-0{i + 1}-10T00:00:00Z", h=str(i)))
+            for i, S in enumerate((0.020, 0.025))]
+    diag = _diagnosis_of_fraction_loop()
+    (table,) = [b for b in loop_blocks(diag, history_rows=rows) if b[0] == "table" and "Record end" in b[1]]
+    head, body = table[1], table[2]
+    assert head[2:4] == ["S", "J"]
+    assert body[0][2] == "0.0200 (fraction of span)" and body[1][3] == "0.0125 (fraction of span)"
+
+
+def _diagnosis_of_fraction_loop():
+    from diagnose.service.pipeline import diagnose
+    from diagnose.simulate import sticky_loop
+
+    rec = sticky_loop(3.0, 1.0, n=1200, noise_std=0.03, load_walk_std=0.02, seed=4, name="FV2")
+    rec = rec.replace(op=rec.op / 100.0, mv=None, start="2026-03-01T00:00:00Z")
+    return diagnose(rec, narx=False)
+
+
+_V3_DDL = H._DDL.replace("    sj_units TEXT,\n", "")
+
+
+def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path):
+    db = tmp_path / "v3.sqlite"
+    con = sqlite3.connect(db)
+    con.executescript(_V3_DDL)
+    con.execute("INSERT INTO meta VALUES ('schema_version', '3')")
+    cols = [c for c in H._COLS if c != "sj_units"]
+    for i, res in enumerate((_fraction("FV2", 0.03, "2026-01-10T00:00:00Z", h="a"),
+                             _dated("FV2", 3.0, "2026-02-10T00:00:00Z", h="b"))):
+        row = H.row_from_stored(res, run_at=f"2026-04-0{i + 1}T02:00:00Z")
+        con.execute(f"INSERT INTO runs ({', '.join(cols)}) VALUES ({', '.join('?' for _ in cols)})",
+                    tuple(row[c] for c in cols))
+    con.commit()
+    con.close()
+    with H.History(db) as hist:
+        assert hist.conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "4"
+        rows = hist.runs("FV2")
+    assert [H.run_units(r) for r in rows] == ["fraction of span", "% of span"]
+    assert [H.size_pct(r) for r in rows] == pytest.approx([3.0, 3.0])

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import kernels
 from ..oscillation import acf
-from ..quality import op_amount
+from ..plain import op_amount
 
 MIN_SAMPLES = 32          # below this no test judges anything
 MIN_CYCLES = 2.0          # oscillation tests need at least this many periods in the record
@@ -304,7 +304,7 @@ class Prepared:
 
     # -- signals -----------------------------------------------------------------------------
     def op_amount(self, v: float) -> str:
-        """An amount of OP travel in words, in OP's own units (`diagnose.quality.op_amount`)."""
+        """An amount of OP travel in words, in OP's own units (`diagnose.plain.op_amount`)."""
         return op_amount(v, self.op_units)
 
     @cached_property

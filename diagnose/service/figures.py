@@ -115,11 +115,18 @@ def explanation_png(explanation: Any, loop: str = "", *, dpi: float = DPI) -> by
 def history(rows: list[Mapping[str, Any]]) -> bytes | None:
     """S and J record over record (history database rows), labelled by each record's end. A run
     that said no stiction has no size (`history.shown_run`): a gap, so the time axis keeps it."""
-    from .history import shown_run
+    from .history import run_units, shown_run, size_pct
 
     stored = [r for r in rows if r.get("S_pct") is not None]
     shown = [shown_run(r) for r in stored]
-    pts = [(r.get("data_end") or r.get("run_at", ""), r.get("S_pct"), r.get("J_pct")) for r in shown]
+    units = {run_units(r) for r in shown}
+    if len(units) == 1:     # the runs' own units, as the tables give them
+        (unit,) = units
+        pts = [(r.get("data_end") or r.get("run_at", ""), r.get("S_pct"), r.get("J_pct")) for r in shown]
+        label = unit
+    else:                   # runs in other units (a tag map added later): in % of span where known
+        pts = [(r.get("data_end") or r.get("run_at", ""), size_pct(r), size_pct(r, "J_pct")) for r in shown]
+        label = "% of span" if "OP units" not in units else "% of span (OP units where not known)"
     if sum(p[1] is not None for p in pts) < 2:
         return None
     fig = _figure(4.6, 2.6)
@@ -129,7 +136,7 @@ def history(rows: list[Mapping[str, Any]]) -> bytes | None:
     ax.plot(x, [p[2] if p[2] is not None else np.nan for p in pts], "s-", color=COLORS["mv"], label="J")
     ax.set_xticks(x)
     ax.set_xticklabels([str(p[0])[:10] for p in pts], rotation=30, fontsize=6, ha="right")
-    ax.set_ylabel("% of span")
+    ax.set_ylabel(label)
     ax.legend(fontsize=7)
     fig.subplots_adjust(left=0.13, right=0.97, top=0.95, bottom=0.27)
     return _png(fig)

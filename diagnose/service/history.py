@@ -25,12 +25,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 from ..errors import StictionError
-from ..plain import finite_or_none, percent
+from ..plain import finite_or_none, pct_per_op_unit, percent, sj_decimals, units_in_words
 
 if TYPE_CHECKING:
     from .pipeline import Diagnosis
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 #: A loop is "degrading" when S rose at each of the last `DEGRADE_RUNS` - 1 steps by at least
 #: `DEGRADE_STEP_PCT` and by at least `DEGRADE_TOTAL_PCT` in all (% of valve span).
@@ -55,6 +55,7 @@ CREATE TABLE IF NOT EXISTS runs (
     class TEXT,
     S_pct REAL, S_lo REAL, S_hi REAL,
     J_pct REAL, J_lo REAL, J_hi REAL,
+    sj_units TEXT,
     confidence REAL,
     severity REAL,
     oscillation_period_s REAL,
@@ -69,7 +70,7 @@ CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 """
 
 _COLS = ("loop", "run_at", "data_start", "data_end", "source", "input_hash", "tool_version", "status", "class",
-         "S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi", "confidence", "severity",
+         "S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi", "sj_units", "confidence", "severity",
          "oscillation_period_s", "verdict", "stiction", "stiction_probability", "result_json")
 
 
@@ -158,6 +159,7 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "class": ident.cls,
         "S_pct": finite_or_none(ident.S_pct), "S_lo": finite_or_none(si[0]), "S_hi": finite_or_none(si[1]),
         "J_pct": finite_or_none(ident.J_pct), "J_lo": finite_or_none(ji[0]), "J_hi": finite_or_none(ji[1]),
+        "sj_units": ident.op_units,
         "confidence": finite_or_none(ident.confidence),
         "severity": finite_or_none(diag.severity.score),
         "oscillation_period_s": finite_or_none(ident.oscillation.period_s),
@@ -171,6 +173,29 @@ def verdict_of(ident: Any) -> dict[str, Any]:
     """An identification's verdict as the history stores it (the columns `sticky_runs` counts):
     a loop's runs so far plus this one make its persistence."""
     return {"stiction": int(bool(ident.stiction)), "stiction_probability": finite_or_none(ident.stiction_probability)}
+
+
+def stored_units(result: Mapping[str, Any]) -> str | None:
+    """The units of a stored result's S and J (``sj_units``; results of releases before it have
+    ``sj_in_op_units`` at most): None for % of span as far as the result can tell."""
+    units = result.get("sj_units")
+    if isinstance(units, str) and units:
+        return units
+    return "OP units" if result.get("sj_in_op_units") is True else None
+
+
+def run_units(row: Mapping[str, Any]) -> str:
+    """The units of a stored run's S and J and their intervals (`Identification.op_units`):
+    ``"% of span"``, ``"OP units"`` or ``"fraction of span"``. Rows stored before the units were
+    kept are in % of span."""
+    return row.get("sj_units") or "% of span"
+
+
+def size_pct(row: Mapping[str, Any], key: str = "S_pct") -> float | None:
+    """A stored run's S (or another size column) in % of span where its units say how
+    (`diagnose.plain.pct_per_op_unit`; OP's own units are taken as they are)."""
+    v = finite_or_none(row.get(key))
+    return None if v is None else v * pct_per_op_unit(run_units(row))
 
 
 def _flag(value: Any) -> int | None:
@@ -205,6 +230,7 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
         "class": result.get("class"),
         "S_pct": finite_or_none(result.get("S")), "S_lo": slo, "S_hi": shi,
         "J_pct": finite_or_none(result.get("J")), "J_lo": jlo, "J_hi": jhi,
+        "sj_units": stored_units(result),
         "confidence": finite_or_none(result.get("confidence")),
         "severity": finite_or_none(sev.get("score")) if isinstance(sev, Mapping) else None,
         "oscillation_period_s": finite_or_none(osc.get("period_s")) if isinstance(osc, Mapping) else None,
@@ -314,7 +340,8 @@ class History:
     def _migrate(self) -> None:
         """Bring a database of an earlier schema up to this one, in place (inside the caller's
         transaction: all of it or nothing). Version 2 added ``data_end``, filled here from each
-        stored result; version 3 the verdict (``stiction``) and its probability, from the same."""
+        stored result; version 3 the verdict (``stiction``) and its probability, from the same;
+        version 4 the units of S and J (``sj_units``), from the same."""
         cols = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         if "data_end" not in cols:
             self.conn.execute("ALTER TABLE runs ADD COLUMN data_end TEXT")
@@ -340,6 +367,18 @@ class History:
                     self.conn.execute("UPDATE runs SET stiction = ?, stiction_probability = ? WHERE id = ?",
                                       (_flag(res.get("stiction")), finite_or_none(res.get("stiction_probability")),
                                        rid))
+        if "sj_units" not in cols:
+            # version 4: S and J's units (OP logged as a fraction of span gives them in fractions)
+            self.conn.execute("ALTER TABLE runs ADD COLUMN sj_units TEXT")
+            for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
+                                               ).fetchall():
+                try:
+                    res = json.loads(text)
+                except ValueError:
+                    continue
+                units = stored_units(res) if isinstance(res, dict) else None
+                if units is not None:
+                    self.conn.execute("UPDATE runs SET sj_units = ? WHERE id = ?", (units, rid))
         self.conn.execute("CREATE INDEX IF NOT EXISTS runs_loop_end ON runs (loop, data_end)")
         self.conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
@@ -448,7 +487,7 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
 
     The last ``runs`` runs that sized a stiction (a stored verdict of stiction; rows stored
     before verdicts were kept count too) must each raise S by at least ``step_pct`` and by at least
-    ``total_pct`` in all (% of valve span). A run that said no stiction has no size to grow from:
+    ``total_pct`` in all (% of valve span; `size_pct`). A run that said no stiction has no size to grow from:
     its fitted band is the noise's, and the history does not show it either (`shown_run`). When
     the latest run that stored a verdict said no stiction there is no warning: after a repair the
     valve is not degrading, and a report that says "no stiction" should not say "degrading".
@@ -456,15 +495,20 @@ def degradation(rows: Sequence[Mapping[str, Any]], *, runs: int = DEGRADE_RUNS,
     said = [r for r in rows if r.get("stiction") is not None]
     if said and not bool(said[-1]["stiction"]):
         return None
-    s = [(_when(r), r.get("S_pct")) for r in rows
+    # in % of span, whatever units each run's OP was logged in (a tag map added later changes them)
+    s = [(_when(r), size_pct(r), run_units(r)) for r in rows
          if r.get("S_pct") is not None and (r.get("stiction") is None or bool(r["stiction"]))]
     if len(s) < runs:
         return None
     last = s[-runs:]
-    vals = [float(v) for _, v in last]
+    vals = [float(v) for _, v, _ in last]
     steps = [b - a for a, b in zip(vals, vals[1:])]
     if all(d >= step_pct for d in steps) and vals[-1] - vals[0] >= total_pct:
-        return (f"S grew over the last {runs} runs, from {vals[0]:.2f} % to {vals[-1]:.2f} % of span "
+        if any(u == "OP units" for _, _, u in last):
+            grew = f"from {vals[0]:.2f} to {vals[-1]:.2f} ({units_in_words('OP units')})"
+        else:
+            grew = f"from {vals[0]:.2f} % to {vals[-1]:.2f} % of span"
+        return (f"S grew over the last {runs} runs, {grew} "
                 f"({str(last[0][0])[:10]} to {str(last[-1][0])[:10]}): the valve is getting worse; "
                 "plan maintenance.")
     return None
@@ -522,20 +566,30 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]], *, limit: int | N
         return f"{loop}: no runs in the history\n"
     shown = list(rows)[-limit:] if limit else list(rows)
     head = f"{loop}: {len(rows)} run(s)" + (f", the last {len(shown)} shown" if len(shown) < len(rows) else "")
-    lines = [head,
-             f"{'record end (UTC)':<20} {'P(st.)':>6} {'S %':>6} {'S interval':>15} {'J %':>6} {'class':<12} "
-             f"{'conf':>6} {'sev':>4}  {'run (UTC)':<20}"]
-    for r in map(shown_run, shown):
+    units = [run_units(r) for r in shown]
+    # S and J in each run's own units; the heads say % only when every run shown is in %
+    plain_pct = all(u == "% of span" for u in units)
+    s_head, j_head = ("S %", "J %") if plain_pct else ("S", "J")
+    cells = []
+    for r, u in zip(map(shown_run, shown), units):
+        spec = f".{sj_decimals(u)}f"
         iv = ("-" if r.get("S_lo") is None or r.get("S_hi") is None
-              else f"[{r['S_lo']:.2f}, {r['S_hi']:.2f}]")
-        S = "-" if r.get("S_pct") is None else f"{r['S_pct']:.2f}"
-        J = "-" if r.get("J_pct") is None else f"{r['J_pct']:.2f}"
+              else f"[{r['S_lo']:{spec}}, {r['S_hi']:{spec}}]")
+        S = "-" if r.get("S_pct") is None else f"{r['S_pct']:{spec}}"
+        J = "-" if r.get("J_pct") is None else f"{r['J_pct']:{spec}}"
         conf = percent(r.get("confidence"))   # as the reports word it: a rounded "100%" reads as a certainty
         sev = "-" if r.get("severity") is None else f"{r['severity']:.0f}"
         end = str(r.get("data_end") or "-")[:19]
         p = percent(r.get("stiction_probability"))
-        lines.append(f"{end:<20} {p:>6} {S:>6} {iv:>15} {J:>6} "
-                     f"{str(r.get('class') or '-'):<12} {conf:>6} {sev:>4}  {str(r.get('run_at'))[:19]:<20}")
+        cells.append((end, p, S, iv, J, str(r.get("class") or "-"), conf, sev, str(r.get("run_at"))[:19], u))
+    ws = max([6] + [len(c[2]) for c in cells] + [len(c[4]) for c in cells])
+    wi = max([15] + [len(c[3]) for c in cells])
+    lines = [head,
+             f"{'record end (UTC)':<20} {'P(st.)':>6} {s_head:>{ws}} {'S interval':>{wi}} {j_head:>{ws}} "
+             f"{'class':<12} {'conf':>6} {'sev':>4}  {'run (UTC)':<20}" + ("" if plain_pct else " S, J units")]
+    for end, p, S, iv, J, cls, conf, sev, run_at, u in cells:
+        lines.append(f"{end:<20} {p:>6} {S:>{ws}} {iv:>{wi}} {J:>{ws}} {cls:<12} {conf:>6} {sev:>4}  {run_at:<20}"
+                     + ("" if plain_pct else f" {u}"))
     held = persistence(rows)
     if held:
         lines.append(f"Verdict: {held}")

@@ -22,9 +22,8 @@ import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..activity import BAND_SIGMAS
-from ..plain import count, duration, number, percent, percent_change
-from ..quality import sj_decimals
-from .history import persistence, shown_run, verdict_of
+from ..plain import count, duration, number, percent, percent_change, sj_decimals
+from .history import persistence, run_units, shown_run, verdict_of
 
 if TYPE_CHECKING:
     from ..controller import ControllerAction
@@ -484,11 +483,17 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
             blocks.append(("p", f"Verdict over this loop's runs: {held} (this run included). One window "
                                 "can hold too little stick-slip to tell; a valve called sticky on most "
                                 "of its windows is the firmer finding."))
-        blocks.append(("table", ["Record end", "P(stiction)", "S %", "J %", "Class", "Confidence", "Run"],
-                       [[str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")),
-                         fmt(r.get("S_pct")), fmt(r.get("J_pct")),
-                         fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]]
-                        for r in map(shown_run, history_rows)]))
+        # S and J in each run's own units (`history.run_units`), as the trend of `stiction history`
+        plain_pct = all(run_units(r) == "% of span" for r in history_rows)
+        table = []
+        for r in map(shown_run, history_rows):
+            units = run_units(r)
+            table.append([str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")),
+                          _in_units(fmt(r.get("S_pct"), _sj_spec(units)), "% of span" if plain_pct else units),
+                          _in_units(fmt(r.get("J_pct"), _sj_spec(units)), "% of span" if plain_pct else units),
+                          fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]])
+        blocks.append(("table", ["Record end", "P(stiction)", "S %" if plain_pct else "S", "J %" if plain_pct else "J",
+                                 "Class", "Confidence", "Run"], table))
         if "history" in figs:
             blocks.append(("figure", "history", FIGURE_CAPTIONS["history"]))
     if ident.data_quality:
@@ -539,7 +544,7 @@ def _row_units(row: Mapping[str, Any]) -> str:
 
 
 def _sj_spec(units: str) -> str:
-    """The format of S and J in a summary row's units (`diagnose.quality.sj_decimals`)."""
+    """The format of S and J in a summary row's units (`diagnose.plain.sj_decimals`)."""
     return f".{sj_decimals(units)}f"
 
 

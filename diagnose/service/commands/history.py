@@ -57,8 +57,13 @@ def run(args: argparse.Namespace) -> int:
 def _last_verdict(row: dict) -> str:
     """The last run in a few words: "S 2.24 %" when it said stiction, "no stiction" when it did
     not (an S of 0.00 % read as a size), S alone for rows of releases that stored no verdict."""
-    from ..history import said_no_stiction
+    from ...plain import sj_decimals
+    from ..history import run_units, said_no_stiction
 
     if said_no_stiction(row):
         return "no stiction"
-    return f"S {row['S_pct']:.2f} %" if row.get("S_pct") is not None else ""
+    if row.get("S_pct") is None:
+        return ""
+    units = run_units(row)
+    S = f"S {row['S_pct']:.{sj_decimals(units)}f}"
+    return f"{S} %" if units == "% of span" else f"{S} ({units})"
