@@ -363,7 +363,15 @@ class Objective:
         rest at ``x[0]``."""
         stem = None if stem_pct is None or math.isnan(stem_pct) else float(stem_pct)
         stuck = None if stem is None or stuck_pct is None or math.isnan(stuck_pct) else float(stuck_pct)
-        return replace(self, start_stem_pct=stem, start_stuck_pct=stuck)
+        # the start state is not part of the prepared data (the kernel takes it with each valve):
+        # share them rather than prepare them again
+        new = object.__new__(Objective)
+        new.__dict__.update(self.__dict__)
+        object.__setattr__(new, "start_stem_pct", stem)
+        object.__setattr__(new, "start_stuck_pct", stuck)
+        # `with_noise` variants keep the start they were made from
+        object.__setattr__(new, "_noise_variants", {self.hp_tau_s: new})
+        return new
 
     def with_noise(self, hp_tau_s: float | None) -> "Objective":
         """The same data scored with another noise prefilter (the valve's start kept)."""

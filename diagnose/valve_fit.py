@@ -157,16 +157,17 @@ def fit_valve(op_pct, mv_pct, ts_s: float = 1.0, *, train=None, stiction: bool =
     # 3-4. the whole record, from the valve's state at the first sample (chosen again after the
     # polish: a start read with a slightly wrong (S, J) can be the wrong one)
     burn_obj = obj
+    every = obj.with_weights(score_weights(n, train, 0))     # the same samples, no burn-in
     pool = [best] + (slip_candidates(obj, lim) if stiction else [])
     scored = []
     for c in pool:
         c = c.with_valve(c.S_pct, c.J_pct, c.f0, obj.cost(c, lim.tau_max_s))
-        o, c = start_from_stem(obj, c, lim, train)
+        o, c = start_from_stem(obj, c, lim, every)
         scored.append((float(o.mse(c.sse)), c))
     best = min(scored, key=lambda t: t[0])[1]
     for _ in range(2):
         cand = best.with_valve(best.S_pct, best.J_pct, best.f0, burn_obj.cost(best, lim.tau_max_s))
-        obj, best = start_from_stem(burn_obj, cand, lim, train)
+        obj, best = start_from_stem(burn_obj, cand, lim, every)
         if stiction and best.S_pct > 0:
             best = zoom(obj, best, lim, ZoomConfig(rounds=3, size=9, span=0.02))
             best = nelder_mead(obj, best, lim, PolishConfig(max_iter=100, tol=1e-8))
@@ -341,7 +342,7 @@ def _global_with_starts(obj: Objective, lim: Limits, cfg: GridConfig, grid, y0: 
     return out
 
 
-def start_from_stem(obj: Objective, cand: Candidate, lim: Limits, train=None) -> tuple[Objective, Candidate]:
+def start_from_stem(obj: Objective, cand: Candidate, lim: Limits, full: Objective) -> tuple[Objective, Candidate]:
     """The valve's state at the first sample, read from the recorded stem position, and the
     objective that scores from there.
 
@@ -350,8 +351,8 @@ def start_from_stem(obj: Objective, cand: Candidate, lim: Limits, train=None) ->
     anywhere within reach of a slip (`START_STUCK_DELTAS`); moving in direction f at the first
     sample (stuck at the input less J: any further input in direction f moves it). The objective
     then scores every sample when the best start fits them within `START_FIT_TOLERANCE` of the
-    burn-in objective's mean squared error; otherwise the burn-in objective is kept."""
-    full = obj.with_weights(score_weights(obj.n, train, 0))
+    burn-in objective's mean squared error; otherwise the burn-in objective is kept. ``full`` is
+    ``obj`` scoring every training sample (no burn-in)."""
     grid = lim.grid([cand.structure])
     stem = grid.model(0).regressor(stiction_batch(obj.x, [cand.S_pct], [cand.J_pct], [cand.f0])[0], obj.ts_s)
     ws = obj.weights > 0

@@ -111,6 +111,27 @@ def test_a_start_state_scores_the_valve_started_there():
     assert obj.with_start_stem(x[0] + 1.2).score([3.0], [1.0], [-1.0], grid)[0][0, 0] < 1e-10
 
 
+def test_a_start_state_shares_the_prepared_data_and_keeps_its_noise_variants_apart():
+    """`with_start_stem` reuses the record's prepared data: it scores as an objective built afresh
+    with that start, and a noise variant made from it keeps the start."""
+    rng = np.random.default_rng(6)
+    x = 50 + np.cumsum(rng.normal(0, 0.4, 900))
+    y = stiction_batch(x, [3.0], [1.0], [-1], start_pct=x[0] + 1.2)[0] + rng.normal(0, 0.05, 900)
+    obj = Objective(x, y, 1.0, score_weights(900, None, 40), 1, 30.0, None)
+    grid = ProcessGrid.of([("foptd", 4.0, 0.0, 1), ("foptd", 9.0, 0.0, 2)], 1.0)
+    S, J, f = [3.0, 2.5, 3.5], [1.0, 1.2, 0.0], [-1.0, 1.0, -1.0]
+    started = obj.with_start_stem(x[0] + 1.2, x[0] + 0.4)
+    fresh = dataclasses.replace(obj, start_stem_pct=x[0] + 1.2, start_stuck_pct=x[0] + 0.4)
+    for a, b in zip(started.score(S, J, f, grid), fresh.score(S, J, f, grid)):
+        np.testing.assert_array_equal(a, b)
+    assert obj.start_stem_pct is None and started.start_stuck_pct == x[0] + 0.4
+    other = started.with_noise(None)
+    assert (other.start_stem_pct, other.start_stuck_pct) == (x[0] + 1.2, x[0] + 0.4)
+    for a, b in zip(other.score(S, J, f, grid), dataclasses.replace(fresh, hp_tau_s=None).score(S, J, f, grid)):
+        np.testing.assert_array_equal(a, b)
+    assert obj.with_noise(None).start_stem_pct is None
+
+
 def test_build_validates_the_record():
     with pytest.raises(DataError, match="OP is constant"):
         Objective.build(np.full(200, 50.0), np.linspace(0, 1, 200), 1.0)
