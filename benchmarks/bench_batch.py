@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import shutil
 import subprocess
@@ -26,6 +25,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.machine import cpu_model  # noqa: E402
 
 
 def make_loops(folder: Path, n_loops: int, n_samples: int, seed: int = 0) -> None:
@@ -72,7 +74,10 @@ def run_batch(logs: Path, out: Path, workers: int, explain: str) -> dict:
     return {"workers": workers, "rc": int(rc), "wall_s": float(el), "loops": summary["n_loops"],
             "failed": summary["n_failed"],
             "peak_rss_mib": max(int(rss_self) / 1024, int(rss_child) / 1024, worker_rss),
-            "cpu_s": float(cpu_self) + float(cpu_child),
+            # a pool's workers are children of multiprocessing's fork server, which the batch's
+            # RUSAGE_CHILDREN does not see: with workers their own CPU per loop (``cpu_s``) is added
+            "cpu_s": float(cpu_self) + float(cpu_child)
+            + (sum(float(r.get("cpu_s") or 0.0) for r in summary["loops"]) if workers > 1 else 0.0),
             "median_loop_s": float(np.median(per_loop)) if per_loop else float("nan"),
             "stages": {k: {"median_s": round(float(np.median(v)), 3), "max_s": round(max(v), 3), "n": len(v)}
                        for k, v in stages.items()}}
@@ -107,7 +112,7 @@ def main() -> None:
           f"processes, half with MV), wide CSV, generated in {gen_s:.0f} s (not timed). Full reports: "
           f"figures, Markdown, PDF, JSON, summary; NARX-SP free run; missing-physics stage `--explain {explain}`. "
           f"Machine: {len(os.sched_getaffinity(0))} CPUs usable of {os.cpu_count()} "
-          f"({platform.processor() or platform.machine()}), "
+          f"({cpu_model()}), "
           f"load average before the last run {load[0]:.1f}.\n")
     print("| workers | wall s | loops/s | speed-up | CPU s | median s/loop (in worker) | peak RSS MiB | failed |")
     print("|---|---|---|---|---|---|---|---|")

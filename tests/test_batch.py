@@ -263,6 +263,12 @@ def test_process_pool_and_dask_localcluster_agree(plant, tmp_path):
         assert got[k][:2] == pytest.approx(want[k][:2], abs=1e-9)
     for res in (pool, dask):
         assert res.n_failed == 1 and (res.out_dir / "loops" / "FIC1" / "FIC1.md").exists()
+        # each loop's CPU time in the process that diagnosed it (the pool's workers are not the
+        # batch's children, so nothing else can count it)
+        ok = [r for r in res.rows if r["status"] == "ok"]
+        assert all(0.0 < r["cpu_s"] < 600.0 for r in ok)
+        assert {r["loop"]: r["cpu_s"] for r in json.loads((res.out_dir / "summary.json").read_text())["loops"]
+                if r["status"] == "ok"} == {r["loop"]: r["cpu_s"] for r in ok}
 
 
 def test_tag_map_names_the_loop_and_is_part_of_the_input_hash(plant, tmp_path):
@@ -1040,3 +1046,23 @@ def test_the_summary_pdf_keeps_its_words_and_shows_valve_activity_in_each_loops_
         while len("".join(path)) < len(r["file"]):
             path.append(lines[start + len(path)].strip())
         assert "".join(path) == r["file"] and all(p.endswith("/") for p in path[:-1]), path
+
+
+def test_a_fraction_of_span_loop_s_history_figure_gets_this_run_in_its_units(tmp_path, monkeypatch):
+    """The loop report's history figure adds this run to the stored ones: in the same units, or a
+    fraction-of-span S would be drawn as a size in % of span."""
+    from diagnose.service import figures as figs
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    seen = []
+    real = figs.history
+    monkeypatch.setattr(figs, "history", lambda rows: seen.append(list(rows)) or real(rows))
+    for day, seed in (("2026-11-25", 31), ("2026-11-26", 32)):
+        rec = sticky_loop(4.0, 1.0, n=1500, noise_std=0.03, load_walk_std=0.02, seed=seed, name="FV2")
+        write_wide(rec.replace(op=rec.op / 100.0, mv=None, start=f"{day}T00:00:00Z"), logs / f"FV2_{day}.csv")
+        B.run_batch([logs / f"FV2_{day}.csv"], tmp_path / f"out_{day}", workers=1, explain=False, narx=False,
+                    pdf=False, db=tmp_path / "h.sqlite", progress=False)
+    rows = seen[-1]
+    assert len(rows) == 2 and {r.get("sj_units") for r in rows} == {"fraction of span"}
+    assert all(r["S_pct"] < 0.2 for r in rows)     # fractions of span, both runs

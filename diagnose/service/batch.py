@@ -382,7 +382,8 @@ def write_loop_outputs(cfg: BatchConfig, diag: Diagnosis, loop_id: str, *,
         stale.unlink(missing_ok=True)
     rec, ident = diag.record, diag.identification
     hist_for_fig = list(history_rows) + ([{"run_at": "this run", "data_end": end_of_record(rec.start, rec.n, rec.ts_s),
-                                           "S_pct": ident.S_pct, "J_pct": ident.J_pct}] if history_rows else [])
+                                           "S_pct": ident.S_pct, "J_pct": ident.J_pct, "sj_units": ident.op_units}]
+                                         if history_rows else [])
     pngs = figs.loop_figures(diag, hist_for_fig)
     for name, png in pngs.items():
         atomic_write(d / f"{name}.png", png)
@@ -574,8 +575,16 @@ def process_file(cfg: BatchConfig, path: str) -> dict[str, Any]:
                 incomplete.update(f.data.get("tags", {}))
     left_alone = [{"path": str(p), "reason": f"a loop without {role}: {tag}"}
                   for tag, role in sorted(incomplete.items())]
-    rows = [process_record(cfg, rec, p, digest) for rec in records]
     import resource
+    import time
+
+    rows = []
+    for rec in records:
+        cpu0 = time.process_time()
+        rows.append(process_record(cfg, rec, p, digest))
+        # this process's CPU time on the loop (all its threads): a pool's workers are not children
+        # the batch can take resource usage of (multiprocessing's fork server started them)
+        rows[-1]["cpu_s"] = round(time.process_time() - cpu0, 3)
 
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
     for r in rows:
