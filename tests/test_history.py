@@ -355,6 +355,23 @@ def test_a_corrected_export_rerun_counts_its_record_once(tmp_path, capsys):
     assert len(got["runs"]) == 2 and got["persistence"].startswith("stiction in 1 of the last 2 runs")
 
 
+def test_a_record_without_times_rediagnosed_by_a_later_release_counts_once(tmp_path):
+    """An export of sample indices has no start or end: the same input diagnosed by a later
+    release is told by its input hash, and counts once in the trend and its persistence."""
+    untimed = {"record": {"start": None, "n": 1000, "ts_s": 1.0}}
+    db = tmp_path / "h.sqlite"
+    with H.History(db) as hist:
+        for version, when, p in (("0.1.0", "2026-03-01T02:00:00Z", 0.9), ("0.1.1", "2026-03-02T02:00:00Z", 0.3)):
+            hist.add_rows([H.row_from_stored({**_res("CHEM1", 0.7, h="same-file", p=p), **untimed,
+                                              "tool_version": version}, run_at=when)])
+        hist.add_rows([H.row_from_stored({**_res("CHEM1", 0.8, h="next-file", p=0.95), **untimed},
+                                         run_at="2026-03-03T02:00:00Z")])
+        assert hist.conn.execute("SELECT count(*) FROM runs").fetchone()[0] == 3   # all kept
+        rows = hist.runs("CHEM1")
+    assert [(r["tool_version"], r["input_hash"]) for r in rows] == [("0.1.1", "same-file"), ("t", "next-file")]
+    assert H.sticky_runs(rows)[:2] == (1, 2)
+
+
 def test_the_loop_list_and_the_json_say_the_verdict_in_words(tmp_path, capsys):
     import json
 

@@ -421,19 +421,23 @@ class History:
         the order they ran), oldest first; the last ``limit`` when given.
 
         A record diagnosed again (the same loop, start and end: an export corrected and re-run, or
-        re-diagnosed by a later release) counts once, by its latest run; the earlier rows stay in
+        re-diagnosed by a later release; or the same input again, which is how a record without
+        times is told) counts once, by its latest run; the earlier rows stay in
         the database but would otherwise count one record twice in the trend, its persistence and
         its degradation."""
         cols = [c if c in self._columns else f"NULL AS {c}" for c in _COLS if with_result or c != "result_json"]
         where = "loop = ?" + (" AND status = ?" if status else "")
         args: list[Any] = [loop] + ([status] if status else [])
         end = "COALESCE(data_end, run_at)" if "data_end" in self._columns else "run_at"
+        later = ("SELECT 1 FROM runs AS later WHERE later.loop = runs.loop"
+                 + (" AND later.status = runs.status" if status else "")
+                 + " AND (later.run_at > runs.run_at OR (later.run_at = runs.run_at AND later.id > runs.id))")
         if "data_end" in self._columns:
             where += (" AND NOT (data_start IS NOT NULL AND data_end IS NOT NULL AND EXISTS ("
-                      "SELECT 1 FROM runs AS later WHERE later.loop = runs.loop"
-                      + (" AND later.status = runs.status" if status else "") +
-                      " AND later.data_start = runs.data_start AND later.data_end = runs.data_end"
-                      " AND (later.run_at > runs.run_at OR (later.run_at = runs.run_at AND later.id > runs.id))))")
+                      f"{later} AND later.data_start = runs.data_start AND later.data_end = runs.data_end))")
+        # the same input diagnosed again (by a later release): a record without times has no start
+        # and end to tell it by
+        where += f" AND NOT (input_hash != '' AND EXISTS ({later} AND later.input_hash = runs.input_hash))"
         sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY {end} DESC, run_at DESC, id DESC"
         if limit:
             sql += f" LIMIT {int(limit)}"
