@@ -611,8 +611,8 @@ def _fit_evidence(*, S_pct: float, S_int: tuple[float, float], ins: float | None
         noise, travel = f"{op_noise_pct:.3g}", f"{op_range_pct:.3g} (the same units)"
     rows.append(Evidence("valve_band", ratio, BAND_NOISE_RATIO, dec,
                          f"fitted valve band S = {op_amount(S_pct, op_units)} is {ratio:.1f} times OP's own "
-                         f"sample-to-sample noise ({noise}); the fitted valve slips {slips} "
-                         f"times as OP travels over {travel}",
+                         f"sample-to-sample noise ({noise}); the fitted valve slips "
+                         f"{'once' if slips == 1 else f'{slips} times'} as OP travels over {travel}",
                          extras={"S_pct": S_pct, "slips": float(slips),
                                  "S_over_range": S_pct / op_range_pct if op_range_pct > 0 else 1.0}))
     if S_pct > 0 and math.isfinite(S_int[1] - S_int[0]):

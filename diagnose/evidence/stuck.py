@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import kernels
+from ..plain import count
 from ._gates import process_gate, record_gate
 from ._signals import Prepared, noise_sd, smoothed_noise_sd
 from .result import NO_STICTION, STICTION, Evidence, cannot_judge
@@ -163,9 +164,10 @@ def _kano_stuck(p: Prepared, integrating: bool | None) -> Evidence:
     what = "PV"
     if idx >= THRESHOLD:
         return Evidence(TEST, idx, THRESHOLD, STICTION,
-                        f"{what} stays still while OP travels and then jumps ({res['slips']:.0f} slips; stuck "
+                        f"{what} stays still while OP travels and then jumps ({count(round(res['slips']), 'slip')}; stuck "
                         f"index {idx:.2f} >= {THRESHOLD}), as a sticky valve does; OP moved about "
-                        f"{p.op_amount(res['apparent_S_pct'])} before each slip.", extras=res)
+                        f"{p.op_amount(res['apparent_S_pct'])} before {'the' if round(res['slips']) == 1 else 'each'} "
+                        "slip.", extras=res)
     return Evidence(TEST, idx, THRESHOLD, NO_STICTION,
                     f"{what} follows OP without stuck-then-jump stretches (stuck index {idx:.2f} < {THRESHOLD}).",
                     extras=res)
