@@ -470,7 +470,7 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(far)
     if not usable:
         best = max((b - a for a, b in segs), default=0)
-        raise ConnectorError(f"too few samples: the longest stretch without a gap has {best} samples "
+        raise ConnectorError(f"too few samples: the longest stretch without a gap has {best} sample{'' if best == 1 else 's'} "
                              f"(need at least {min_samples})", path=label)
     if len(segs) > 1 or long_gaps:
         gap_s = [float(grid[segs[i + 1][0]] - grid[segs[i][1] - 1]) for i in range(len(segs) - 1)]

@@ -361,8 +361,9 @@ def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block
                 ["Free-run RMSE at the identified (S, J)", f"{number(sel.free_run_rmse)} % of span"]]
         run = diag.narx_run
         if run is not None and run.rmse_record is not None:
-            what = "the recorded stem position (MV), % of span" if run.against == "mv" else "PV, PV units"
-            rows.append(["Free-run RMSE on this record", f"{number(run.rmse_record)} against {what}"])
+            what = ("% of span, against the recorded stem position (MV)" if run.against == "mv"
+                    else "PV units, against PV through the fitted process")
+            rows.append(["Free-run RMSE on this record", f"{number(run.rmse_record)} {what}"])
         blocks.append(("table", ["NARX-SP", "Value"], rows))
         if "narx" in figs:
             blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
