@@ -163,6 +163,19 @@ class LoopRecord:
         """The present series by role name."""
         return {r: getattr(self, r) for r in ROLES if getattr(self, r) is not None}
 
+    def data_hash(self) -> str:
+        """A digest of the samples themselves (each series by role, the sample period and the
+        start): the same record read again, from whatever file or by whatever release, has the same
+        one. The history tells a record diagnosed again by it (a record without times has no start
+        and end to tell it by)."""
+        import hashlib
+
+        h = hashlib.sha256(f"{float(self.ts_s)!r}|{self.start}".encode())
+        for role, x in self.roles().items():
+            h.update(f"|{role}|".encode())
+            h.update(np.ascontiguousarray(x, dtype=np.float64).tobytes())
+        return h.hexdigest()[:32]
+
     @classmethod
     def from_frame(cls, df: Any, *, op: str | None = None, pv: str | None = None, sp: str | None = None,
                    mv: str | None = None, ts_s: float | None = None, name: str | None = None,

@@ -356,20 +356,45 @@ def test_a_corrected_export_rerun_counts_its_record_once(tmp_path, capsys):
 
 
 def test_a_record_without_times_rediagnosed_by_a_later_release_counts_once(tmp_path):
-    """An export of sample indices has no start or end: the same input diagnosed by a later
-    release is told by its input hash, and counts once in the trend and its persistence."""
-    untimed = {"record": {"start": None, "n": 1000, "ts_s": 1.0}}
+    """An export of sample indices has no start or end: the same samples diagnosed by a later
+    release are told by their digest, and count once in the trend and its persistence."""
+    def untimed(digest):
+        return {"record": {"start": None, "n": 1000, "ts_s": 1.0, "data_hash": digest}}
+
     db = tmp_path / "h.sqlite"
     with H.History(db) as hist:
+        # a release's input hash differs from the last one's (the version is part of it)
         for version, when, p in (("0.1.0", "2026-03-01T02:00:00Z", 0.9), ("0.1.1", "2026-03-02T02:00:00Z", 0.3)):
-            hist.add_rows([H.row_from_stored({**_res("CHEM1", 0.7, h="same-file", p=p), **untimed,
+            hist.add_rows([H.row_from_stored({**_res("CHEM1", 0.7, h=f"input-{version}", p=p), **untimed("d1"),
                                               "tool_version": version}, run_at=when)])
-        hist.add_rows([H.row_from_stored({**_res("CHEM1", 0.8, h="next-file", p=0.95), **untimed},
+        hist.add_rows([H.row_from_stored({**_res("CHEM1", 0.8, h="next-file", p=0.95), **untimed("d2")},
                                          run_at="2026-03-03T02:00:00Z")])
         assert hist.conn.execute("SELECT count(*) FROM runs").fetchone()[0] == 3   # all kept
         rows = hist.runs("CHEM1")
-    assert [(r["tool_version"], r["input_hash"]) for r in rows] == [("0.1.1", "same-file"), ("t", "next-file")]
+    assert [(r["tool_version"], r["data_hash"]) for r in rows] == [("0.1.1", "d1"), ("t", "d2")]
     assert H.sticky_runs(rows)[:2] == (1, 2)
+
+
+def test_a_batch_rerun_of_an_untimed_export_with_other_options_counts_once(tmp_path):
+    """The bundled ISDB loop (sample indices, no times) diagnosed twice with other options (each
+    run's input hash differs) is one record in the loop's history, by its latest run."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    from pathlib import Path
+
+    from diagnose.service import batch as B
+
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "isdb_CHEM1.csv"
+    (logs / "isdb_CHEM1.csv").write_bytes(sample.read_bytes())
+    db = tmp_path / "h.sqlite"
+    for narx in (False, True):
+        res = B.run_batch([logs], tmp_path / f"out_{narx}", workers=1, explain=False, narx=narx, pdf=False,
+                          db=db, progress=False)
+        assert res.n_failed == 0
+    with H.History(db) as hist:
+        assert hist.conn.execute("SELECT count(*) FROM runs").fetchone()[0] == 2
+        rows = hist.runs("isdb_CHEM1")
+    assert len(rows) == 1 and rows[0]["data_start"] is None and len(rows[0]["data_hash"]) == 32
 
 
 def test_the_loop_list_and_the_json_say_the_verdict_in_words(tmp_path, capsys):
@@ -548,7 +573,7 @@ def _diagnosis_of_fraction_loop():
     return diagnose(rec, narx=False)
 
 
-_V3_DDL = H._DDL.replace("    sj_units TEXT,\n", "")
+_V3_DDL = H._DDL.replace("    sj_units TEXT,\n", "").replace("    data_hash TEXT,\n", "")
 
 
 def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path):
@@ -556,9 +581,10 @@ def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path):
     con = sqlite3.connect(db)
     con.executescript(_V3_DDL)
     con.execute("INSERT INTO meta VALUES ('schema_version', '3')")
-    cols = [c for c in H._COLS if c != "sj_units"]
-    for i, res in enumerate((_fraction("FV2", 0.03, "2026-01-10T00:00:00Z", h="a"),
-                             _dated("FV2", 3.0, "2026-02-10T00:00:00Z", h="b"))):
+    cols = [c for c in H._COLS if c not in ("sj_units", "data_hash")]
+    fraction = _fraction("FV2", 0.03, "2026-01-10T00:00:00Z", h="a")
+    fraction["record"] = {**fraction["record"], "data_hash": "d1"}
+    for i, res in enumerate((fraction, _dated("FV2", 3.0, "2026-02-10T00:00:00Z", h="b"))):
         row = H.row_from_stored(res, run_at=f"2026-04-0{i + 1}T02:00:00Z")
         con.execute(f"INSERT INTO runs ({', '.join(cols)}) VALUES ({', '.join('?' for _ in cols)})",
                     tuple(row[c] for c in cols))
@@ -568,4 +594,5 @@ def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path):
         assert hist.conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0] == "4"
         rows = hist.runs("FV2")
     assert [H.run_units(r) for r in rows] == ["fraction of span", "% of span"]
+    assert [r["data_hash"] for r in rows] == ["d1", None]
     assert [H.size_pct(r) for r in rows] == pytest.approx([3.0, 3.0])

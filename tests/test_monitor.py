@@ -371,9 +371,13 @@ def test_each_window_line_says_how_many_of_the_loops_last_windows_showed_stictio
     sticky = diagnose(sticky_loop(4.0, 1.5, **loop).replace(mv=None), explain=False, narx=False)
     healthy = diagnose(sticky_loop(0.0, 0.0, **loop).replace(mv=None), explain=False, narx=False)
     assert sticky.identification.stiction and not healthy.identification.stiction
+    def window(d, i):   # each window its own stretch of the loop's data
+        return replace(d, record=d.record.replace(start=f"2026-01-01T0{i}:00:00Z"), loop_id="SIM000",
+                       window=f"w{i}", input_hash=f"window:w{i}")
+
     for i, d in enumerate((sticky, healthy, sticky)):
         fut: Future = Future()
-        fut.set_result(replace(d, loop_id="SIM000", window=f"w{i}", input_hash=f"window:w{i}"))
+        fut.set_result(window(d, i))
         mon._done("SIM000", fut)
     mon.close()
     lines = log.getvalue().splitlines()
@@ -385,7 +389,7 @@ def test_each_window_line_says_how_many_of_the_loops_last_windows_showed_stictio
         log = io.StringIO()
         mon = Monitor(cfg, tmp_path / "out", history=True, db=tmp_path / "h.sqlite", log=log, workers=0)
         fut = Future()
-        fut.set_result(replace(healthy, loop_id="SIM000", window="w3", input_hash="window:w3"))
+        fut.set_result(window(healthy, 3))
         mon._done("SIM000", fut)
         mon.close()
         assert log.getvalue().splitlines() == [f"SIM000 w3: {healthy.verdict_text} [stiction in 2 of the last 4 windows]"]

@@ -50,6 +50,7 @@ CREATE TABLE IF NOT EXISTS runs (
     data_end TEXT,
     source TEXT,
     input_hash TEXT NOT NULL DEFAULT '',
+    data_hash TEXT,
     tool_version TEXT NOT NULL DEFAULT '',
     status TEXT NOT NULL DEFAULT 'ok',
     class TEXT,
@@ -69,7 +70,7 @@ CREATE INDEX IF NOT EXISTS runs_loop ON runs (loop, run_at);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT);
 """
 
-_COLS = ("loop", "run_at", "data_start", "data_end", "source", "input_hash", "tool_version", "status", "class",
+_COLS = ("loop", "run_at", "data_start", "data_end", "source", "input_hash", "data_hash", "tool_version", "status", "class",
          "S_pct", "S_lo", "S_hi", "J_pct", "J_lo", "J_hi", "sj_units", "confidence", "severity",
          "oscillation_period_s", "verdict", "stiction", "stiction_probability", "result_json")
 
@@ -154,6 +155,7 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "data_end": end_of_record(rec.start, rec.n, rec.ts_s),
         "source": rec.source or ident.source,
         "input_hash": input_hash or diag.input_hash or "",
+        "data_hash": rec.data_hash(),
         "tool_version": diag.tool_version,
         "status": "ok",
         "class": ident.cls,
@@ -225,6 +227,7 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
         "data_end": record_end(result),
         "source": rec.get("source") or result.get("source"),
         "input_hash": input_hash or result.get("input_hash") or "",
+        "data_hash": rec.get("data_hash") if isinstance(rec.get("data_hash"), str) else None,
         "tool_version": result.get("tool_version") or "",
         "status": status,
         "class": result.get("class"),
@@ -341,7 +344,8 @@ class History:
         """Bring a database of an earlier schema up to this one, in place (inside the caller's
         transaction: all of it or nothing). Version 2 added ``data_end``, filled here from each
         stored result; version 3 the verdict (``stiction``) and its probability, from the same;
-        version 4 the units of S and J (``sj_units``), from the same."""
+        version 4 the units of S and J (``sj_units``) and the samples' digest (``data_hash``, from
+        results that stored it)."""
         cols = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         if "data_end" not in cols:
             self.conn.execute("ALTER TABLE runs ADD COLUMN data_end TEXT")
@@ -368,17 +372,23 @@ class History:
                                       (_flag(res.get("stiction")), finite_or_none(res.get("stiction_probability")),
                                        rid))
         if "sj_units" not in cols:
-            # version 4: S and J's units (OP logged as a fraction of span gives them in fractions)
+            # version 4: S and J's units (OP logged as a fraction of span gives them in fractions),
+            # and the digest of the samples (a record without times is told by it)
             self.conn.execute("ALTER TABLE runs ADD COLUMN sj_units TEXT")
+            if "data_hash" not in cols:
+                self.conn.execute("ALTER TABLE runs ADD COLUMN data_hash TEXT")
             for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
                                                ).fetchall():
                 try:
                     res = json.loads(text)
                 except ValueError:
                     continue
-                units = stored_units(res) if isinstance(res, dict) else None
-                if units is not None:
-                    self.conn.execute("UPDATE runs SET sj_units = ? WHERE id = ?", (units, rid))
+                if not isinstance(res, dict):
+                    continue
+                stored = row_from_stored(res)
+                if stored["sj_units"] is not None or stored["data_hash"] is not None:
+                    self.conn.execute("UPDATE runs SET sj_units = ?, data_hash = ? WHERE id = ?",
+                                      (stored["sj_units"], stored["data_hash"], rid))
         self.conn.execute("CREATE INDEX IF NOT EXISTS runs_loop_end ON runs (loop, data_end)")
         self.conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
@@ -421,8 +431,8 @@ class History:
         the order they ran), oldest first; the last ``limit`` when given.
 
         A record diagnosed again (the same loop, start and end: an export corrected and re-run, or
-        re-diagnosed by a later release; or the same input again, which is how a record without
-        times is told) counts once, by its latest run; the earlier rows stay in
+        re-diagnosed by a later release; or the same samples again, `LoopRecord.data_hash`, which is
+        how a record without times is told) counts once, by its latest run; the earlier rows stay in
         the database but would otherwise count one record twice in the trend, its persistence and
         its degradation."""
         cols = [c if c in self._columns else f"NULL AS {c}" for c in _COLS if with_result or c != "result_json"]
@@ -435,9 +445,10 @@ class History:
         if "data_end" in self._columns:
             where += (" AND NOT (data_start IS NOT NULL AND data_end IS NOT NULL AND EXISTS ("
                       f"{later} AND later.data_start = runs.data_start AND later.data_end = runs.data_end))")
-        # the same input diagnosed again (by a later release): a record without times has no start
-        # and end to tell it by
-        where += f" AND NOT (input_hash != '' AND EXISTS ({later} AND later.input_hash = runs.input_hash))"
+        if "data_hash" in self._columns:
+            # the same samples diagnosed again (by a later release, with other options): a record
+            # without times has no start and end to tell it by
+            where += f" AND NOT (data_hash IS NOT NULL AND EXISTS ({later} AND later.data_hash = runs.data_hash))"
         sql = f"SELECT {', '.join(cols)} FROM runs WHERE {where} ORDER BY {end} DESC, run_at DESC, id DESC"
         if limit:
             sql += f" LIMIT {int(limit)}"

@@ -205,7 +205,7 @@ class Diagnosis:
         return {"n": rec.n, "ts_s": rec.ts_s, "duration_s": rec.duration_s, "start": rec.start,
                 "roles": sorted(rec.roles()), "source": rec.source,
                 "segment": rec.meta.get("segment"), "n_segments": rec.meta.get("n_segments"),
-                "format": rec.meta.get("format")}
+                "format": rec.meta.get("format"), "data_hash": rec.data_hash()}
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON object ``LOOP.json`` holds (`SCHEMA`)."""
