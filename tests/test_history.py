@@ -562,6 +562,10 @@ def test_the_loop_report_gives_a_fraction_run_s_history_in_its_units():
     head, body = table[1], table[2]
     assert head[2:4] == ["S", "J"]
     assert body[0][2] == "0.0200 (fraction of span)" and body[1][3] == "0.0125 (fraction of span)"
+    # a run in % of span beside them (a tag map added later) says so too
+    rows.append(H.row_from_stored(_dated("FV2", 2.6, "2026-03-10T00:00:00Z", h="pct")))
+    (table,) = [b for b in loop_blocks(diag, history_rows=rows) if b[0] == "table" and "Record end" in b[1]]
+    assert table[2][2][2:4] == ["2.60 %", "1.00 %"] and table[2][0][2] == "0.0200 (fraction of span)"
 
 
 def _diagnosis_of_fraction_loop():

@@ -486,13 +486,17 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
                                 "of its windows is the firmer finding."))
         # S and J in each run's own units (`history.run_units`), as the trend of `stiction history`
         plain_pct = all(run_units(r) == "% of span" for r in history_rows)
-        table = []
-        for r in map(shown_run, history_rows):
+
+        def size(r: Mapping[str, Any], key: str) -> str:
             units = run_units(r)
-            table.append([str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")),
-                          _in_units(fmt(r.get("S_pct"), _sj_spec(units)), "% of span" if plain_pct else units),
-                          _in_units(fmt(r.get("J_pct"), _sj_spec(units)), "% of span" if plain_pct else units),
-                          fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]])
+            text = fmt(r.get(key), _sj_spec(units))
+            if plain_pct or text == "-":
+                return text
+            return f"{text} %" if units == "% of span" else _in_units(text, units)
+
+        table = [[str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")), size(r, "S_pct"),
+                  size(r, "J_pct"), fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]]
+                 for r in map(shown_run, history_rows)]
         blocks.append(("table", ["Record end", "P(stiction)", "S %" if plain_pct else "S", "J %" if plain_pct else "J",
                                  "Class", "Confidence", "Run"], table))
         if "history" in figs:
