@@ -577,15 +577,16 @@ def _diagnosis_of_fraction_loop():
     return diagnose(rec, narx=False)
 
 
-_V3_DDL = H._DDL.replace("    sj_units TEXT,\n", "").replace("    data_hash TEXT,\n", "")
-
-
-def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path):
+@pytest.mark.parametrize("missing", [("sj_units", "data_hash"), ("data_hash",)])
+def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path, missing):
     db = tmp_path / "v3.sqlite"
     con = sqlite3.connect(db)
-    con.executescript(_V3_DDL)
+    ddl = H._DDL
+    for c in missing:
+        ddl = ddl.replace(f"    {c} TEXT,\n", "")
+    con.executescript(ddl)
     con.execute("INSERT INTO meta VALUES ('schema_version', '3')")
-    cols = [c for c in H._COLS if c not in ("sj_units", "data_hash")]
+    cols = [c for c in H._COLS if c not in missing]
     fraction = _fraction("FV2", 0.03, "2026-01-10T00:00:00Z", h="a")
     fraction["record"] = {**fraction["record"], "data_hash": "d1"}
     for i, res in enumerate((fraction, _dated("FV2", 3.0, "2026-02-10T00:00:00Z", h="b"))):

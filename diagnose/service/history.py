@@ -371,12 +371,13 @@ class History:
                     self.conn.execute("UPDATE runs SET stiction = ?, stiction_probability = ? WHERE id = ?",
                                       (_flag(res.get("stiction")), finite_or_none(res.get("stiction_probability")),
                                        rid))
-        if "sj_units" not in cols:
+        new = [c for c in ("sj_units", "data_hash") if c not in cols]
+        if new:
             # version 4: S and J's units (OP logged as a fraction of span gives them in fractions),
-            # and the digest of the samples (a record without times is told by it)
-            self.conn.execute("ALTER TABLE runs ADD COLUMN sj_units TEXT")
-            if "data_hash" not in cols:
-                self.conn.execute("ALTER TABLE runs ADD COLUMN data_hash TEXT")
+            # and the digest of the samples (a record without times is told by it); each column on
+            # its own, so that a database with one of them gets the other
+            for c in new:
+                self.conn.execute(f"ALTER TABLE runs ADD COLUMN {c} TEXT")
             for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
                                                ).fetchall():
                 try:
