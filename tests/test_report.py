@@ -371,6 +371,30 @@ def test_pdf_from_blocks_without_figures_and_with_odd_characters(tmp_path):
     assert latin1("S \u2265 2 \u00b1 0.1, \u03c4 = 3 s") == "S >= 2 +/- 0.1, tau = 3 s"
 
 
+def test_a_pdf_table_over_two_pages_repeats_its_header_and_keeps_each_cell_whole(tmp_path):
+    """A plant's summary runs over pages: each page's part of the table starts with the header, and
+    a cell's words stay in order, wrapped between words (a path after a '/')."""
+    notes = ["valve sticks " * (i % 6 + 1) for i in range(90)]
+    rows = [[str(i), f"FIC{i:03d}", notes[i], f"/plant/north/unit_400/exports/area_51/FIC{i:03d}_2026-11-26.csv"]
+            for i in range(90)]
+    pdf = tmp_path / "t.pdf"
+    pdf.write_bytes(to_pdf([("title", "Loops"), ("table", ["#", "Loop", "Notes", "File"], rows)]))
+    pages = int(next(ln for ln in subprocess.run(["pdfinfo", str(pdf)], capture_output=True, text=True,
+                                                 check=True).stdout.splitlines() if ln.startswith("Pages:")).split()[1])
+    assert pages >= 2
+    text = []
+    for page in range(1, pages + 1):
+        lines = subprocess.run(["pdftotext", "-raw", "-f", str(page), "-l", str(page), str(pdf), "-"],
+                               capture_output=True, text=True, check=True).stdout.split()
+        head = lines[:4] if page > 1 else lines[1:5]
+        assert head == ["#", "Loop", "Notes", "File"], (page, lines[:6])
+        text += lines
+    words = " ".join(text)
+    for i in (0, 45, 89):      # every row's cells whole and in order
+        assert f"{i} FIC{i:03d} {notes[i].strip()} /plant/north/unit_400/exports/area_51/FIC{i:03d}_2026-11-26.csv" \
+            in words.replace("/ ", "/")
+
+
 def _quantity_rows(diag):
     rows = {}
     for b in report.loop_blocks(diag):
