@@ -101,9 +101,16 @@ def _pv_label(record: LoopRecord) -> str:
     return f"PV ({unit})" if unit else "PV"
 
 
+def span_label(op_units: str = "% of span") -> str:
+    """An axis's unit for OP and the valve path (`Identification.op_units`): a fraction of span,
+    or OP's own units where its span is unknown, is said as such."""
+    return {"OP units": "OP's own units"}.get(op_units, op_units)
+
+
 def draw_trends(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = None,
-                pv_hat: np.ndarray | None = None) -> Figure:
-    """SP and PV over OP (and MV), the whole record, the model's PV and valve path beneath them."""
+                pv_hat: np.ndarray | None = None, *, op_units: str = "% of span") -> Figure:
+    """SP and PV over OP (and MV), the whole record, the model's PV and valve path beneath them;
+    ``op_units`` is OP's (`Identification.op_units`)."""
     t, tlabel = time_axis(record)
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     if pv_hat is not None:
@@ -120,7 +127,7 @@ def draw_trends(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = Non
     if record.mv is not None:
         _plot(ax2, t, record.mv, color=COLORS["mv"], label="MV", zorder=3)
     ax2.set_ylim(*record_limits(record.op, record.mv))
-    ax2.set_ylabel("% of span")
+    ax2.set_ylabel(span_label(op_units))
     ax2.set_xlabel(tlabel)
     ax2.set_xlim(float(t[0]), float(t[-1]))
     ax2.legend(loc="upper right", fontsize=7, ncol=3)
@@ -129,8 +136,9 @@ def draw_trends(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = Non
 
 
 def draw_phase(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = None,
-               pv_hat: np.ndarray | None = None) -> Figure:
-    """OP-PV (and OP-MV where the record has MV), the fitted model's path dashed beneath it."""
+               pv_hat: np.ndarray | None = None, *, op_units: str = "% of span") -> Figure:
+    """OP-PV (and OP-MV where the record has MV), the fitted model's path dashed beneath it;
+    ``op_units`` is OP's (`Identification.op_units`)."""
     two = record.mv is not None
     axes = fig.subplots(1, 2 if two else 1, squeeze=False)[0]
     s = slice(max(record.n - PHASE_SAMPLES, 0), None)  # the last part: whole cycles stay legible
@@ -145,7 +153,7 @@ def draw_phase(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = None
         ax.plot(op, y[s], lw=0.8, color=color, label="record", zorder=2)
         ax.set_xlim(*record_limits(op))
         ax.set_ylim(*record_limits(y[s]))
-        ax.set_xlabel("OP (% of span)")
+        ax.set_xlabel(f"OP ({span_label(op_units)})")
         ax.set_ylabel(ylabel)
         ax.set_title(f"{name}, last {shown} samples", fontsize=9)
         ax.legend(loc="best", fontsize=7)
@@ -197,16 +205,18 @@ def draw_surface(fig: Figure, ident: Identification) -> bool:
     ax.plot([0, hi], [0, hi], ls="--", lw=0.8, color="#d62728", label="J = S")
     ax.set_xlim(float(S_grid.min()), float(S_grid.max()))
     ax.set_ylim(float(J_grid.min()), float(J_grid.max()))
-    ax.set_xlabel("S (% of span)")
-    ax.set_ylabel("J (% of span)")
+    ax.set_xlabel(f"S ({span_label(ident.op_units)})")
+    ax.set_ylabel(f"J ({span_label(ident.op_units)})")
     ax.set_title(f"error surface of the {source}", fontsize=9)
     ax.legend(loc="upper left", fontsize=7)
     fig.subplots_adjust(left=0.14, right=0.97, top=0.92, bottom=0.13)
     return True
 
 
-def draw_narx(fig: Figure, record: LoopRecord, mv_hat_pct: np.ndarray, pv_hat: np.ndarray | None = None) -> Figure:
-    """A NARX-SP free run against the record: MV where recorded, else PV through the process model."""
+def draw_narx(fig: Figure, record: LoopRecord, mv_hat_pct: np.ndarray, pv_hat: np.ndarray | None = None, *,
+              op_units: str = "% of span") -> Figure:
+    """A NARX-SP free run against the record: MV where recorded, else PV through the process model
+    (else OP and the free run, in OP's units ``op_units``)."""
     t, tlabel = time_axis(record)
     ax = fig.subplots()
     if record.mv is not None:
@@ -223,7 +233,7 @@ def draw_narx(fig: Figure, record: LoopRecord, mv_hat_pct: np.ndarray, pv_hat: n
         _plot(ax, t, record.op, color=COLORS["op"], label="OP")
         _plot(ax, t, mv_hat_pct, color=COLORS["narx"], label="NARX-SP free run (MV)")
         ax.set_ylim(*record_limits(record.op))
-        ax.set_ylabel("% of span")
+        ax.set_ylabel(span_label(op_units))
     ax.set_xlim(float(t[0]), float(t[-1]))
     ax.set_xlabel(tlabel)
     ax.legend(loc="upper right", fontsize=7, ncol=2)
@@ -316,4 +326,4 @@ def plot_identification(ident: Identification, kind: str = "trends") -> Figure:
     if kind == "spectrum":
         return draw_spectrum(fig, rec, marked_period(ident))
     mv_hat, pv_hat = ident.model_path()
-    return (draw_trends if kind == "trends" else draw_phase)(fig, rec, mv_hat, pv_hat)
+    return (draw_trends if kind == "trends" else draw_phase)(fig, rec, mv_hat, pv_hat, op_units=ident.op_units)

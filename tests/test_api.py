@@ -193,6 +193,24 @@ def test_a_result_shows_itself_in_a_notebook(loop):
     assert "model valve" not in labels                        # no sticky valve path on a healthy verdict
 
 
+def test_figures_give_op_and_the_band_in_op_s_own_units(loop):
+    """OP logged as a fraction of span (no stem to scale it): the axes of OP, the valve path and the
+    error surface say "fraction of span", as S and J are given, not "% of span"."""
+    rec, _, _, _ = loop
+    frac = rec.replace(op=rec.op / 100.0, mv=None)
+    ident = diagnose.identify(frac)
+    assert ident.op_units == "fraction of span"
+    assert ident.plot().axes[1].get_ylabel() == "fraction of span"
+    assert ident.plot("phase").axes[0].get_xlabel() == "OP (fraction of span)"
+    surface = ident.plot("surface").axes[0]
+    assert (surface.get_xlabel(), surface.get_ylabel()) == ("S (fraction of span)", "J (fraction of span)")
+    assert diagnose.identify(rec).plot("phase").axes[0].get_xlabel() == "OP (% of span)"
+    from diagnose import figures
+
+    fig = figures.draw_narx(figures.new_figure("narx"), frac, frac.op, None, op_units=ident.op_units)
+    assert fig.axes[0].get_ylabel() == "fraction of span"     # OP and the free run, without PV's model
+
+
 def test_same_options_on_every_file_command():
     from diagnose.service.cli import build_parser
 

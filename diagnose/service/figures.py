@@ -64,12 +64,13 @@ def _surface_source(diag: Diagnosis) -> tuple[ErrorSurface | None, str]:
 
 
 def trends(diag: Diagnosis, mv_hat: np.ndarray | None = None, pv_hat: np.ndarray | None = None) -> bytes:
-    return _png(draw.draw_trends(_figure(*SIZES["trends"]), diag.record, mv_hat, pv_hat))
+    return _png(draw.draw_trends(_figure(*SIZES["trends"]), diag.record, mv_hat, pv_hat,
+                                 op_units=diag.identification.op_units))
 
 
 def phase(diag: Diagnosis, mv_hat: np.ndarray | None = None, pv_hat: np.ndarray | None = None) -> bytes:
     size = SIZES["phase"] if diag.record.mv is not None else SIZES["phase_op_pv"]
-    return _png(draw.draw_phase(_figure(*size), diag.record, mv_hat, pv_hat))
+    return _png(draw.draw_phase(_figure(*size), diag.record, mv_hat, pv_hat, op_units=diag.identification.op_units))
 
 
 def surface(diag: Diagnosis) -> bytes | None:
@@ -80,7 +81,8 @@ def surface(diag: Diagnosis) -> bytes | None:
 def narx(diag: Diagnosis) -> bytes | None:
     if diag.narx_mv_hat_pct is None:
         return None
-    return _png(draw.draw_narx(_figure(*SIZES["narx"]), diag.record, diag.narx_mv_hat_pct, diag.narx_pv_hat))
+    return _png(draw.draw_narx(_figure(*SIZES["narx"]), diag.record, diag.narx_mv_hat_pct, diag.narx_pv_hat,
+                               op_units=diag.identification.op_units))
 
 
 def spectrum(diag: Diagnosis) -> bytes:

@@ -253,7 +253,8 @@ class Diagnosis:
 
         if self.narx_mv_hat_pct is None:
             raise DataError(f"{self.loop}: no NARX-SP free run (no stiction, or the stage did not run)")
-        return figures.draw_narx(figures.new_figure("narx"), self.record, self.narx_mv_hat_pct, self.narx_pv_hat)
+        return figures.draw_narx(figures.new_figure("narx"), self.record, self.narx_mv_hat_pct, self.narx_pv_hat,
+                                 op_units=self.identification.op_units)
 
 
 # ------------------------------------------------------------------------------------------------
