@@ -356,6 +356,30 @@ def test_loop_stage_carries_the_controllers_sign():
     assert _stage_for(flipped, "loop", train).gain_sign == -1
 
 
+def test_a_fraction_of_span_op_is_explained_in_percent_of_span():
+    """OP logged as a fraction (0..1) with no stem position: explained as identify reads it, with
+    OP x 100, so the valve's parameters come out in % of span and the warning says so."""
+    from diagnose.record import LoopRecord
+
+    rec, truth = concealed_loop("asymmetric_stiction", 11, n=1500)
+    pct = LoopRecord(name="L", ts_s=rec.ts_s, op=rec.op, pv=rec.pv, sp=rec.sp)
+    frac = LoopRecord(name="L", ts_s=rec.ts_s, op=rec.op / 100.0, pv=rec.pv, sp=rec.sp)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")     # the explanations' own warnings are checked below
+        a = explain(pct, hypotheses=["asymmetric_stiction"], threads=1)
+        b = explain(frac, hypotheses=["asymmetric_stiction"], threads=1)
+    pa, pb = a.hypotheses[0].params, b.hypotheses[0].params
+    assert pa["S_open_pct"] > 0.5      # the valve's band in % of span ...
+    for k in ("S_open_pct", "J_open_pct", "S_close_pct", "J_close_pct"):
+        assert pb[k] == pytest.approx(pa[k], rel=0.02, abs=1e-3), k    # ... from the fraction too
+    assert b.missing_physics == a.missing_physics
+    (note,) = [w for w in b.warnings if w.code == "op_rescaled"]
+    assert "fraction of span" in note.message and "% of span" in note.message
+    assert not any(w.code == "op_rescaled" for w in a.warnings)
+
+
 def test_concealed_twin_differs_only_by_the_effect():
     rec, _ = concealed_loop("asymmetric_stiction", 7, n=800, with_mv=True)
     twin, _ = concealed_loop("asymmetric_stiction", 7, n=800, with_mv=True, apply_effect=False)

@@ -459,7 +459,20 @@ def explain(record: LoopRecord, *, target: str = "auto", train_fraction: float =
         stage_names.append("valve")
     # a fraction-of-span OP beside a stem position in %: scaled as identify scales it, so that S and J
     # come out in % of span and the valve stage has the stem's scale
-    record, _, rescaled = quality.op_in_percent(record, quality.findings_of(record))
+    record, findings, rescaled = quality.op_in_percent(record, quality.findings_of(record))
+    frac = None if rescaled or record.mv is not None else next(
+        (f for f in findings if f.code == "op_fraction" and f.severity != "info"), None)
+    if frac is not None:
+        # a fraction-of-span OP with no stem to confirm it, read as identify reads it: the valve's
+        # travel, its characteristic and the searches' steps are in % of span, so OP is taken x 100
+        # (the caller's identification is in OP's own units and is not reused)
+        record = record.replace(op=np.asarray(record.op, dtype=float) * 100.0,
+                                findings=tuple(f for f in record.findings if f.code != "op_fraction"))
+        identification = None
+        rescaled = (f"OP stays within 0..1 ({frac.data.get('min', 0):.3g} to {frac.data.get('max', 0):.3g}) and no "
+                    "stem position scales it: read as a fraction of span, as identify reads it, and explained "
+                    "with OP x 100, so the valve's parameters here are in % of span (identify gives S and J in "
+                    "fractions); if OP really is in % (a valve all but shut), they do not apply")
     warn: list[ExplainWarning] = [ExplainWarning(f"data_quality.{f.code}", f.message) for f in record.findings
                                   if f.severity in ("warning", "error")]
     if rescaled:
