@@ -395,6 +395,26 @@ def test_a_pdf_table_over_two_pages_repeats_its_header_and_keeps_each_cell_whole
             in words.replace("/ ", "/")
 
 
+def test_a_pdf_cell_with_a_word_wider_than_the_page_breaks_it_and_loses_nothing(tmp_path):
+    from diagnose.service.pdf import _lines
+
+    word = "".join(chr(65 + i % 26) for i in range(400))      # a tag dump with no space or '/'
+    pdf = tmp_path / "w.pdf"
+    pdf.write_bytes(to_pdf([("table", ["Tag", "Note"], [[word, ""], ["", "x"]])]))
+    text = subprocess.run(["pdftotext", "-raw", str(pdf), "-"], capture_output=True, text=True,
+                          check=True).stdout
+    assert word in "".join(text.split())
+
+    class Fixed:        # 1 mm per character: the breaking is easy to check
+        @staticmethod
+        def get_string_width(s):
+            return float(len(s))
+
+    assert _lines(Fixed, "", 10.0, {}) == [""]
+    assert _lines(Fixed, "ab cd efghijklmnopq r", 6.0, {}) == ["ab cd", "efghij", "klmnop", "q r"]
+    assert _lines(Fixed, "one\ntwo", 50.0, {}) == ["one", "two"]
+
+
 def _quantity_rows(diag):
     rows = {}
     for b in report.loop_blocks(diag):
