@@ -16,7 +16,6 @@ migrated in place the first time it is opened for writing.
 from __future__ import annotations
 
 import json
-import math
 import os
 import sqlite3
 import statistics
