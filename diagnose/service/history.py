@@ -147,6 +147,7 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
     rec = diag.record
     si = ident.S_interval_pct or (None, None)
     ji = ident.J_interval_pct or (None, None)
+    result = diag.to_dict()
     return {
         "loop": history_loop(ident.loop),
         "run_at": run_at or utc_now(),
@@ -154,7 +155,7 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "data_end": end_of_record(rec.start, rec.n, rec.ts_s),
         "source": rec.source or ident.source,
         "input_hash": input_hash or diag.input_hash or "",
-        "data_hash": rec.data_hash(),
+        "data_hash": stored_data_hash(result),
         "tool_version": diag.tool_version,
         "status": "ok",
         "class": ident.cls,
@@ -166,7 +167,7 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
         "oscillation_period_s": finite_or_none(ident.oscillation.period_s),
         "verdict": diag.verdict_text,
         **verdict_of(ident),
-        "result_json": json.dumps(diag.to_dict(), separators=(",", ":"), allow_nan=False),
+        "result_json": json.dumps(result, separators=(",", ":"), allow_nan=False),
     }
 
 
@@ -183,6 +184,14 @@ def stored_units(result: Mapping[str, Any]) -> str | None:
     if isinstance(units, str) and units:
         return units
     return "OP units" if result.get("sj_in_op_units") is True else None
+
+
+def stored_data_hash(result: Mapping[str, Any]) -> str | None:
+    """The digest of a stored result's samples (``record.data_hash``, `LoopRecord.data_hash`);
+    None for results of releases before it."""
+    rec = result.get("record")
+    digest = rec.get("data_hash") if isinstance(rec, Mapping) else None
+    return digest if isinstance(digest, str) else None
 
 
 def run_units(row: Mapping[str, Any]) -> str:
@@ -226,7 +235,7 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
         "data_end": record_end(result),
         "source": rec.get("source") or result.get("source"),
         "input_hash": input_hash or result.get("input_hash") or "",
-        "data_hash": rec.get("data_hash") if isinstance(rec.get("data_hash"), str) else None,
+        "data_hash": stored_data_hash(result),
         "tool_version": result.get("tool_version") or "",
         "status": status,
         "class": result.get("class"),
@@ -348,28 +357,17 @@ class History:
         cols = {r[1] for r in self.conn.execute("PRAGMA table_info(runs)")}
         if "data_end" not in cols:
             self.conn.execute("ALTER TABLE runs ADD COLUMN data_end TEXT")
-            for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
-                                               ).fetchall():
-                try:
-                    end = record_end(json.loads(text))
-                except ValueError:
-                    end = None
+            for rid, res in self._stored_results():
+                end = record_end(res)
                 if end is not None:
                     self.conn.execute("UPDATE runs SET data_end = ? WHERE id = ?", (end, rid))
         if "stiction" not in cols:
             # version 3: the verdict and its probability as columns (the history's persistence)
             self.conn.execute("ALTER TABLE runs ADD COLUMN stiction INTEGER")
             self.conn.execute("ALTER TABLE runs ADD COLUMN stiction_probability REAL")
-            for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
-                                               ).fetchall():
-                try:
-                    res = json.loads(text)
-                except ValueError:
-                    continue
-                if isinstance(res, dict):
-                    self.conn.execute("UPDATE runs SET stiction = ?, stiction_probability = ? WHERE id = ?",
-                                      (_flag(res.get("stiction")), finite_or_none(res.get("stiction_probability")),
-                                       rid))
+            for rid, res in self._stored_results():
+                self.conn.execute("UPDATE runs SET stiction = ?, stiction_probability = ? WHERE id = ?",
+                                  (_flag(res.get("stiction")), finite_or_none(res.get("stiction_probability")), rid))
         new = [c for c in ("sj_units", "data_hash") if c not in cols]
         if new:
             # version 4: S and J's units (OP logged as a fraction of span gives them in fractions),
@@ -377,20 +375,25 @@ class History:
             # its own, so that a database with one of them gets the other
             for c in new:
                 self.conn.execute(f"ALTER TABLE runs ADD COLUMN {c} TEXT")
-            for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL"
-                                               ).fetchall():
-                try:
-                    res = json.loads(text)
-                except ValueError:
-                    continue
-                if not isinstance(res, dict):
-                    continue
-                stored = row_from_stored(res)
-                if stored["sj_units"] is not None or stored["data_hash"] is not None:
-                    self.conn.execute("UPDATE runs SET sj_units = ?, data_hash = ? WHERE id = ?",
-                                      (stored["sj_units"], stored["data_hash"], rid))
+            for rid, res in self._stored_results():
+                units, digest = stored_units(res), stored_data_hash(res)
+                if units is not None or digest is not None:
+                    self.conn.execute("UPDATE runs SET sj_units = ?, data_hash = ? WHERE id = ?", (units, digest, rid))
         self.conn.execute("CREATE INDEX IF NOT EXISTS runs_loop_end ON runs (loop, data_end)")
         self.conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+
+    def _stored_results(self) -> list[tuple[int, dict[str, Any]]]:
+        """(row id, stored result) of every run whose ``result_json`` reads as a JSON object: what
+        a migration fills its new columns from (an unreadable one leaves them empty)."""
+        out = []
+        for rid, text in self.conn.execute("SELECT id, result_json FROM runs WHERE result_json IS NOT NULL").fetchall():
+            try:
+                res = json.loads(text)
+            except ValueError:
+                continue
+            if isinstance(res, dict):
+                out.append((rid, res))
+        return out
 
     # -- context manager -------------------------------------------------------------------
     def __enter__(self) -> "History":
