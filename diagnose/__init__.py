@@ -9,7 +9,7 @@ The front door (docs/api.md)::
     result.to_dict()                                   # what `stiction identify --json` prints
     result.plot()                                      # the report's trends figure
     records = diagnose.read_loops("unit7.csv")         # every loop of a file, folder or DataFrame
-    why = diagnose.explain("FIC101.csv")               # the missing physics (5-40 s)
+    why = diagnose.explain("FIC101.csv")               # the missing physics (3-40 s)
 
 Names are imported on first use, so ``import diagnose`` costs almost nothing and a command that
 needs none of them does not pay for them.

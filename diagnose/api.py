@@ -31,6 +31,7 @@ from typing import IO, TYPE_CHECKING, Any, Mapping, Sequence
 
 from .errors import DataError, StictionError
 from .notes import Note
+from .objective import MIN_SAMPLES
 from .record import LoopRecord
 
 if TYPE_CHECKING:
@@ -68,12 +69,14 @@ def _check_data(data: Any) -> None:
                     f"LoopRecord{hint}")
 
 
-def check_read_options(options: Mapping[str, Any]) -> dict[str, Any]:
+def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -> dict[str, Any]:
     """The reading options with their values checked (``ts_s`` as a float, ``max_samples`` as an
     int); a bad one raises a one-line `DataError` naming the keyword and its command-line flag.
 
     The one check for every entry point: `read_loops` (so `identify` and `explain`), the file
-    commands and `diagnose.service.batch.run_batch`.
+    commands and `diagnose.service.batch.run_batch`. ``diagnosis``: the records are read to be
+    diagnosed, so ``max_samples`` must keep at least the shortest record a diagnosis takes (a
+    smaller limit would fail later, on another minimum than the one the user set).
     """
     from connectors.timebase import DST_POLICIES, zone_of
 
@@ -90,6 +93,9 @@ def check_read_options(options: Mapping[str, Any]) -> dict[str, Any]:
             raise DataError(f"max_samples={n!r} (--max-samples): give a whole number of samples, 0 or more "
                             "(0 keeps all)")
         opts["max_samples"] = int(n)
+        if diagnosis and 0 < opts["max_samples"] < MIN_SAMPLES:
+            raise DataError(f"max_samples={n!r} (--max-samples): keeps fewer samples than a diagnosis needs "
+                            f"({MIN_SAMPLES}); give {MIN_SAMPLES} or more, or 0 to keep every sample")
     dayfirst = opts.get("dayfirst")
     if dayfirst is not None and not isinstance(dayfirst, bool):
         raise DataError(f"dayfirst={dayfirst!r} (--dayfirst/--monthfirst): give True (day first), False "
@@ -220,6 +226,8 @@ def _label(data: Any) -> str:
 def load(data: Any, verb: str = "identified", **options: Any) -> tuple[LoopRecord, tuple[Note, ...]]:
     """The one record a front-door function works on (``loop=`` picks among several loops; the
     longest segment is taken) and the notes that say what was chosen. Options as `read_loops`."""
+    check_read_options({k: v for k, v in options.items() if k == "max_samples" and v is not None},
+                       diagnosis=True)
     records = read_loops(data, **dict(options))
     return choose_record(records, options.get("loop"), _label(data), verb)
 
@@ -284,7 +292,7 @@ def explain(data: str | os.PathLike | pd.DataFrame | LoopRecord, *, op: str | No
     """Locate where the identified model and the record disagree and name the missing physics.
 
     The same as ``stiction explain FILE``: the record is read as `identify` reads it and passed to
-    `diagnose.physics.explain` (docs/missing-physics.md). It takes 5-40 s per loop.
+    `diagnose.physics.explain` (docs/missing-physics.md). It takes 3-40 s per loop.
 
     Parameters
     ----------

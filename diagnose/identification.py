@@ -178,7 +178,7 @@ class Detection:
     op_only : bool
         PV was unusable: the verdict came from OP's shape alone (the other numbers are None).
     pv_unusable : str or None
-        Why PV was unusable.
+        Why PV was unusable (with ``op_only`` False: the valve was fitted on OP -> MV alone).
     """
 
     insample_improvement: float | None = None
@@ -200,6 +200,8 @@ class Detection:
                              "S_min_pct": finite_or_none(self.S_min_pct),
                              "fitted_S_pct": finite_or_none(self.fitted_S_pct),
                              "fitted_J_pct": finite_or_none(self.fitted_J_pct), "integrating": self.integrating}
+        if self.pv_unusable is not None:      # the valve was fitted on the stem position alone
+            d["pv_unusable"] = self.pv_unusable
         if self.backlash_lr is not None:
             d["backlash_lr"] = finite_or_none(self.backlash_lr)
         if self.class_test is not None:
@@ -370,7 +372,8 @@ class Identification:
         The valve path is the sticky valve that S and J describe (the valve fit on the stem position
         when S and J came from it, else the Hammerstein fit's valve); on a no-stiction verdict it is
         None and PV comes from the linear (no-stiction) fit. ``(None, None)`` when no model was
-        fitted (OP-only judgement).
+        fitted (OP-only judgement); PV None where PV was unusable and the valve was fitted on the
+        stem position alone.
         """
         if op_pct is None:
             if self.record is None:
@@ -379,6 +382,8 @@ class Identification:
         op = np.asarray(op_pct, dtype=float)
         fit = self.fit if self.stiction or self.linear_fit is None else self.linear_fit
         if fit is None:
+            if self.stiction and self.valve_fit is not None:     # PV unusable: the valve alone
+                return np.asarray(self.valve_fit.simulate(op), dtype=float), None
             return None, None
         mv_hat, pv_hat = (np.asarray(a, dtype=float) for a in fit.simulate(op))
         if not self.stiction:
@@ -432,11 +437,19 @@ class Identification:
                 f"confidence={self.confidence:.3f}, method={self.method!r}, n={self.n}, ts_s={self.ts_s:g}, "
                 f"warnings={len(self.warnings)})")
 
+    @property
+    def evidence_text(self) -> str:
+        """The tests by what they said: ``"stiction: a, b; no stiction: c; undetermined: d;
+        cannot judge: e"`` (a decision no test gave is left out)."""
+        said = {k: [ev.test for ev in self.evidence if ev.decision == k]
+                for k in ("stiction", "no_stiction", "undetermined", "cannot_judge")}
+        return "; ".join(f"{k.replace('_', ' ')}: {', '.join(v)}" for k, v in said.items() if v)
+
     def _repr_html_(self) -> str:
         from .plain import duration, number
 
         e = html.escape
-        unit = "% of span" if self.op_in_percent else "OP units"
+        unit = self.sj_units_text
 
         def iv(v: tuple[float, float] | None) -> str:
             return "" if v is None else f" [{number(v[0])}, {number(v[1])}]"
@@ -450,9 +463,7 @@ class Identification:
                      ("J", f"{number(self.J_pct)} {unit}{iv(self.J_interval_pct)}")]
         rows.append(("Method", self.method))
         if self.process is not None:
-            pr = self.process
-            rows.append(("Process", f"{pr.kind}, gain {number(pr.gain)}, time constant {duration(pr.tau_s)}, "
-                                    f"dead time {duration(pr.delay_s)}"))
+            rows.append(("Process", self.process.describe()))
         if self.slow_cycle:
             rows.append(("Oscillation", f"slow cycle, period {duration(self.oscillation.period_s)}"))
         elif self.oscillation.oscillating:
@@ -460,12 +471,8 @@ class Identification:
                                         f"{self.oscillation.regularity:.2f}"))
         else:
             rows.append(("Oscillation", "none"))
-        agree = [ev.test for ev in self.evidence if ev.decision == "stiction"]
-        against = [ev.test for ev in self.evidence if ev.decision == "no_stiction"]
-        cannot = [ev.test for ev in self.evidence if ev.decision == "cannot_judge"]
         if self.evidence:
-            rows.append(("Evidence", f"stiction: {', '.join(agree) or 'none'}; no stiction: "
-                                     f"{', '.join(against) or 'none'}; cannot judge: {', '.join(cannot) or 'none'}"))
+            rows.append(("Evidence", self.evidence_text))
         body = "".join(f"<tr><th style='text-align:left'>{e(k)}</th><td style='text-align:left'>{e(v)}</td></tr>"
                        for k, v in rows)
         warn = "".join(f"<li><code>{e(w.code)}</code> {e(w.message)}</li>" for w in self.warnings)
@@ -679,6 +686,68 @@ def _unique(warnings: list[Note]) -> tuple[Note, ...]:
     return tuple(dict.fromkeys(warnings))
 
 
+def _valve_improvement(valve_fit, op: np.ndarray, mv: np.ndarray, ts: float) -> float:
+    """Relative fall of the OP -> MV cost from a linear valve to the fitted sticky one."""
+    lin_v = fit_valve(op, mv, ts, stiction=False).hammerstein.cost
+    # a stem that follows OP exactly leaves the linear valve a cost at rounding level: the ratio of
+    # two such costs means nothing, and there is nothing to improve on
+    if lin_v <= 1e-12 * max(float(np.var(mv)), 1e-300):
+        return 0.0
+    return max(1.0 - valve_fit.hammerstein.cost / lin_v, -1.0)
+
+
+def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warnings: list[Note],
+                         reason: str, integrating: bool | None, units: str) -> Identification:
+    """The verdict, S, J and class from the valve fit on OP -> MV, for a record whose PV is unusable
+    but whose stem moved: the valve is seen directly, so no process model is needed to size it.
+    The PV-based tests cannot judge; the verdict is the OP/MV combiner's on what remains."""
+    op, mv, ts = record.op, record.mv, record.ts_s
+    osc = oscillation_context(op, ts)
+    warnings.append(_warn("pv_unusable",
+                          f"PV is unusable ({reason}): the valve is sized from the stem position (MV) alone; "
+                          "no process model, and the PV-based tests cannot judge"))
+    if integrating is None and _LEVEL_TAG.search(record.name or ""):
+        integrating = True
+    pct = pct_per_op_unit(units)
+    vf = fit_valve(op, mv, ts)
+    ins = _valve_improvement(vf, op, mv, ts)
+    op_noise = _op_noise_pct(op)
+    fit_rows = _fit_evidence(S_pct=float(vf.S_pct), S_int=vf.S_interval_pct, ins=ins, n_eff=vf.hammerstein.n_eff,
+                             ins_own_noise=None, backlash_lr=None, op_noise_pct=op_noise,
+                             op_range_pct=float(np.percentile(op, 99) - np.percentile(op, 1)),
+                             slips=_slips(vf.hammerstein.simulate(op)[0]), osc=osc, method="op_mv", op_units=units)
+    evidence = tuple(run_all(op, record.pv, ts, sp=record.sp, integrating=integrating, op_units=units)) + fit_rows
+    cap = _confidence_caps(findings, record.n, vf.r2, "op_mv", warnings)
+    verdict = combine(evidence, kind="op_mv", confidence_cap=cap)
+    S, J = float(vf.S_pct), float(vf.J_pct)
+    S_out: float | None = S
+    J_out: float | None = J
+    S_int, J_int = vf.S_interval_pct, vf.J_interval_pct
+    if not verdict.stiction:
+        cls = "none"
+        S_out = J_out = 0.0
+        S_int, J_int = (0.0, float(S_int[1])), (0.0, float(J_int[1]))
+    else:
+        cls = stiction_class(S * pct, J * pct)
+        if cls == "none" or S * pct < S_SIZE_MIN_PCT:
+            cls = "unknown"
+            S_out = J_out = None
+            warnings.append(_warn("size_unknown",
+                                  f"the evidence says the valve sticks but the valve fit finds no band "
+                                  f"(S = {op_amount(S, units)}): S, J and the class cannot be given"))
+    det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=S,
+                    fitted_J_pct=J, integrating=integrating, pv_unusable=reason)
+    return Identification(
+        loop=record.name, stiction=verdict.stiction, cls=cls, S_pct=S_out, J_pct=J_out,
+        S_interval_pct=None if S_out is None else (float(S_int[0]), float(S_int[1])),
+        J_interval_pct=None if J_out is None else (float(J_int[0]), float(J_int[1])),
+        process=None, rmse=float(vf.rmse), r2=float(vf.r2), oscillation=osc, warnings=_unique(warnings),
+        confidence=float(min(max(verdict.confidence, 0.0), 1.0)), method="op_mv", detection=det,
+        data_quality=findings, valve_fit=vf, n=record.n, ts_s=ts, fitted_S_pct=S, fitted_J_pct=J,
+        evidence=evidence, verdict=verdict, source=record.source, activity=record_activity(record),
+        record=record)
+
+
 def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warnings: list[Note],
                       reason: str, integrating: bool | None) -> Identification:
     """The verdict from OP's shape alone, for a record whose PV is unusable."""
@@ -686,13 +755,16 @@ def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warning
     osc = oscillation_context(op, ts)
     warnings.append(_warn("pv_unusable",
                           f"PV is unusable ({reason}): the verdict is judged from OP's shape alone and is "
-                          "less certain; S and J need a usable PV, even where the stem position is recorded"))
+                          "less certain; S and J need a usable PV or a recorded stem position that moves"))
     if integrating is None and _LEVEL_TAG.search(record.name or ""):
         integrating = True
     evidence = run_all(op, record.pv, ts, sp=record.sp, integrating=integrating,
                        op_units=_op_units({w.code for w in warnings}))
     cap = min(OP_ONLY_CONFIDENCE_CAP, _confidence_caps(findings, record.n, None, "op_only", warnings))
     verdict = combine(evidence, kind="op_only", confidence_cap=cap)
+    if not verdict.judged:
+        warnings.append(_warn("nothing_judged", "no test could judge this record: the verdict is the combiner's "
+                              "prior, and 'no stiction' here means no evidence either way, not a healthy valve"))
     det = Detection(op_only=True, pv_unusable=reason)
     return Identification(
         loop=record.name, stiction=verdict.stiction, cls="unknown" if verdict.stiction else "none",
@@ -753,9 +825,12 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     if not pv_ok:
         # the loop fit needs PV even where the stem position is recorded (process model, controller
         # action, the PV-based tests), so the verdict falls back to OP's shape
+        if use_mv and record.mv is not None and np.ptp(record.mv) > 1e-9 * max(1.0, abs(float(record.mv[0]))):
+            return _identify_valve_only(record, findings, warnings, pv_reason, integrating, units)
         if use_mv and record.mv is not None:
-            warnings.append(_warn("mv_unused", "the stem position (MV) is recorded but was not used: "
-                                  "sizing the valve from OP -> MV without a usable PV is not supported yet"))
+            warnings.append(_warn("mv_unused", "the stem position (MV) is recorded but never moves, and PV is "
+                                  "unusable: a still stem without PV says nothing of the valve, so the verdict "
+                                  "is judged from OP's shape"))
         return _identify_op_only(record, findings, warnings, pv_reason, integrating)
     osc = oscillation_context(pv, ts, sp=record.sp, op=op)
 
@@ -814,13 +889,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
             S, J = valve_fit.S_pct, valve_fit.J_pct
             S_int, J_int = valve_fit.S_interval_pct, valve_fit.J_interval_pct
             rmse, r2 = valve_fit.rmse, valve_fit.r2
-            lin_v = fit_valve(op, record.mv, ts, stiction=False).hammerstein.cost
-            # a stem that follows OP exactly leaves the linear valve a cost at rounding level: the
-            # ratio of two such costs means nothing, and there is nothing to improve on
-            if lin_v <= 1e-12 * max(float(np.var(record.mv)), 1e-300):
-                ins = 0.0
-            else:
-                ins = max(1.0 - valve_fit.hammerstein.cost / lin_v, -1.0)
+            ins = _valve_improvement(valve_fit, op, record.mv, ts)
         else:
             S, J = fit.S_pct, fit.J_pct
             S_int, J_int = fit.S_interval_pct, fit.J_interval_pct

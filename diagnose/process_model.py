@@ -108,6 +108,18 @@ class ProcessModel:
         """Sum of lags plus dead time: a rough settling scale."""
         return self.tau_s + self.tau2_s + self.delay_s
 
+    def describe(self, short: bool = False) -> str:
+        """The process in words for a report: ``"soptd, gain 9.01, time constant 10.1 s, second
+        time constant 10.1 s, dead time 10 s"``; ``short``: ``tau``/``tau2`` for a terminal line."""
+        from .plain import duration, number
+
+        lag, lag2 = ("tau", "tau2") if short else ("time constant", "second time constant")
+        bits = [self.kind, f"gain {number(self.gain)}", f"{lag} {duration(self.tau_s)}"]
+        if self.kind == "soptd":
+            bits.append(f"{lag2} {duration(self.tau2_s)}")
+        bits.append(f"dead time {duration(self.delay_s)}")
+        return ", ".join(bits)
+
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind, "gain": float(self.gain), "tau_s": float(self.tau_s),
                                "delay_s": float(self.delay_s), "bias": float(self.bias)}

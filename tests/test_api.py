@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import html
 import io
 import json
 import subprocess
@@ -180,6 +181,11 @@ def test_a_result_shows_itself_in_a_notebook(loop):
     assert text.startswith("Identification(loop='FIC21', stiction=True, cls=") and "S_pct=" in text
     page = ident._repr_html_()
     assert "<table>" in page and "Identification of FIC21" in page and f"{ident.S_pct:.3g}" in page
+    # the notebook shows what the command line shows: the whole process and every decision
+    assert html.escape(ident.process.describe()) in page and ident.process.kind in page
+    assert html.escape(ident.evidence_text) in page
+    soptd = replace(ident, process=replace(ident.process, kind="soptd", tau2_s=4.0))
+    assert "second time constant 4 s" in soptd._repr_html_()
     fig = ident.plot()
     assert isinstance(fig, Figure) and len(fig.axes) == 2
     t_end_min = rec.t_s[-1] / 60.0                            # the whole record, in minutes

@@ -205,24 +205,38 @@ def test_the_installed_program_skips_teardown_but_runs_exit_handlers_and_keeps_e
 
 
 def test_an_export_whose_pv_is_all_bad_is_judged_from_op_alone(tmp_path, capsys):
-    # a dead transmitter exported as "Bad": the loop is not refused; OP's shape is judged
+    # a dead transmitter exported as "Bad": the loop is not refused; OP's shape is judged, or the
+    # valve is sized from its stem position where one is recorded
     good = tmp_path / "loop.csv"
     assert main(["simulate", "--S", "4", "--J", "1", "--n", "3000", "--seed", "1", "--name", "FIC7",
                  "--out", str(good)]) == 0
     lines = good.read_text().splitlines()
-    pv_col = lines[0].split(",").index("FIC7.PV")
-    bad = tmp_path / "bad_pv.csv"
-    rows = [lines[0]] + [",".join("Bad" if j == pv_col else c for j, c in enumerate(line.split(",")))
-                         for line in lines[1:]]
-    bad.write_text("\n".join(rows) + "\n")
+    head = lines[0].split(",")
+    pv_col, pos_col = head.index("FIC7.PV"), head.index("FIC7.POS")
+
+    def write(name, drop_pos):
+        rows = [[("Bad" if j == pv_col and k else c) for j, c in enumerate(line.split(","))
+                 if not (drop_pos and j == pos_col)] for k, line in enumerate(lines)]
+        path = tmp_path / name
+        path.write_text("\n".join(",".join(r) for r in rows) + "\n")
+        return path
+
     capsys.readouterr()
-    assert main(["identify", str(bad), "--json"]) == 0
+    assert main(["identify", str(write("bad_pv.csv", drop_pos=True)), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     codes = [w["code"] for w in d["warnings"]]
     assert d["method"] == "op_only" and d["S"] is None
-    assert "data_quality.pv_missing" in codes and "pv_unusable" in codes and "mv_unused" in codes
-    # the advice agrees with mv_unused: the recorded stem cannot stand in for PV
+    assert "data_quality.pv_missing" in codes and "pv_unusable" in codes and "mv_unused" not in codes
     said = next(w["message"] for w in d["warnings"] if w["code"] == "pv_unusable")
-    assert "S and J need a usable PV" in said and "PV or the stem position" not in said
+    assert "S and J need a usable PV or a recorded stem position that moves" in said
     assert not any(c == "data_quality.frozen" for c in codes)      # the stand-in PV is not assessed
     assert d["confidence"] <= 0.75
+    # with the stem position the valve is seen directly: sized from OP -> MV, no process model
+    assert main(["identify", str(write("bad_pv_pos.csv", drop_pos=False)), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    said = next(w["message"] for w in d["warnings"] if w["code"] == "pv_unusable")
+    assert d["method"] == "op_mv" and d["stiction"] and not d["process"] and "sized from the stem" in said
+    assert d["S"] == pytest.approx(4.0, rel=0.02) and d["J"] == pytest.approx(1.0, abs=0.04)
+    assert d["class"] == "undershoot" and d["detection"]["pv_unusable"]
+    judged = {e["test"] for e in d["evidence"] if e["decision"] != "cannot_judge"}
+    assert {"model_fit", "valve_band"} <= judged and "kano_stuck" not in judged

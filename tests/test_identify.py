@@ -320,3 +320,24 @@ def test_op_is_scaled_only_when_the_stem_position_shows_the_scale():
     near_shut = 0.5 + 0.4 * np.sin(np.arange(500) / 20.0)     # OP in % near 0, MV following it in %
     assert not fraction_op_tracks_mv(near_shut, np.clip(near_shut + 0.2, 0, None) + 0.5)
     assert not fraction_op_tracks_mv(op, np.full(500, 20.0) + rng.normal(0, 0.5, 500))   # MV elsewhere
+
+
+def test_a_verdict_no_test_could_judge_says_so_rather_than_no_stiction():
+    # PV dead and OP a slow wander: every test cannot judge, and the combiner's prior is not a
+    # finding that the valve is healthy
+    from diagnose.service.commands.identify import summary
+    from diagnose.service.pipeline import verdict_text
+
+    rng = np.random.default_rng(3)
+    op = 50.0 + np.cumsum(rng.normal(0.0, 0.05, 3000))
+    rec = LoopRecord(name="FIC9", ts_s=1.0, op=op, pv=np.full(3000, 60.0))
+    ident = identify(rec)
+    assert ident.method == "op_only" and not ident.stiction and not ident.verdict.judged
+    assert "nothing_judged" in {w.code for w in ident.warnings}
+    assert summary(ident).startswith("FIC9: no evidence either way (")
+    assert verdict_text(ident).startswith("No evidence either way") and "follows" not in verdict_text(ident)
+    # where a test does judge, the verdict is the test's
+    saw = identify(sticky_loop(4.0, 1.0, n=3000, seed=2, noise_std=0.05).replace(pv=np.full(3000, 60.0), mv=None))
+    assert saw.verdict.judged == ("op_shape",) and saw.stiction
+    assert "nothing_judged" not in {w.code for w in saw.warnings}
+    assert ": STICTION (" in summary(saw).splitlines()[0]

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+import diagnose
 from connectors.historian import write_wide
 from diagnose.errors import DataError
 from diagnose.record import LoopRecord
@@ -84,11 +85,25 @@ def test_a_too_short_record_names_the_file(tmp_path, capsys):
 
 
 def test_too_few_samples_kept_by_max_samples_names_the_option(sticky_csv, capsys):
-    # 1500 samples in the file: the record is short because --max-samples cut it, not the export
-    assert main(["identify", str(sticky_csv), "--max-samples", "30"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"error: {sticky_csv}: loop 'FIC7' has 30 samples")
-    assert "--max-samples" in err[0] and "of its 1500" in err[0] and "longer record" not in err[0]
+    # a limit below what a diagnosis needs is refused before reading, naming the minimum that
+    # applies (the reader's own, 20, would only lead to the next error at 50)
+    for n in ("10", "30"):
+        assert main(["identify", str(sticky_csv), "--max-samples", n]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"error: max_samples={n} (--max-samples): keeps fewer")
+        assert "give 50 or more" in err[0]
+    assert main(["identify", str(sticky_csv), "--max-samples", "50"]) == 0
+    capsys.readouterr()
+    with pytest.raises(diagnose.DataError, match=r"^max_samples=30 \(--max-samples\)"):
+        diagnose.identify(sticky_csv, max_samples=30)
+    # a record read short by the reader's limit still says which option cut it
+    from connectors import read_records
+    from diagnose.identification import identify
+
+    (rec,) = read_records(sticky_csv, max_samples=30)
+    with pytest.raises(diagnose.DataError, match="of its 1500") as info:
+        identify(rec)
+    assert "--max-samples" in str(info.value) and "longer record" not in str(info.value)
 
 
 def test_missing_file_is_a_one_line_error(tmp_path, capsys):

@@ -629,6 +629,20 @@ def test_evidence_numbers_show_the_gate_of_the_bicoherence_index():
     assert row[1:] == ["no stiction", "0.117", "0.01, once NGI > 0.001 (NGI here -0.0455)"]
 
 
+def test_a_tests_weight_counts_every_input_it_feeds_the_verdict():
+    from diagnose.evidence.result import Evidence
+
+    # model_fit moves the verdict through its likelihood ratio, not its own row: the row weighs
+    # what both moved it by together, and a test whose inputs cancel out shows no weight
+    fit = Evidence("model_fit", 0.17, 0.05, "stiction", "the valve explains 17 %")
+    band = Evidence("valve_band", 80.0, 3.0, "stiction", "S is 80 times OP's noise")
+    qsa = Evidence("yamashita_qsa", 0.8, 0.25, "stiction", "PV steady while OP moves")
+    verdict = SimpleNamespace(contributions={"model_fit": 0.0, "model_fit.lr": 1.1373, "valve_band": 1.84,
+                                             "valve_band.slips": -1.84, "yamashita_qsa": 0.146})
+    rows = report.evidence_rows(SimpleNamespace(evidence=(fit, band, qsa), verdict=verdict))
+    assert [r[1] for r in rows] == ["stiction, weighs +1.14", "stiction", "stiction, weighs +0.15"]
+
+
 def test_summary_words_probabilities_as_the_loop_reports_do():
     row = {"loop": "FIC7", "status": "ok", "rank": 1, "severity": 74.9, "class": "undershoot", "S_pct": 5.0,
            "J_pct": 2.0, "stiction_probability": 0.9979, "confidence": 0.9979, "sticky": True,

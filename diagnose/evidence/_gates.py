@@ -12,7 +12,7 @@ def record_gate(test: str, p: Prepared, *, needs_pv: bool = True, threshold: flo
         reason, note = p.problem
         return cannot_judge(test, reason, note, threshold)
     if needs_pv and not p.pv_ok:
-        return cannot_judge(test, "pv_unusable", f"PV is unusable ({p.pv_reason}); only the OP-only test judges.",
+        return cannot_judge(test, "pv_unusable", f"PV is unusable ({p.pv_reason}); the tests on OP alone (and a valve fit on a recorded stem position) judge.",
                             threshold)
     return None
 

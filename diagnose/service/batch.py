@@ -1169,7 +1169,7 @@ def _run_batch(inputs: Sequence[str | os.PathLike], out: Path, t0: float, *, wor
     db_path = Path(db) if db is not None else default_db_path()
     from ..api import check_read_options
 
-    cfg = BatchConfig(out_dir=str(out), read_options=check_read_options(read_options or {}), tags=tags, explain=explain,
+    cfg = BatchConfig(out_dir=str(out), read_options=check_read_options(read_options or {}, diagnosis=True), tags=tags, explain=explain,
                       narx=narx, pdf=pdf, db=str(db_path) if history else None)
     skipped_files: list[dict[str, Any]] = []
     files, missing = discover(inputs, exclude=[out], skipped=skipped_files)

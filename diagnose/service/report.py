@@ -28,7 +28,6 @@ from .history import persistence, run_units, shown_run, verdict_of
 if TYPE_CHECKING:
     from ..controller import ControllerAction
     from ..identification import Identification
-    from ..process_model import ProcessModel
     from ..verdict import Verdict
     from .pipeline import Diagnosis
 
@@ -95,18 +94,6 @@ def fmt_interval(value: tuple[float, float] | None, spec: str = ".2f") -> str:
     if not (math.isfinite(lo) and math.isfinite(hi)):
         return "-"
     return f"[{lo:{spec}}, {hi:{spec}}]"
-
-
-def _process_text(proc: ProcessModel | None) -> str:
-    if proc is None:
-        return "-"
-    bits = [proc.kind]
-    bits.append(f"gain {number(proc.gain)}")
-    bits.append(f"time constant {duration(proc.tau_s)}")
-    if proc.kind == "soptd" and proc.tau2_s:
-        bits.append(f"second time constant {duration(proc.tau2_s)}")
-    bits.append(f"dead time {duration(proc.delay_s)}")
-    return ", ".join(bits)
 
 
 def _controller_text(ctl: ControllerAction | None) -> str:
@@ -182,8 +169,10 @@ def evidence_rows(ident: Identification, *, numbers: bool = False) -> list[list[
     rows = []
     for ev in ident.evidence:
         says = _DECISION_TEXT.get(ev.decision, ev.decision)
-        weight = contrib.get(ev.test)
-        if weight is not None and abs(weight) >= 0.005:
+        # a test can feed the verdict through more than its own row (``model_fit.lr`` beside
+        # ``model_fit``): its weight is what all of them moved it by together
+        weight = sum(v for k, v in contrib.items() if k == ev.test or k.startswith(ev.test + "."))
+        if abs(weight) >= 0.005:
             says += f", weighs {weight:+.2f}"
         row = [_label(ev.test), says]
         if numbers:
@@ -303,7 +292,7 @@ def _detail_rows(diag: Diagnosis) -> list[list[str]]:
         fit = f"PV: RMSE {number(ident.rmse)} {unit}, R2 {fmt(ident.r2, '.3f')}"
     return [["Confidence in the verdict", percent(ident.confidence)],
             ["S and J from", _METHOD_TEXT.get(ident.method, ident.method)],
-            ["Process model", _process_text(ident.process)],
+            ["Process model", "-" if ident.process is None else ident.process.describe()],
             ["Controller (from OP/PV/SP)", _controller_text(ident.controller)],
             ["Fit of the model (free-run simulation)", fit],
             ["Oscillation", _oscillation_text(ident)],

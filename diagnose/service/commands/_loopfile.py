@@ -81,7 +81,7 @@ def read_options(args: argparse.Namespace) -> dict[str, Any]:
         opts["ts_s"] = ts_s
     from ...api import check_read_options
 
-    return check_read_options(opts)
+    return check_read_options(opts, diagnosis=True)     # every command that reads a file diagnoses it
 
 
 @contextmanager

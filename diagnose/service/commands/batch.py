@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
                                               "or ~/.local/share/stiction/history.sqlite)")
     p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
-    add_explain_argument(p, "off", "it costs several times the identification")
+    add_explain_argument(p, "off", "it takes 3-40 s per loop")
     p.add_argument("--narx", action=argparse.BooleanOptionalAction, default=True,
                    help="select and free-run the NARX-SP model (default on)")
     p.add_argument("--pdf", action=argparse.BooleanOptionalAction, default=True,

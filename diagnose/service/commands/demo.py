@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                               "$STICTION_HOME/history.sqlite or ~/.local/share/stiction/history.sqlite)")
     from .batch import add_explain_argument
 
-    add_explain_argument(p, "off", "it takes 5-40 s per loop")
+    add_explain_argument(p, "off", "it takes 3-40 s per loop")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
                                           for r in top))
     print(f"history: {db} (`stiction history LOOP` reads it)")
     if args.explain == "off":
-        print("missing physics was not run (it takes 5-40 s per loop): `stiction demo --explain on`, "
+        print("missing physics was not run (it takes 3-40 s per loop): `stiction demo --explain on`, "
               f"or one loop: `stiction explain {src / 'FIC103.csv'}`")
     print(f"open {out / 'summary.md'} (or summary.pdf) to start.")
     return 1 if res.n_failed else 0

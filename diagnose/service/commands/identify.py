@@ -29,6 +29,8 @@ def summary(ident: Identification) -> str:
 
     lines = []
     verdict = "STICTION" if ident.stiction else "no stiction"
+    if ident.verdict is not None and not ident.verdict.judged:
+        verdict = "no evidence either way"      # the combiner's prior, not a healthy valve
     prob = ident.stiction_probability
     head = f"{ident.loop}: {verdict} (class {ident.cls}"
     if prob is not None:
@@ -50,15 +52,9 @@ def summary(ident: Identification) -> str:
         lines.append(f"  S >= {ident.fitted_S_pct:.2f}{pct} (OP's travel; the stem never moved, so J and the class "
                      "are not judged)")
     if ident.evidence:
-        said = {k: [e.test for e in ident.evidence if e.decision == k]
-                for k in ("stiction", "no_stiction", "undetermined", "cannot_judge")}
-        lines.append("  evidence: " + "; ".join(f"{k.replace('_', ' ')}: {', '.join(v)}"
-                                               for k, v in said.items() if v))
-    p = ident.process
-    if p is not None:
-        extra = f", tau2 {duration(p.tau2_s)}" if p.kind == "soptd" else ""
-        lines.append(f"  process: {p.kind}, gain {number(p.gain)}, tau {duration(p.tau_s)}{extra}, "
-                     f"dead time {duration(p.delay_s)}")
+        lines.append(f"  evidence: {ident.evidence_text}")
+    if ident.process is not None:
+        lines.append(f"  process: {ident.process.describe(short=True)}")
     if ident.rmse is not None and ident.r2 is not None:
         # a recorded stem that moved is fitted OP -> MV: that rmse is in % of span, not PV units
         of = "MV from OP, % of span" if ident.valve_fit is not None else "PV from OP"

@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1, help="diagnosis worker processes (default 1)")
     from .batch import add_explain_argument
 
-    add_explain_argument(p, "off", "the default; it takes 5-40 s per window")
+    add_explain_argument(p, "off", "the default; it takes 3-40 s per window")
     p.add_argument("--figures", action="store_true", help="draw figures for every window's report")
 
 
