@@ -686,15 +686,27 @@ def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]],
     from diagnose.quality import assess
     from .timebase import runs
 
-    op = np.asarray(v["op"], float)
-    pv = np.asarray(v["pv"], float)
+    from .records import gross_outliers
+
+    op = np.array(v["op"], dtype=float)       # copies: spikes are blanked below
+    pv = np.array(v["pv"], dtype=float)
     n = op.size
+    spikes: list[Finding] = []
+    for role, x in (("op", op), ("pv", pv)):
+        far = gross_outliers(x)
+        if far.any():
+            # a spike or a sentinel from the device is no measurement: like a lost poll, it cuts
+            # the window rather than being replaced by an invented value
+            spikes.append(Finding("outliers", f"{role.upper()} had {int(far.sum())} value(s) far outside its range "
+                                  f"(the first {x[far][0]:.6g}): read as lost polls", "warning",
+                                  {"role": role, "count": int(far.sum()), "first_value": float(x[far][0])}))
+            x[far] = np.nan
     ok = np.isfinite(op) & np.isfinite(pv)
     segs = [(a, b) for a, b in runs(ok) if b - a >= min_samples]
     lost = int(np.count_nonzero(~ok))
     tt = np.asarray(t, float)
     out = []
-    base: list[Finding] = list(_order_findings(lc, v) if order is None else order)
+    base: list[Finding] = list(_order_findings(lc, v) if order is None else order) + spikes
     if lost:
         gaps = runs(~ok)
         base.append(Finding("gap", f"{lost} of {n} polls failed or were missed ({len(gaps)} outage(s)); the "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +62,8 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
     """Which series make which loops in one file."""
     by_name = {s.name: s for s in table.series}
     by_lower = {s.name.lower(): s for s in table.series}
-    overrides = {r: options.get(r) for r in ("op", "pv", "sp", "mv", "mode") if options.get(r)}
+    # a column named by a number (op=0 for a frame's column 0) is given too: only None or "" is not
+    overrides = {r: options[r] for r in ("op", "pv", "sp", "mv", "mode") if options.get(r) not in (None, "")}
     if isinstance(options.get("ts"), str):
         _check_time_column(options["ts"], overrides, table.label)
     if tagmap is not None and not overrides:
@@ -100,6 +101,16 @@ def specs_from_table(table: Table, options: dict, tagmap: TagMap | None) -> list
                 cands = [s for s in table.series if role_of(s.name) == role and s not in roles.values()]
                 same = [s for s in cands if split_tag(s.name)[0] == tag] or cands
                 if len(same) != 1:
+                    # the naming rule's column may be the very one given for another role
+                    taken = next(((r, t) for r, t in roles.items() if role_of(t.name) == role
+                                  and split_tag(t.name)[0] == tag), None)
+                    if taken is not None:
+                        raise ConnectorError(
+                            f"column {taken[1].name!r} looks like {role.upper()} but is given for "
+                            f"{taken[0].upper()} ({option('--' + taken[0], table.label)}), which leaves "
+                            f"{role.upper()} without a column; give the {taken[0].upper()} column there, or "
+                            f"name {role.upper()} with {option('--' + role, table.label)}",
+                            path=table.label)
                     raise ConnectorError(f"no {role.upper()} column found (columns: {_columns_hint(table)}); "
                                          f"name it with {option('--' + role, table.label)}", path=table.label)
                 roles[role] = same[0]
@@ -272,6 +283,55 @@ def _bad_finding(role: str, s: Series, n_rows: int) -> Finding | None:
                     "bad_quality": s.n_bad_quality, "examples": list(s.examples[:3]), "frac": round(frac, 4)})
 
 
+#: A value this many times the signal's robust range (1st to 99th percentile) beyond that range is
+#: no measurement: a spike, an overflow or a historian's sentinel for a bad value (-9999, 1e30).
+OUTLIER_RANGES = 5.0
+#: At most this share of a signal's samples may be called outliers; more is the signal's own spread.
+OUTLIER_MAX_SHARE = 0.01
+
+
+#: A run of far values at most this long that returns to the signal's range is a spike.
+SPIKE_MAX_SAMPLES = 3
+
+
+def gross_outliers(x: np.ndarray) -> np.ndarray:
+    """Mask of the values of ``x`` that are no measurement: runs of values more than
+    `OUTLIER_RANGES` robust ranges outside its 1st to 99th percentile, with the signal back in
+    range on both sides, that are either spikes (at most `SPIKE_MAX_SAMPLES` long) or one value
+    repeated (a sentinel). A longer excursion that varies, or one the record starts or ends in, may
+    be the plant's own and is kept. Nothing is flagged in a signal that is flat over that range (a step
+    off a flat line is a change, not an outlier) or where more than `OUTLIER_MAX_SHARE` would be."""
+    x = np.asarray(x, dtype=float)
+    out = np.zeros(x.shape, bool)
+    fin = np.isfinite(x)
+    if np.count_nonzero(fin) < 20:
+        return out
+    lo, hi = np.percentile(x[fin], [1.0, 99.0])
+    width = hi - lo
+    if not width > 1e-12 * max(1.0, abs(hi), abs(lo)):
+        return out
+    with np.errstate(invalid="ignore"):
+        far = fin & ((x < lo - OUTLIER_RANGES * width) | (x > hi + OUTLIER_RANGES * width))
+    if not far.any() or np.count_nonzero(far) > OUTLIER_MAX_SHARE * np.count_nonzero(fin):
+        return out
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], far.astype(np.int8), [0]])))
+    for a, b in zip(edges[::2], edges[1::2]):
+        back_in_range = a > 0 and b < x.shape[0]
+        if back_in_range and (b - a <= SPIKE_MAX_SAMPLES or np.all(x[a:b] == x[a])):
+            out[a:b] = True
+    return out
+
+
+def _outlier_finding(role: str, c: Cleaned, far: np.ndarray, absolute: bool) -> Finding:
+    k = int(np.count_nonzero(far))
+    i = int(np.flatnonzero(far)[0])
+    first = iso_utc(float(c.t[i])) if absolute else f"t = {float(c.t[i]):g} s"
+    return Finding("outliers", f"{role.upper()} has {k} value{'s' if k != 1 else ''} far outside its range (the "
+                   f"first {c.x[i]:.6g} at {first}): a spike, overflow or bad-value sentinel, read as a bad value "
+                   "and filled like a gap", "warning",
+                   {"role": role, "count": k, "first_value": float(c.x[i]), "first_at": first})
+
+
 def _date_order_finding(guess: dict, label: str | None) -> Finding:
     """The dates read alike day first and month first (``05/03/2026`` ... on one day): how they were
     read, and the option that says which it is. A guess, not a fact, so a warning: read the
@@ -357,6 +417,11 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         if role in ("op", "pv") and t.size:
             shared = max(shared, c.n_shared / max(1, int(np.count_nonzero(np.isfinite(t)))))
         reversed_any |= c.reversed
+        if role in ("op", "pv", "mv") and not (role == "pv" and pv_dead is not None):
+            far = gross_outliers(c.x)
+            if far.any():
+                findings.append(_outlier_finding(role, c, far, bool(table and table.absolute)))
+                c = replace(c, x=np.where(far, np.nan, c.x))
         cleaned[role] = c
     if spread_rows:
         findings.append(Finding("duplicates", f"{spread_rows} rows shared their time stamp in equal runs (time "
@@ -429,7 +494,17 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     # a compressed OP is irregular by design (the compression finding says so): PV tells the sampling
     sampled = "pv" if spacing["op"] > 1.5 * densest else "op"
     irr = irregularity(cleaned[sampled].t, ts_s, max_gap_s)
-    if irr > 0.05:
+    own_s = estimate_period([cleaned[sampled].t]) if ts_opt else float("nan")
+    if ts_opt and np.isfinite(own_s) and irregularity(cleaned[sampled].t, own_s, max_gap_s) <= 0.05 \
+            and abs(own_s - ts_s) > 0.1 * ts_s:
+        # evenly spaced times at another period than the one given: the user's period, not the
+        # data, made the grid differ, and "irregular sampling" would blame the data
+        findings.append(Finding("resampled", f"the times are evenly spaced at {own_s:g} s, but the period given "
+                                f"({option('--ts-s', label)}) is {ts_s:g} s: the record was resampled to {ts_s:g} s "
+                                f"by linear interpolation{' (no anti-alias filter)' if ts_s > own_s else ''}; leave "
+                                f"{option('--ts-s', label)} out to keep the data's own period", "warning",
+                                {"data_ts_s": own_s, "ts_s": ts_s}))
+    elif irr > 0.05:
         findings.append(Finding("irregular_sampling", f"{100 * irr:.0f} % of sample intervals differ from "
                                 f"{ts_s:g} s by more than 10 %; resampled to a uniform {ts_s:g} s grid",
                                 "info" if irr < 0.3 else "warning", {"frac": round(irr, 4), "ts_s": ts_s}))

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from .errors import DataError
+
 #: Seconds per day: travel and reversals are given per day of record.
 DAY_S = 86_400.0
 
@@ -208,6 +210,25 @@ def _travel(x: np.ndarray) -> tuple[float, int, float]:
     return travel, max(int(turns.size) - 2, 0), band
 
 
+def _series(name: str, values: Any) -> np.ndarray:
+    """One signal as a 1-D float array of finite values, or a one-line `DataError` saying why not:
+    a gap would break the record into pieces whose travel does not add up, so it must be filled
+    (or the record cut) by the caller, as the readers do."""
+    try:
+        x = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise DataError(f"{name} must be numbers, one per sample") from None
+    if x.ndim != 1:
+        raise DataError(f"{name} must be one series of samples, got shape {x.shape}")
+    if x.size == 0:
+        raise DataError(f"{name} holds no samples")
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        raise DataError(f"{name} has {bad.size} NaN/inf value(s) (the first at sample {int(bad[0])}); fill or "
+                        "cut the gaps first (diagnose.read_loops does)")
+    return x
+
+
 def valve_activity(op_pct: Any, ts_s: float, *, mv_pct: Any = None, mode_auto: Any = None) -> ValveActivity:
     """Valve travel, reversals and (with a mode signal) service factor of one loop's record.
 
@@ -231,8 +252,9 @@ def valve_activity(op_pct: Any, ts_s: float, *, mv_pct: Any = None, mode_auto: A
 
     Raises
     ------
-    ValueError
-        No samples, a sample period that is not a positive number, or MV / mode of another length.
+    DataError
+        No samples, NaN/inf or more than one dimension in OP or MV, a sample period that is not a
+        positive number, or MV / mode of another length.
 
     Notes
     -----
@@ -258,28 +280,33 @@ def valve_activity(op_pct: Any, ts_s: float, *, mv_pct: Any = None, mode_auto: A
     The rates are per day of record (``n * ts_s / 86400`` days). Cost: a few vectorised passes and
     one loop over the turning points of the signal (a few ms for 10 000 samples).
     """
-    op = np.asarray(op_pct, dtype=float).ravel()
+    op = _series("op_pct", op_pct)
     n = int(op.size)
-    if n == 0:
-        raise ValueError("op_pct holds no samples")
-    ts = float(ts_s)
-    if not (math.isfinite(ts) and ts > 0):
-        raise ValueError(f"ts_s must be a positive number of seconds, got {ts_s!r}")
+    try:
+        ts = float(ts_s)
+    except (TypeError, ValueError):
+        raise DataError(f"ts_s={ts_s!r}: the sample period must be a positive number of seconds") from None
+    if isinstance(ts_s, (str, bytes)) or not (math.isfinite(ts) and ts > 0):
+        raise DataError(f"ts_s={ts_s!r}: the sample period must be a positive number of seconds")
     days = n * ts / DAY_S
     per_day = 1.0 / days
     travel, rev, band = _travel(op)
     mv_travel = mv_rev = mv_band = None
     if mv_pct is not None:
-        mv = np.asarray(mv_pct, dtype=float).ravel()
+        mv = _series("mv_pct", mv_pct)
         if mv.size != n:
-            raise ValueError(f"mv_pct has {mv.size} samples but op_pct has {n}")
+            raise DataError(f"mv_pct has {mv.size} samples but op_pct has {n}")
         t, r, mv_band = _travel(mv)
         mv_travel, mv_rev = t * per_day, r * per_day
     sf = None
     if mode_auto is not None:
-        auto = np.asarray(mode_auto, dtype=float).ravel()
-        if auto.size != n:
-            raise ValueError(f"mode_auto has {auto.size} samples but op_pct has {n}")
+        try:
+            auto = np.asarray(mode_auto, dtype=float)
+        except (TypeError, ValueError):
+            raise DataError("mode_auto must hold True/False (1/0) per sample, NaN where the mode is unknown; "
+                            "map text states such as 'AUTO' to True first") from None
+        if auto.ndim != 1 or auto.size != n:
+            raise DataError(f"mode_auto has shape {auto.shape} but op_pct has {n} samples")
         known = np.isfinite(auto)
         if known.any():
             sf = float(np.count_nonzero(auto[known] >= 0.5)) / int(np.count_nonzero(known))

@@ -96,6 +96,17 @@ def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -
         if diagnosis and 0 < opts["max_samples"] < MIN_SAMPLES:
             raise DataError(f"max_samples={n!r} (--max-samples): keeps fewer samples than a diagnosis needs "
                             f"({MIN_SAMPLES}); give {MIN_SAMPLES} or more, or 0 to keep every sample")
+    gap = opts.get("max_gap_s")
+    if gap is not None:
+        if isinstance(gap, bool) or not isinstance(gap, numbers.Real) or not (math.isfinite(gap) and gap > 0):
+            raise DataError(f"max_gap_s={gap!r}: the longest gap to fill must be a positive number of seconds")
+        opts["max_gap_s"] = float(gap)
+    least = opts.get("min_samples")
+    if least is not None:
+        if isinstance(least, bool) or not isinstance(least, numbers.Real) or not float(least).is_integer() \
+                or least < 2:
+            raise DataError(f"min_samples={least!r}: give a whole number of samples, 2 or more")
+        opts["min_samples"] = int(least)
     dayfirst = opts.get("dayfirst")
     if dayfirst is not None and not isinstance(dayfirst, bool):
         raise DataError(f"dayfirst={dayfirst!r} (--dayfirst/--monthfirst): give True (day first), False "
@@ -228,7 +239,11 @@ def load(data: Any, verb: str = "identified", **options: Any) -> tuple[LoopRecor
     longest segment is taken) and the notes that say what was chosen. Options as `read_loops`."""
     check_read_options({k: v for k, v in options.items() if k == "max_samples" and v is not None},
                        diagnosis=True)
-    records = read_loops(data, **dict(options))
+    # a stretch shorter than a diagnosis takes is no candidate: the reader says so with the
+    # minimum that applies, rather than a shorter one that only leads to the next error
+    if not isinstance(data, LoopRecord):
+        options = dict(options, min_samples=options.get("min_samples") or MIN_SAMPLES)
+    records = read_loops(data, **options)
     return choose_record(records, options.get("loop"), _label(data), verb)
 
 

@@ -585,7 +585,9 @@ class StictionEstimator:
     class_test : bool
         Test the special shapes J = 0 and J = S against the free fit.
     integrating : bool, optional
-        Whether the process is integrating (default: the fit or a level tag decides).
+        Whether the process is integrating, for the evidence tests that read other signals in an
+        integrating loop (default: the fit or a level tag decides). The fit searches the process
+        kinds either way: ``process_`` is what the data say, not this flag.
     """
 
     def __init__(self, *, use_mv: bool = True, class_test: bool = True, integrating: bool | None = None) -> None:

@@ -523,7 +523,8 @@ def record_activity(record: LoopRecord) -> ValveActivity:
         for value, intervals in ((0.0, iv), (np.nan, meta.get("mode_unknown_intervals"))):
             for a, b in intervals or ():
                 auto[max(int(a), 0):max(min(int(b), record.n), 0)] = value
-    return valve_activity(record.op, record.ts_s, mv_pct=record.mv, mode_auto=auto)
+    mv = record.mv if record.mv is not None and np.all(np.isfinite(record.mv)) else None
+    return valve_activity(record.op, record.ts_s, mv_pct=mv, mode_auto=auto)
 
 
 def _check(record: LoopRecord) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any, Mapping
 
 import numpy as np
@@ -51,6 +52,8 @@ class Finding:
 
 
 def _as_series(name: str, values: Any, n: int | None) -> np.ndarray:
+    if np.iscomplexobj(values):
+        raise DataError(f"{name} must be real numbers, got complex values")
     try:
         arr = np.asarray(values, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -128,8 +131,19 @@ class LoopRecord:
             v = getattr(self, role)
             if v is not None:
                 object.__setattr__(self, role, _as_series(role.upper(), v, n))
-        object.__setattr__(self, "findings", tuple(self.findings))
+        findings = tuple(self.findings)
+        if not all(isinstance(f, Finding) for f in findings):
+            raise DataError("findings must be Finding objects (diagnose.record.Finding)")
+        object.__setattr__(self, "findings", findings)
         object.__setattr__(self, "ts_s", float(self.ts_s))
+        if not isinstance(self.name, str):     # a tag that is a whole number (101) is still a name
+            object.__setattr__(self, "name", str(self.name))
+        if self.start is not None:
+            try:
+                datetime.fromisoformat(str(self.start))
+            except ValueError:
+                raise DataError(f"start={self.start!r}: give the first sample's time in ISO 8601, e.g. "
+                                "'2026-01-01T00:00:00Z', or None") from None
 
     @property
     def n(self) -> int:
@@ -250,6 +264,9 @@ class LoopRecord:
                 raise DataError("the frame needs at least two rows")
             step = np.diff(ns)
             period = float(np.median(step))
+            if np.any(step <= 0):
+                raise DataError("the frame's times are not in increasing order (newest first, unsorted or "
+                                f"repeated): sort it with df.sort_index() and drop repeated times{fix}")
             if period <= 0 or np.max(np.abs(step - period)) > max(1e-6 * period, 1000.0):
                 raise DataError(f"the frame's time steps are not equal (from {step.min() / 1e9:g} s to "
                                 f"{step.max() / 1e9:g} s): LoopRecord.from_frame takes uniformly sampled "
@@ -257,9 +274,19 @@ class LoopRecord:
             period_s = period / 1e9
             if ts_s is not None and abs(float(ts_s) - period_s) > 1e-6 * period_s:
                 raise DataError(f"ts_s={ts_s:g} s disagrees with the index's step of {period_s:g} s")
-            ts_s = period_s
+            # what to_frame wrote, where the index still says it: the exact period (the index holds
+            # whole nanoseconds) and the start as it was given (its UTC offset, or none known)
+            given = df.attrs.get("ts_s")
+            exact = isinstance(given, (int, float)) and abs(float(given) - period_s) <= 1e-6 * period_s
+            ts_s = float(given) if exact else period_s
             first = pd.Timestamp(ns[0], tz="UTC").to_pydatetime(warn=False)
             start = first.isoformat().replace("+00:00", "Z")
+            if "start" in df.attrs:
+                was = df.attrs["start"]
+                same = pd.Timestamp(was) if was else pd.Timestamp(0)
+                same = same.tz_localize("UTC") if same.tz is None else same
+                if same.tz_convert("UTC").as_unit("ns").value == int(ns[0]):
+                    start = was
         elif ts_s is None:
             raise DataError(f"the frame has no DatetimeIndex: give the sample period ts_s= (seconds){fix}")
         attrs = df.attrs
@@ -273,7 +300,8 @@ class LoopRecord:
         """The record as a pandas DataFrame: columns OP, PV[, SP][, MV] on a UTC `DatetimeIndex`.
 
         The index starts at `start` (at 1970-01-01 UTC when the start is unknown) and steps by
-        ``ts_s``; ``attrs`` holds ``name``, ``ts_s``, ``units`` and ``source``.
+        ``ts_s``; ``attrs`` holds ``name``, ``ts_s``, ``start`` (as given, None when unknown),
+        ``units`` and ``source``, which `from_frame` reads back where the index agrees with them.
         """
         import pandas as pd
 
@@ -282,5 +310,6 @@ class LoopRecord:
         index = pd.DatetimeIndex(start + pd.to_timedelta(self.t_s, unit="s"), name="time")
         data = {role.upper(): series for role, series in self.roles().items()}
         df = pd.DataFrame(data, index=index)
-        df.attrs.update({"name": self.name, "ts_s": self.ts_s, "units": dict(self.units), "source": self.source})
+        df.attrs.update({"name": self.name, "ts_s": self.ts_s, "start": self.start, "units": dict(self.units),
+                         "source": self.source})
         return df

@@ -237,8 +237,9 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     whose stem moves (|dy| > ``tol``) moves in the direction f of dy and sits at ``u - f (S - J) / 2``;
     a valve that stops sticks at the input of its last moving sample, x_ss. While it stays stuck the
     input stayed within S against the last direction and within J along it (lower bounds); the slip
-    that ends the stay went beyond S (a reversal) or beyond J (a restart): upper bounds. The first
-    stay is skipped (where the valve stuck before the record is unknown).
+    that ends the stay went beyond S (a reversal) or beyond J (a restart): upper bounds. The stays
+    before the second motion are skipped (where the valve stuck before the record, and in which
+    direction it last moved, are unknown).
 
     Returns ``(S_lo, S_hi, J_lo, J_hi, half)`` (``half`` the median of f (u - y) over moving samples),
     or None when the record has no complete stay or the bounds contradict each other (noise, a lag:
@@ -252,8 +253,13 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     k_mov = np.flatnonzero(moving) + 1            # samples at which the stem moved
     half = float(np.median(f[k_mov - 1] * (u[k_mov] - y[k_mov])))
     # a stay runs from a moving sample k (the valve stops after it) to the next moving sample j;
-    # all stays at once (this runs at every dead time tried)
-    ks, js = k_mov[:-1], k_mov[1:]
+    # all stays at once (this runs at every dead time tried). The first motion leaves a state the
+    # record does not show (the stem's direction before it, hence where it sticks, is unknown: a
+    # valve can leave its first stuck point against its last direction of motion), so the stays
+    # start at the second.
+    if k_mov.shape[0] < 3:
+        return None
+    ks, js = k_mov[1:-1], k_mov[2:]
     fk, fj = f[ks - 1], f[js - 1]
     xss = u[ks]
     dj = u[js] - xss

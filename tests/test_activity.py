@@ -248,3 +248,24 @@ def test_an_op_logged_as_a_fraction_is_reported_in_a_fraction_of_span():
     # the same loop in %: the units the summary gives every other loop
     pct = loop_row(diagnose(rec, narx=False), None)
     assert pct["sj_units"] == "% of span" and pct["sj_in_op_units"] is False
+
+
+@pytest.mark.parametrize("args, kw, says", [
+    (("nan_op", 1.0), {}, r"^op_pct has 1 NaN/inf value\(s\) \(the first at sample 3\)"),
+    (("op", 1.0), {"mv_pct": "nan_all"}, r"^mv_pct has 400 NaN/inf"),
+    (("2d", 1.0), {}, r"^op_pct must be one series of samples, got shape \(10, 2\)"),
+    (("op", "1"), {}, r"^ts_s='1': the sample period must be a positive number"),
+    (("op", None), {}, r"^ts_s=None: "),
+    (("op", 1.0), {"mode_auto": "text"}, r"^mode_auto must hold True/False"),
+])
+def test_unusable_input_is_a_one_line_data_error_not_a_zero(args, kw, says):
+    # a NaN used to make travel and reversals 0 (a valve at rest) instead of an error
+    from diagnose.errors import DataError
+
+    op = 50.0 + 10.0 * np.sin(np.arange(400) / 20.0)
+    named = {"op": op, "nan_op": np.r_[op[:3], np.nan, op[4:]], "nan_all": np.full(400, np.nan),
+             "2d": np.ones((10, 2)), "text": np.array(["AUTO"] * 400)}
+    args = tuple(named.get(a, a) if isinstance(a, str) else a for a in args)
+    kw = {k: named.get(v, v) for k, v in kw.items()}
+    with pytest.raises(DataError, match=says):
+        valve_activity(*args, **kw)

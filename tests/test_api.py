@@ -403,3 +403,49 @@ def test_arrays_are_refused_with_how_to_make_them_a_frame(data):
     with pytest.raises(diagnose.DataError, match=r"for arrays: pandas.DataFrame\(\{'OP': op, 'PV': pv\}\) "
                                                  r"with ts_s=SECONDS\)$"):
         diagnose.identify(data)
+
+
+def test_frames_as_a_notebook_user_hands_them_over(loop):
+    rec, path, df, _ = loop
+    # times left as text in the index (read_csv without parse_dates) read as a time column
+    text_index = pd.read_csv(path, index_col="time")
+    (got,) = diagnose.read_loops(text_index)
+    assert got.n == rec.n and got.ts_s == rec.ts_s and got.start == diagnose.read_loops(df)[0].start
+    assert diagnose.read_loops(text_index, time="time")[0].n == rec.n
+    # columns named by numbers, chosen by number
+    numbered = df.set_axis(range(df.shape[1]), axis=1)
+    cols = list(df.columns)
+    (got,) = diagnose.read_loops(numbered, op=cols.index("FIC21.OP"), pv=cols.index("FIC21.PV"))
+    np.testing.assert_allclose(got.op, rec.op, atol=1e-3)
+    # a period given that is not the data's own: resampled, and said so (not "irregular sampling")
+    (got,) = diagnose.read_loops(df, ts_s=5.0)
+    codes = {f.code for f in got.findings}
+    assert "resampled" in codes and "irregular_sampling" not in codes and got.ts_s == 5.0
+    said = next(f for f in got.findings if f.code == "resampled")
+    assert said.data == {"data_ts_s": 1.0, "ts_s": 5.0} and "leave ts_s= out" in said.message
+    assert "resampled" not in {f.code for f in diagnose.read_loops(df)[0].findings}
+    # too short: the minimum named is the diagnosis's
+    with pytest.raises(diagnose.DataError, match=r"has 30 samples \(need at least 50\)"):
+        diagnose.identify(df.iloc[:30])
+
+
+def test_a_record_checks_what_it_is_given_and_survives_a_frame_round_trip():
+    op = 50.0 + np.sin(np.arange(200) / 5.0)
+    pv = 2.0 * op
+    assert diagnose.LoopRecord(5, 1.0, op, pv).name == "5"         # a numeric tag is still a name
+    for kw, says in (({"start": "yesterday"}, r"^start='yesterday': give the first sample's time in ISO 8601"),
+                     ({"findings": ["x"]}, r"^findings must be Finding objects")):
+        with pytest.raises(diagnose.DataError, match=says):
+            diagnose.LoopRecord("X", 1.0, op, pv, **kw)
+    with pytest.raises(diagnose.DataError, match="complex"):
+        diagnose.LoopRecord("X", 1.0, op + 0j, pv)
+    for start, ts in ((None, 1.0), ("2026-01-01T01:00:00+01:00", 1.0 / 3.0), ("2026-03-01T00:00:00Z", 2.0)):
+        rec = diagnose.LoopRecord("X", ts, op, pv, start=start)
+        back = diagnose.LoopRecord.from_frame(rec.to_frame())
+        assert (back.start, back.ts_s) == (start, ts)
+        np.testing.assert_array_equal(back.op, rec.op)
+        # a slice keeps the frame's attributes but not its first time: the index decides
+        part = diagnose.LoopRecord.from_frame(rec.to_frame().iloc[10:])
+        assert part.start != start and part.ts_s == pytest.approx(ts)
+    with pytest.raises(diagnose.DataError, match=r"^the frame's times are not in increasing order"):
+        diagnose.LoopRecord.from_frame(rec.to_frame().iloc[::-1])

@@ -1066,3 +1066,28 @@ def test_a_fraction_of_span_loop_s_history_figure_gets_this_run_in_its_units(tmp
     rows = seen[-1]
     assert len(rows) == 2 and {r.get("sj_units") for r in rows} == {"fraction of span"}
     assert all(r["S_pct"] < 0.2 for r in rows)     # fractions of span, both runs
+
+
+def test_a_scheduler_address_dask_cannot_parse_is_a_one_line_error(tmp_path, capsys):
+    src = tmp_path / "FIC1.csv"
+    write_wide(sticky_loop(3.0, 1.0, n=600, seed=1, name="FIC1"), src)
+    assert main(["batch", str(src), "--out", str(tmp_path / "out"), "--scheduler", "bogus", "--no-history",
+                 "--no-pdf", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: cannot reach the Dask scheduler at 'bogus'")
+    assert "tcp://" in err[0] and "Traceback" not in err[0]
+
+
+def test_tags_with_letters_beyond_ascii_keep_their_own_names(tmp_path):
+    # two valves whose tags differ only in an umlaut: each keeps its name in the summary, its own
+    # report folder and its own history
+    _write_loops(tmp_path / "in", loops=[("Ventil_ü", 3.0, 1.0), ("Ventil_ä", 2.0, 0.0)], n=1000)
+    assert B.safe_name("Ventil_ü") == "Ventil_ü" and B.safe_name("FIC 101/A") == "FIC_101_A"
+    db = tmp_path / "h.sqlite"
+    res = B.run_batch([tmp_path / "in"], tmp_path / "out", workers=1, history=True, db=db, pdf=False,
+                      progress=False)
+    loops = sorted(r["loop"] for r in res.rows)
+    assert loops == ["Ventil_ä", "Ventil_ü"]
+    assert (tmp_path / "out" / "loops" / "Ventil_ü" / "Ventil_ü.json").exists()
+    with History(db) as h:
+        assert sorted(h.loops()) == loops

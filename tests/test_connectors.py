@@ -928,6 +928,11 @@ def test_one_column_for_two_roles_is_a_one_line_error(tmp_path, capsys):
         read_records(f, op="FIC1.OP", pv="FIC1.PV", sp="fic1.op")
     with pytest.raises(ConnectorError, match=r"column 'FIC1.PV' is given for both OP and PV"):
         read_records(f, tags={"loops": {"L1": {"op": "FIC1.PV", "pv": "FIC1.PV"}}})
+    # OP's own column given for SP alone: OP is left without one, which the error says (not "no OP
+    # column found" beside a list that shows it)
+    with pytest.raises(ConnectorError, match=r"column 'FIC1.OP' looks like OP but is given for SP \(--sp\), "
+                                             r"which leaves OP without a column"):
+        read_records(f, sp="FIC1.OP")
     assert main(["identify", str(f), "--op", "FIC1.PV", "--pv", "FIC1.PV"]) != 0
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "both OP and PV" in err
@@ -1112,3 +1117,45 @@ def test_a_wide_mode_column_with_empty_cells_holds_between_its_events(tmp_path, 
     df["Time"] = pd.to_datetime(df["Time"])
     (frec,) = read_frame(df.set_index("Time"))
     assert frec.meta["manual_intervals"] == [[180, 360]]
+
+
+def test_spikes_and_sentinels_are_read_as_bad_values(tmp_path):
+    from connectors.records import gross_outliers
+
+    text = wide_text(1200, seed=11).splitlines()
+    # line 301: one spike in PV; lines 401-406: a bad-value sentinel in OP (a gap short enough to fill)
+    cells = text[300].split(",")
+    text[300] = ",".join(cells[:2] + ["1e6"])
+    for k in range(400, 406):
+        cells = text[k].split(",")
+        text[k] = ",".join([cells[0], "-9999", cells[2]])
+    f = tmp_path / "spiky.csv"
+    f.write_text("\n".join(text) + "\n")
+    (rec,) = read_records(f)
+    found = {x.data["role"]: x for x in rec.findings if x.code == "outliers"}
+    assert set(found) == {"op", "pv"} and found["pv"].data["count"] == 1 and found["op"].data["count"] == 6
+    assert found["pv"].severity == "warning" and "1e+06 at 2024-05-01T00:04:59Z" in found["pv"].message
+    # filled like a gap: in range, between its neighbours
+    assert 15 < rec.pv[299] < 25 and np.all((rec.op[399:405] > 45) & (rec.op[399:405] < 55))
+    assert any(x.code == "gap" for x in rec.findings)
+
+    rng = np.random.default_rng(2)
+    x = 50 + 0.01 * rng.normal(size=3000)
+    assert not gross_outliers(x).any()
+    # the plant's own moves are kept: a slip at the very end, a varying excursion, a step off a flat line
+    end = x.copy()
+    end[-2:] = 55.0
+    assert not gross_outliers(end).any()
+    varying = x.copy()
+    varying[1000:1020] = 55.0 + np.arange(20)
+    assert not gross_outliers(varying).any()
+    flat = np.full(3000, 50.0)
+    flat[2990:] = 60.0
+    assert not gross_outliers(flat).any()
+    # more than 1 % far away is the signal's own spread
+    many = x.copy()
+    many[::50] = 1e6
+    assert not gross_outliers(many).any()
+    one = x.copy()
+    one[1500] = 1e300
+    assert np.flatnonzero(gross_outliers(one)).tolist() == [1500]

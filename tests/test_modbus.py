@@ -300,6 +300,14 @@ def test_window_records_cut_at_lost_polls_without_inventing_values():
     gap = next(f for f in recs[0].findings if f.code == "gap")
     assert gap.data["lost"] == 4 and gap.data["outages"] == [[40, 43], [90, 91]]
     assert recs[0].start == "1970-01-01T00:16:40Z"
+    # a spike from the device is no measurement: it cuts the window like a lost poll
+    pv_spiky = np.cos(np.arange(n) / 3)
+    pv_spiky[60] = 1e30
+    recs = window_records(lc, t, {"op": list(50 + np.sin(np.arange(n) / 3)), "pv": pv_spiky, "sp": sp,
+                                  "mv": [math.nan] * n}, 1.0, 20)
+    assert [r.n for r in recs] == [60, 39] and pv_spiky[60] == 1e30      # the caller's data untouched
+    spike = next(f for f in recs[0].findings if f.code == "outliers")
+    assert spike.data == {"role": "pv", "count": 1, "first_value": 1e30} and spike.severity == "warning"
 
 
 from hypothesis import example, given, settings  # noqa: E402

@@ -698,3 +698,17 @@ def test_metrics_give_s_and_j_in_percent_of_span_for_an_op_logged_as_a_fraction(
         m.close()
     assert S == pytest.approx(100 * d.identification.S_pct) and S == pytest.approx(3.0, abs=0.3)
     assert J == pytest.approx(100 * d.identification.J_pct)
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--duration", "nan"], "--duration: nan: give a positive number of seconds"),
+    (["--duration", "inf"], "--duration: inf: give a positive number"),
+    (["--duration", "0"], "--duration: 0: give a positive number"),
+    (["--metrics-port", "99999"], "--metrics-port: 99999: give a TCP port, 1-65535"),
+    (["--workers", "0"], "--workers: 0: give 1 or more"),
+])
+def test_bad_monitor_options_are_usage_errors_before_anything_runs(tmp_path, capsys, argv, says):
+    # NaN or infinity would run forever, a port past 65535 crashed in bind() with a traceback
+    assert main(["monitor", str(tmp_path / "none.toml"), "--out", str(tmp_path / "o"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err and not (tmp_path / "o").exists()

@@ -132,3 +132,20 @@ def test_a_long_record_whose_widest_window_lies_in_the_burn_in_is_fitted():
     vf = fit_valve(rec.op, rec.mv, rec.ts_s)
     assert vf.S_pct == pytest.approx(3.0, rel=0.02)
     assert vf.J_pct == pytest.approx(1.0, abs=0.06)
+
+
+@pytest.mark.parametrize("S, J, seed", [(3.6, 0.5, 7), (3.6, 0.5, 1), (5.0, 0.5, 8), (2.0, 0.5, 8)])
+def test_a_first_slip_against_the_last_direction_does_not_hide_the_valve(tmp_path, S, J, seed):
+    # `stiction simulate` starts its valve where its first slip moves the stem down while OP is
+    # above it: read as a stay after a downward motion, that slip gave bounds that contradicted
+    # each other, and the search alone ended in the deadband valley (S 3.29, J 0, r2 0.91)
+    import diagnose
+    from diagnose.service.cli import main
+
+    path = tmp_path / "loop.csv"
+    assert main(["simulate", "--S", str(S), "--J", str(J), "--seed", str(seed), "--out", str(path)]) == 0
+    (rec,) = diagnose.read_loops(path)
+    fit = fit_valve(rec.op, rec.mv, rec.ts_s)
+    assert fit.S_pct == pytest.approx(S, rel=0.02) and fit.J_pct == pytest.approx(J, abs=0.02 * S)
+    assert fit.S_interval_pct[0] <= S <= fit.S_interval_pct[1] and fit.J_interval_pct[0] <= J <= fit.J_interval_pct[1]
+    assert fit.r2 > 0.9999

@@ -204,11 +204,13 @@ def input_hash(file_digest: str, options_key: str, loop: str = "", segment: Any 
     return h.hexdigest()[:32]
 
 
-_SAFE = re.compile(r"[^A-Za-z0-9._-]+")
+# letters and digits of any script are kept: tags such as ``Ventil_ü`` and ``Ventil_ä`` must not
+# both become ``Ventil`` and share a folder and a history
+_SAFE = re.compile(r"[^\w.-]+")
 
 
 def safe_name(text: str) -> str:
-    """A file-system-safe loop id (``FIC 101/A`` -> ``FIC_101_A``)."""
+    """A file-system-safe loop id (``FIC 101/A`` -> ``FIC_101_A``; ``Ventil_ü`` stays as it is)."""
     s = _SAFE.sub("_", str(text)).strip("._") or "loop"
     return s[:100]
 
@@ -852,8 +854,10 @@ class _Dask:
         else:
             try:
                 self.client = Client(scheduler, timeout="20s")
-            except OSError as exc:
-                raise StictionError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+            except (OSError, ValueError, TypeError) as exc:
+                # ValueError: an address Dask cannot parse (no port, unknown protocol)
+                raise StictionError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc} (give 'local' or an "
+                                    "address such as tcp://10.0.0.5:8786)") from None
         self.client.run(worker_setup)
 
     def submit(self, fn: Callable, *args: Any) -> Any:
@@ -1169,8 +1173,8 @@ def _run_batch(inputs: Sequence[str | os.PathLike], out: Path, t0: float, *, wor
     db_path = Path(db) if db is not None else default_db_path()
     from ..api import check_read_options
 
-    cfg = BatchConfig(out_dir=str(out), read_options=check_read_options(read_options or {}, diagnosis=True), tags=tags, explain=explain,
-                      narx=narx, pdf=pdf, db=str(db_path) if history else None)
+    cfg = BatchConfig(out_dir=str(out), read_options=check_read_options(read_options or {}, diagnosis=True),
+                      tags=tags, explain=explain, narx=narx, pdf=pdf, db=str(db_path) if history else None)
     skipped_files: list[dict[str, Any]] = []
     files, missing = discover(inputs, exclude=[out], skipped=skipped_files)
     workers = workers or usable_cores()

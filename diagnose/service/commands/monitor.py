@@ -6,22 +6,33 @@ import argparse
 import signal
 import sys
 
+from ._args import number, whole_number
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG.toml", help="Modbus poller configuration (devices, loops, registers)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: run until Ctrl-C)")
+    p.add_argument("--duration", type=number(0.0, above=True, what="a positive number of seconds"), default=None,
+                   help="stop after this many seconds (default: run until Ctrl-C)")
     p.add_argument("--out", default="stiction-monitor-out", help="folder for each window's JSON/Markdown "
                                                                  "(default ./stiction-monitor-out)")
-    p.add_argument("--window", type=int, default=None, help="samples per diagnosed window (default: the config's)")
+    p.add_argument("--window", type=whole_number(1, "1 or more"), default=None, help="samples per diagnosed window (default: the config's)")
     p.add_argument("--db", default=None, help="history database (default $STICTION_HOME/history.sqlite "
                                               "or ~/.local/share/stiction/history.sqlite)")
     p.add_argument("--no-history", action="store_true", help="do not store results in the history database")
-    p.add_argument("--metrics-port", type=int, default=None, help="serve Prometheus metrics on this local port")
-    p.add_argument("--workers", type=int, default=1, help="diagnosis worker processes (default 1)")
+    p.add_argument("--metrics-port", type=_port, default=None, help="serve Prometheus metrics on this local port")
+    p.add_argument("--workers", type=whole_number(1, "1 or more"), default=1,
+                   help="diagnosis worker processes (default 1)")
     from .batch import add_explain_argument
 
     add_explain_argument(p, "off", "the default; it takes 3-40 s per window")
     p.add_argument("--figures", action="store_true", help="draw figures for every window's report")
+
+
+def _port(text: str) -> int:
+    port = whole_number(1, "a TCP port, 1-65535")(text)
+    if port > 65535:
+        raise argparse.ArgumentTypeError(f"{text}: give a TCP port, 1-65535")
+    return port
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,10 +40,6 @@ def run(args: argparse.Namespace) -> int:
     from ..monitor import run_monitor
     from .batch import explain_mode
 
-    if args.duration is not None and args.duration <= 0:
-        from ...errors import DataError
-
-        raise DataError("--duration must be a positive number of seconds")
     stats = run_monitor(args.config, args.out, duration_s=args.duration, db=args.db, history=not args.no_history,
                         metrics_port=args.metrics_port, window_samples=args.window, workers=args.workers,
                         explain=explain_mode(args.explain), figures=args.figures)
