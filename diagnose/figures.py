@@ -77,14 +77,25 @@ def _plot(ax: Axes, t: np.ndarray, y: np.ndarray, **kw: Any) -> None:
     ax.plot(tt, yy, lw=kw.pop("lw", 0.8), **kw)
 
 
-def record_limits(*series: np.ndarray | None, margin: float = 0.08) -> tuple[float, float]:
+#: Share of a model line's samples kept inside the axis at each end (`record_limits`).
+MODEL_TAIL = 0.05
+
+
+def record_limits(*series: np.ndarray | None, margin: float = 0.08,
+                  models: tuple[np.ndarray | None, ...] = ()) -> tuple[float, float]:
     """Axis range of recorded series, padded by ``margin`` of their span.
 
-    Model lines are drawn inside the record's range: a simulation started from the wrong state
-    can swing far off in its first samples, and that start-up transient must not set the scale.
+    Model lines (``models``) widen it to their 5th-95th percentile only: a simulation started
+    from the wrong state can swing far off in its first samples, and that start-up transient must
+    not set the scale, but a model that runs beside the record, or off it, must stay in view.
     """
     vals = [np.asarray(v, dtype=float) for v in series if v is not None]
     vals = [v[np.isfinite(v)] for v in vals]
+    for m in models:
+        m = np.asarray(m, dtype=float) if m is not None else np.zeros(0)
+        m = m[np.isfinite(m)]
+        if m.size:
+            vals.append(np.percentile(m, [100 * MODEL_TAIL, 100 * (1 - MODEL_TAIL)]))
     vals = [v for v in vals if v.size]
     if not vals:
         return 0.0, 1.0
@@ -118,7 +129,7 @@ def draw_trends(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = Non
     if record.sp is not None:
         _plot(ax1, t, record.sp, color=COLORS["sp"], label="SP", zorder=2)
     _plot(ax1, t, record.pv, color=COLORS["pv"], label="PV", zorder=3)
-    ax1.set_ylim(*record_limits(record.pv, record.sp))
+    ax1.set_ylim(*record_limits(record.pv, record.sp, models=(pv_hat,)))
     ax1.set_ylabel(_pv_label(record))
     ax1.legend(loc="upper right", fontsize=7, ncol=3)
     if mv_hat is not None:
@@ -126,7 +137,7 @@ def draw_trends(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = Non
     _plot(ax2, t, record.op, color=COLORS["op"], label="OP", zorder=2)
     if record.mv is not None:
         _plot(ax2, t, record.mv, color=COLORS["mv"], label="MV", zorder=3)
-    ax2.set_ylim(*record_limits(record.op, record.mv))
+    ax2.set_ylim(*record_limits(record.op, record.mv, models=(mv_hat,)))
     ax2.set_ylabel(span_label(op_units))
     ax2.set_xlabel(tlabel)
     ax2.set_xlim(float(t[0]), float(t[-1]))
@@ -157,7 +168,7 @@ def draw_phase(fig: Figure, record: LoopRecord, mv_hat: np.ndarray | None = None
         ax.set_ylabel(ylabel)
         ax.set_title(f"{name}, last {shown} samples", fontsize=9)
         ax.legend(loc="best", fontsize=7)
-    fig.subplots_adjust(left=0.15 if not two else 0.09, right=0.98, top=0.92, bottom=0.13, wspace=0.25)
+    fig.subplots_adjust(left=0.15 if not two else 0.11, right=0.98, top=0.92, bottom=0.13, wspace=0.3)
     return fig
 
 
@@ -222,17 +233,17 @@ def draw_narx(fig: Figure, record: LoopRecord, mv_hat_pct: np.ndarray, pv_hat: n
     if record.mv is not None:
         _plot(ax, t, record.mv, color=COLORS["mv"], label="recorded MV")
         _plot(ax, t, mv_hat_pct, color=COLORS["narx"], label="NARX-SP free run (MV)")
-        ax.set_ylim(*record_limits(record.mv))
+        ax.set_ylim(*record_limits(record.mv, models=(mv_hat_pct,)))
         ax.set_ylabel("MV (% of span)")
     elif pv_hat is not None:
         _plot(ax, t, record.pv, color=COLORS["pv"], label="recorded PV")
         _plot(ax, t, pv_hat, color=COLORS["narx"], label="NARX-SP valve + process model")
-        ax.set_ylim(*record_limits(record.pv))
+        ax.set_ylim(*record_limits(record.pv, models=(pv_hat,)))
         ax.set_ylabel(_pv_label(record))
     else:
         _plot(ax, t, record.op, color=COLORS["op"], label="OP")
         _plot(ax, t, mv_hat_pct, color=COLORS["narx"], label="NARX-SP free run (MV)")
-        ax.set_ylim(*record_limits(record.op))
+        ax.set_ylim(*record_limits(record.op, models=(mv_hat_pct,)))
         ax.set_ylabel(span_label(op_units))
     ax.set_xlim(float(t[0]), float(t[-1]))
     ax.set_xlabel(tlabel)

@@ -193,6 +193,10 @@ def test_the_report_and_the_summary_show_it(diag):
     assert row["travel_pct_per_day"] == act.to_dict()["travel_pct_per_day"]
     assert row["reversals_per_day"] == act.to_dict()["reversals_per_day"]
     assert {"travel_pct_per_day", "reversals_per_day"} <= set(SUMMARY_COLUMNS)
+    # the report gives the number the JSON and the summary keep
+    from diagnose.plain import number
+
+    assert f"| OP travel | {number(act.to_dict()['travel_pct_per_day'])} % of span per day |" in section
 
 
 def test_a_mode_column_with_no_known_value_is_not_called_no_mode_signal():

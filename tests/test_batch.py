@@ -189,6 +189,10 @@ def test_degradation_reaches_report_and_summary(plant, tmp_path):
     assert "S grew over the last 3 runs, from 1.00 %" in row["degradation"]
     assert "Verdict over this loop's runs: stiction in 3 of the last 4 runs" in md
     assert "| P(stiction) |" in md and "| 30 % | - | - |" in md and "| 60 % | 1.00 |" in md
+    # the table holds the four runs the sentence counts, this one last
+    table = md.split("| Record end |", 1)[1].split("\n\n", 1)[0].strip().splitlines()[2:]
+    assert len(table) == 4 and table[-1].rstrip().endswith("| this run |")
+    assert f"| {row['S_pct']:.2f} |" in table[-1]
     assert row["sticky_runs"] == [3, 4]
     summary = (tmp_path / "out" / "summary.md").read_text()
     assert " (3/4 runs) |" in summary and "k said stiction" in summary

@@ -185,6 +185,11 @@ def test_trends_show_the_whole_record_and_the_record_sets_the_scale(sticky_diag)
         assert max(float(np.max(ln.get_xdata())) for ln in ax.get_lines()) == pytest.approx(t_end)
     lo, hi = fig.axes[0].get_ylim()
     assert hi < rec.pv.max() + 0.2 * np.ptp(rec.pv) and lo > rec.pv.min() - 0.2 * np.ptp(rec.pv)
+    # ... but a model that runs off the record for most of it stays in view
+    off = rec.pv - 3.0 * np.ptp(rec.pv)
+    figures.trends(diag, mv_hat=rec.op, pv_hat=off)
+    lo, hi = figures._FIGS[(8.0, 4.6)].axes[0].get_ylim()
+    assert lo <= np.percentile(off, 5) and hi >= rec.pv.max()
 
 
 def _healthy(diag):
@@ -466,7 +471,7 @@ def test_classes_and_S_J_are_explained_in_words():
     md = report.to_markdown(report.loop_blocks(_diag(cls="overshoot", S_pct=2.0, J_pct=4.0)))
     assert "jumps past" in md
     md = report.to_markdown(report.loop_blocks(_diag(cls="no_offset", S_pct=3.0, J_pct=3.0)))
-    assert "exactly to where" in md
+    assert "jumps to where the controller output asks" in md and "within 15 % of S" in md
 
 
 def test_S_and_J_units_follow_OP_when_OP_is_not_in_percent():
@@ -692,3 +697,35 @@ def test_the_action_weighs_how_often_the_loops_last_runs_said_stiction():
     calm = pipeline.recommended_action(none, (), (3, 6))
     assert "shows no stiction, but the loop was called sticky in 3 of its last 6 runs" in calm
     assert "not the cause" not in calm
+
+
+def test_a_narx_free_run_that_never_moves_is_said_to_stand_still():
+    # an RMSE of a model output that stays put is the record's own swing: the report says so
+    from diagnose.service.pipeline import NarxRun
+
+    op = 50.0 + 2.0 * np.sin(np.arange(2000) / 40.0)
+    sel = SimpleNamespace(model="narxsp_S2_J4", S=2.0, J=4.0, distance=0.0, robust=True, free_run_rmse=0.4)
+    ident = SimpleNamespace(pct_per_op_unit=1.0, stiction=True, S_pct=2.0)
+    still = SimpleNamespace(selection=sel, identification=ident, record=SimpleNamespace(op=op),
+                            narx_run=NarxRun(np.full(2000, 49.9), None, 1.4, "mv"))
+    blocks = report._narx_blocks(still, set(), set())
+    said = [b[1] for b in blocks if b[0] == "p"]
+    assert len(said) == 1 and "does not move in its free run" in said[0] and "stays at 49.9 %" in said[0]
+    moving = SimpleNamespace(**{**vars(still), "narx_run": NarxRun(op - 0.5, None, 0.5, "mv")})
+    assert not [b for b in report._narx_blocks(moving, set(), set()) if b[0] == "p"]
+
+
+def test_the_history_figure_tells_hourly_records_apart(monkeypatch):
+    from diagnose.service import figures as figs
+
+    drawn = []
+    monkeypatch.setattr(figs, "_png", lambda fig: drawn.append(fig) or b"png")
+    rows = [{"data_end": f"2026-01-01T0{h}:49:59Z", "S_pct": 2.0 + 0.1 * h, "J_pct": 0.5, "stiction": 1,
+             "sj_units": "% of span"} for h in (0, 1)]
+    assert figs.history(rows) == b"png"
+    ax = drawn[-1].axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["2026-01-01 00:49", "2026-01-01 01:49"]
+    assert ax.get_xlabel() == "record end (UTC)"
+    days = [dict(r, data_end=f"2026-01-0{k + 1}T00:49:59Z") for k, r in enumerate(rows)]
+    figs.history(days)
+    assert [t.get_text() for t in drawn[-1].axes[0].get_xticklabels()] == ["2026-01-01", "2026-01-02"]

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import DataError
 from ..notes import Note
+from ..plain import number
 from ..stiction_model import stiction_class
 from .experiments import ROBUST_RMSE_PCT
 from .metrics import cdc_pct, rmse_pct
@@ -125,7 +126,7 @@ class Selection:
                     f"identified S={self.S_query:.2f} %, J={self.J_query:.2f} % lies outside "
                     f"the robust region of NARX-SP model {self.model} (trained for "
                     f"S={self.S:g} %, J={self.J:g} %): its free-run RMSE there is about "
-                    f"{self.free_run_rmse:.2f} % of span, above {self.threshold_pct:g} %; "
+                    f"{number(self.free_run_rmse)} % of span, above {self.threshold_pct:g} %; "
                     f"treat its predictions as indicative only")
 
 

@@ -137,10 +137,14 @@ def history(rows: list[Mapping[str, Any]]) -> bytes | None:
     ax.plot(x, [p[1] if p[1] is not None else np.nan for p in pts], "o-", color=COLORS["op"], label="S")
     ax.plot(x, [p[2] if p[2] is not None else np.nan for p in pts], "s-", color=COLORS["mv"], label="J")
     ax.set_xticks(x)
-    ax.set_xticklabels([str(p[0])[:10] for p in pts], rotation=30, fontsize=6, ha="right")
+    # the day where it tells the records apart, else the time of day too (hourly windows)
+    days = [str(p[0])[:10] for p in pts]
+    ticks = days if len(set(days)) == len(days) else [str(p[0])[:16].replace("T", " ") for p in pts]
+    ax.set_xticklabels(ticks, rotation=30, fontsize=6, ha="right")
+    ax.set_xlabel("record end (UTC)", fontsize=7)
     ax.set_ylabel(label)
     ax.legend(fontsize=7)
-    fig.subplots_adjust(left=0.13, right=0.97, top=0.95, bottom=0.27)
+    fig.subplots_adjust(left=0.13, right=0.97, top=0.95, bottom=0.33)
     return _png(fig)
 
 

@@ -596,7 +596,7 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]], *, limit: int | N
         S = "-" if r.get("S_pct") is None else f"{r['S_pct']:{spec}}"
         J = "-" if r.get("J_pct") is None else f"{r['J_pct']:{spec}}"
         conf = percent(r.get("confidence"))   # as the reports word it: a rounded "100%" reads as a certainty
-        sev = "-" if r.get("severity") is None else f"{r['severity']:.0f}"
+        sev = "-" if r.get("severity") is None else f"{r['severity']:.1f}"     # as the summary gives it
         end = str(r.get("data_end") or "-")[:19]
         p = percent(r.get("stiction_probability"))
         cells.append((end, p, S, iv, J, str(r.get("class") or "-"), conf, sev, str(r.get("run_at"))[:19], u))
@@ -604,9 +604,9 @@ def format_trend(loop: str, rows: Sequence[Mapping[str, Any]], *, limit: int | N
     wi = max([15] + [len(c[3]) for c in cells])
     lines = [head,
              f"{'record end (UTC)':<20} {'P(st.)':>6} {s_head:>{ws}} {'S interval':>{wi}} {j_head:>{ws}} "
-             f"{'class':<12} {'conf':>6} {'sev':>4}  {'run (UTC)':<20}" + ("" if plain_pct else " S, J units")]
+             f"{'class':<12} {'conf':>6} {'sev':>5}  {'run (UTC)':<20}" + ("" if plain_pct else " S, J units")]
     for end, p, S, iv, J, cls, conf, sev, run_at, u in cells:
-        lines.append(f"{end:<20} {p:>6} {S:>{ws}} {iv:>{wi}} {J:>{ws}} {cls:<12} {conf:>6} {sev:>4}  {run_at:<20}"
+        lines.append(f"{end:<20} {p:>6} {S:>{ws}} {iv:>{wi}} {J:>{ws}} {cls:<12} {conf:>6} {sev:>5}  {run_at:<20}"
                      + ("" if plain_pct else f" {u}"))
     held = persistence(rows)
     if held:

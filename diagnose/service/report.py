@@ -21,9 +21,11 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
+import numpy as np
+
 from ..activity import BAND_SIGMAS
 from ..plain import count, duration, number, percent, percent_change, sj_decimals
-from .history import persistence, run_units, shown_run, verdict_of
+from .history import end_of_record, persistence, run_units, shown_run, verdict_of
 
 if TYPE_CHECKING:
     from ..controller import ControllerAction
@@ -59,11 +61,12 @@ NOT_MOVING_MEANING = ("not judged: the stem never moved in this record, so how t
 CLASS_MEANING = {
     "none": "no stiction: the valve follows the controller output",
     "unknown": "the evidence says the valve sticks, but its size could not be measured from these data",
-    "deadband": "J = 0: the valve moves only after the controller output has travelled S back, "
-                "then follows it smoothly (pure deadband or backlash)",
+    "deadband": "J = 0 (within 15 % of S): the valve moves only after the controller output has travelled "
+                "S back, then follows it smoothly (pure deadband or backlash)",
     "undershoot": "0 < J < S: after sticking the valve jumps, but by less than the band, so it stops "
                   "short of where the controller output asks it to be",
-    "no_offset": "J = S: after sticking the valve jumps exactly to where the controller output asks",
+    "no_offset": "J = S (within 15 % of S): after sticking the valve jumps to where the controller output "
+                 "asks",
     "overshoot": "J > S: after sticking the valve jumps past where the controller output asks it "
                  "to be",
 }
@@ -301,7 +304,10 @@ def _detail_rows(diag: Diagnosis) -> list[list[str]]:
 
 
 def _rate(value: float | None, unit: str) -> str:
-    """A per-day rate as the report shows it: 3 significant figures, never an exponent."""
+    """A per-day rate as the report shows it: never an exponent, and no more digits than the JSON
+    and the summary keep (`ValveActivity.to_dict`: 4 significant), so all three give one number."""
+    if value is not None and math.isfinite(value):
+        value = float(f"{value:.4g}")
     text = number(value)
     return text if text == "-" else f"{text} {unit}"
 
@@ -335,8 +341,9 @@ def activity_blocks(diag: Diagnosis) -> list[Block]:
     return [("h2", "Valve activity"),
             ("p", "How far the valve was asked to travel (OP) and how often it reversed, per day of this "
                   "record; a valve that travels far and reverses often wears its packing and seat. "
-                  f"Movement within OP's noise band ({number(BAND_SIGMAS)} times its noise) is not "
-                  "counted. A short record's rates extrapolate it to a day."),
+                  f"Movement within OP's noise band ({number(BAND_SIGMAS)} times its noise, estimated from "
+                  "its second differences, which its ramps do not touch) is not counted. A short record's "
+                  "rates extrapolate it to a day."),
             ("table", ["Quantity", "Value"], rows)]
 
 
@@ -353,7 +360,14 @@ def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block
             what = ("% of span, against the recorded stem position (MV)" if run.against == "mv"
                     else "PV units, against PV through the fitted process")
             rows.append(["Free-run RMSE on this record", f"{number(run.rmse_record)} {what}"])
+        still = _narx_still(diag)
         blocks.append(("table", ["NARX-SP", "Value"], rows))
+        if still is not None:
+            blocks.append(("p", f"The model's valve does not move in its free run on this record (it stays at "
+                                f"{number(still)} % of span, while OP travels {number(_op_travel(diag))} % of span): "
+                                "the RMSE above measures the record's own swing, not a model that follows it off "
+                                "by that much. The bank's model at this (S, J) stays stuck under this OP; S, J "
+                                "and the class come from the fit, not from this model."))
         if "narx" in figs:
             blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
     elif codes & {"service.narx_unavailable", "service.narx_failed"}:
@@ -366,6 +380,23 @@ def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block
     else:
         blocks.append(("p", "No NARX-SP model: the NARX-SP stage was not run for this loop."))
     return blocks
+
+
+def _op_travel(diag: Diagnosis) -> float:
+    op = np.asarray(diag.record.op, dtype=float) * diag.identification.pct_per_op_unit
+    return float(np.percentile(op, 99) - np.percentile(op, 1))
+
+
+def _narx_still(diag: Diagnosis) -> float | None:
+    """Where the NARX-SP model's valve stays when its free run does not move on this record
+    (moves less than a twentieth of OP's travel), else None."""
+    run = diag.narx_run
+    if run is None or run.mv_hat_pct is None or diag.record is None:
+        return None
+    mv = np.asarray(run.mv_hat_pct, dtype=float) * diag.identification.pct_per_op_unit
+    if mv.size == 0 or not np.all(np.isfinite(mv)):
+        return None
+    return float(np.median(mv)) if np.ptp(mv) < 0.05 * _op_travel(diag) else None
 
 
 def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
@@ -473,8 +504,15 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
             blocks.append(("p", f"Verdict over this loop's runs: {held} (this run included). One window "
                                 "can hold too little stick-slip to tell; a valve called sticky on most "
                                 "of its windows is the firmer finding."))
+        # the table holds the runs the sentence above counts and the figure draws: this one too
+        rec = diag.record
+        this_run = {"data_end": end_of_record(rec.start, rec.n, rec.ts_s) if rec is not None else None,
+                    "stiction": int(bool(ident.stiction)), "stiction_probability": ident.stiction_probability,
+                    "S_pct": ident.S_pct, "J_pct": ident.J_pct, "class": ident.cls,
+                    "confidence": ident.confidence, "run_at": "this run", "sj_units": ident.op_units}
+        runs = list(history_rows) + [this_run]
         # S and J in each run's own units (`history.run_units`), as the trend of `stiction history`
-        plain_pct = all(run_units(r) == "% of span" for r in history_rows)
+        plain_pct = all(run_units(r) == "% of span" for r in runs)
 
         def size(r: Mapping[str, Any], key: str) -> str:
             units = run_units(r)
@@ -485,7 +523,7 @@ def loop_blocks(diag: Diagnosis, figures: Sequence[str] = (),
 
         table = [[str(r.get("data_end") or "-")[:19], percent(r.get("stiction_probability")), size(r, "S_pct"),
                   size(r, "J_pct"), fmt(r.get("class")), percent(r.get("confidence")), str(r.get("run_at", ""))[:19]]
-                 for r in map(shown_run, history_rows)]
+                 for r in map(shown_run, runs)]
         blocks.append(("table", ["Record end", "P(stiction)", "S %" if plain_pct else "S", "J %" if plain_pct else "J",
                                  "Class", "Confidence", "Run"], table))
         if "history" in figs:
