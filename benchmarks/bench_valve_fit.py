@@ -3,7 +3,8 @@
 Records: PI loops around Kano's valve (tests/kano.py) with the stem exactly Kano's model of OP,
 in the four classes (deadband, undershoot, no offset, overshoot, with the issue's S 2 / J 4 and
 S 3 / J 5) and three start states (at rest, moving, stuck away from OP), plus the project's own
-sticky loops (FOPTD / SOPTD / integrating). Every record is fitted in this process; a fit is exact
+sticky loops (FOPTD / SOPTD / integrating) and three loops as `stiction simulate` writes them. Every
+record is fitted in this process; a fit is exact
 when S and J are within 2 % (J: of max(S, J)), the class is right and both intervals hold the truth.
 
 Target (issue 24): <= 0.3 s per 10 000-sample record in process. ``--baseline-src DIR`` fits the
@@ -52,6 +53,11 @@ def records(n: int) -> list[tuple[str, float, float, np.ndarray, np.ndarray]]:
         rec = sticky_loop(S, J, n=n, noise_std=0.3, kind=kind, seed=43, load_walk_std=0.03,
                           gain=0.02 if kind == "integrating" else 1.0)
         out.append((f"own S{S:g} J{J:g} {kind}", S, J, rec.op, rec.mv))
+    # `stiction simulate`'s loops as its CSV holds them (4 decimals): their valve starts so that the
+    # first slip moves the stem against OP's side, a state the record does not show
+    for S, J, seed in ((3.6, 0.5, 7), (5.0, 0.5, 8), (2.0, 0.5, 8)):
+        rec = sticky_loop(S, J, n=n, noise_std=0.02, load_walk_std=0.01, seed=seed)
+        out.append((f"simulate S{S:g} J{J:g} seed {seed}", S, J, np.round(rec.op, 4), np.round(rec.mv, 4)))
     return out
 
 

@@ -167,6 +167,11 @@ def test_cli_exit_code_says_whether_any_failed(plant, tmp_path, capsys):
     assert "failed: broken" in capsys.readouterr().err
     assert main(["batch", str(tmp_path / "empty-nothing"), "--out", str(tmp_path / "o3"), "--quiet",
                  "--db", str(tmp_path / "h.sqlite")]) == 1
+    assert not (tmp_path / "o3").exists()       # a refused run leaves no folder behind
+    (tmp_path / "o4").mkdir()
+    assert main(["batch", str(tmp_path / "empty-nothing"), "--out", str(tmp_path / "o4"), "--quiet",
+                 "--no-history"]) == 1
+    assert (tmp_path / "o4").is_dir()           # ... but keeps one the user made
 
 
 def test_degradation_reaches_report_and_summary(plant, tmp_path):

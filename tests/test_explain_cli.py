@@ -57,11 +57,16 @@ def test_summary_heads_with_the_baseline_and_the_refit_the_hypotheses_are_judged
     assert head == "  held-out RMSE (PV, PV units): baseline 2.072, plain model refit here 0.1692; nothing named"
     named = dict(d, missing_physics="actuator_lag", improved_rmse=0.12, target="mv")
     assert summary(named).splitlines()[1].endswith("refit here 0.1692 -> with actuator_lag 0.12")
+    # hypotheses judged on the stem are measured against the valve stage's own errors: shown too
+    both = dict(d, mismatch={"reference_rmse": 0.1692,
+                             "other_stages": {"valve": {"baseline_rmse": 0.0312, "reference_rmse": 0.0301}}})
+    assert summary(both).splitlines()[2] == "  held-out RMSE (MV, % of span): baseline 0.0312, plain model refit here 0.0301"
 
 
 @pytest.mark.parametrize("argv,msg", [
     (["--mv", "NOPE"], "no column named 'NOPE'"),
     (["--hypotheses", "gremlins"], "unknown hypothesis 'gremlins'"),
+    (["--hypotheses", " , "], "name at least one hypothesis"),
     (["--train-fraction", "0.95"], "--train-fraction 0.95"),
 ])
 def test_bad_input_is_one_line_and_exit_1(csv_with_mv, capsys, argv, msg):

@@ -480,14 +480,22 @@ def test_a_history_locked_by_another_writer_does_not_stop_the_polling(tmp_path):
         locker = threading.Thread(target=hold_lock)
         locker.start()
         assert locked.wait(10)
-        # held for 9 s, well inside SQLite's 30 s wait: the writes wait, then land
-        timer = threading.Timer(9.0, release.set)
+
+        def release_after_two_windows():
+            # held until two windows were said, or 20 s (well inside SQLite's 30 s wait): the
+            # writes wait, then land
+            deadline = time.monotonic() + 20.0
+            while len(results) < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            release.set()
+
+        timer = threading.Thread(target=release_after_two_windows)
         timer.start()
         try:
             stats = asyncio.run(mon.run(13.0))
         finally:
             release.set()
-            timer.cancel()
+            timer.join()
             locker.join()
     finally:
         _stop(sim)

@@ -1122,6 +1122,7 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
         load_tagmap(tags)  # a broken map is reported once, up front, not once per file
     if history:
         History(db if db is not None else default_db_path()).close()
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -1132,8 +1133,25 @@ def run_batch(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *
         return _run_batch(inputs, out, t0, workers=workers, scheduler=scheduler, tags=tags,
                           read_options=read_options, explain=explain, narx=narx, pdf=pdf, db=db,
                           history=history, progress=progress, stream=stream)
+    except DataError:
+        # refused before anything was written (no input found): the folder this run made goes too
+        lock.close()
+        if created:
+            _remove_if_only_lock(out)
+        raise
     finally:
         lock.close()  # the kernel drops the lock with the process too (kill -9 leaves none behind)
+
+
+def _remove_if_only_lock(out: Path) -> None:
+    """Remove ``out`` when it holds nothing but the batch's lock (``.stiction/lock``)."""
+    try:
+        if {p.relative_to(out).as_posix() for p in out.rglob("*")} <= {".stiction", ".stiction/lock"}:
+            (out / ".stiction" / "lock").unlink(missing_ok=True)
+            (out / ".stiction").rmdir()
+            out.rmdir()
+    except OSError:
+        pass        # something else appeared there meanwhile: leave it
 
 
 def lock_out_dir(out: Path) -> Any:

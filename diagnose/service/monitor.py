@@ -156,6 +156,10 @@ def _monitor_worker_init(parent_pid: int | None = None) -> None:
         pass
 
 
+#: Longest wait for the workers' warm-up before polling starts anyway (seconds).
+WARM_UP_WAIT_S = 60.0
+
+
 def _warm_up() -> bool:
     """Import the diagnosis stack in a fresh worker before the first window arrives."""
     from .batch import worker_setup
@@ -368,6 +372,7 @@ class Monitor:
         self._pending: set[Any] = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._poll_task: asyncio.Future | None = None
+        self._warm: list = []      # the workers' warm-up, awaited before the first poll
 
     def _seed_recent(self, hist: Any) -> None:
         for name in self.config.loops:
@@ -450,8 +455,7 @@ class Monitor:
                 ctx.set_forkserver_preload(["__main__", f"{__package__}._keep_forkserver"])
                 self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx,
                                                  initializer=_monitor_worker_init, initargs=(os.getpid(),))
-                for _ in range(self.workers):
-                    self._pool.submit(_warm_up)
+                self._warm = [self._pool.submit(_warm_up) for _ in range(self.workers)]
             else:
                 from concurrent.futures import ThreadPoolExecutor
 
@@ -552,9 +556,19 @@ class Monitor:
         finish pending diagnoses (``stats.signal`` says which signal stopped the run)."""
         self._loop = asyncio.get_running_loop()
         t0 = time.monotonic()
-        self._poll_task = asyncio.ensure_future(self.poller.run(duration_s))
         caught = self._catch_signals()
+        # the workers are started and warmed up before the first poll: starting them blocks this
+        # thread until the fork server has imported the diagnosis stack (seconds on a busy
+        # machine), and polls missed meanwhile would cut the first window and read as an outage
         self._ensure_pool()
+        for fut in self._warm:
+            try:
+                await asyncio.wait_for(asyncio.wrap_future(fut), WARM_UP_WAIT_S)
+            except Exception:   # noqa: BLE001 - too slow, or broken: a worker's fault shows with its window
+                break
+        self._poll_task = asyncio.ensure_future(self.poller.run(duration_s))
+        if self.stats.signal is not None:         # stopped while the workers started
+            self._poll_task.cancel()
         try:
             try:
                 await self._poll_task

@@ -45,6 +45,16 @@ def summary(d: dict[str, Any]) -> str:
     head += (f" -> with {d['missing_physics']} {number(d['improved_rmse'], 4)}" if d["missing_physics"]
              else "; nothing named")
     lines = [f"{d.get('loop', '')}: missing physics: {d['missing_physics'] or 'none named'}", head]
+    # valve-side hypotheses judged on the stem (OP -> MV) are measured against that stage's own
+    # baseline and reference, in % of span: without them their changes cannot be read
+    for stage, other in ((d.get("mismatch") or {}).get("other_stages") or {}).items():
+        if other.get("baseline_rmse") is None:
+            continue
+        line = (f"  held-out RMSE ({'MV' if stage == 'valve' else stage}, % of span): baseline "
+                f"{number(other['baseline_rmse'], 4)}")
+        if other.get("reference_rmse") is not None:
+            line += f", plain model refit here {number(other['reference_rmse'], 4)}"
+        lines.append(line)
     for h in d["hypotheses"]:
         params = ", ".join(f"{k} {duration(v) if k.endswith('_s') else number(v)}"
                            for k, v in h["params"].items() if v is not None)
@@ -77,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 < args.min_reduction < 1.0:
         raise DataError(f"--min-reduction {args.min_reduction}: use a value between 0 and 1")
     hyps = None
-    if args.hypotheses:
+    if args.hypotheses is not None:
         hyps = [h.strip() for h in args.hypotheses.split(",") if h.strip()]
+        if not hyps:
+            raise DataError(f"--hypotheses {args.hypotheses!r}: name at least one hypothesis (comma-separated), "
+                            "or leave the option out to try them all")
     opts = read_options(args)
     with naming_file(args.file):
         records = connectors.read_records(args.file, **opts)
