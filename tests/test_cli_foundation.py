@@ -113,9 +113,19 @@ def test_usage_and_domain_errors_exit_without_traceback(tmp_path, capsys):
     assert main(["no-such-command"]) == 2
 
 
+def test_simulate_refuses_times_past_the_year_9999_in_one_line(tmp_path, capsys):
+    for extra in (["--ts-s", "1e9"], ["--start", "9999-12-31T23:59:00Z"]):
+        out = tmp_path / "x.csv"
+        assert main(["simulate", "--S", "3", "--J", "1", *extra, "--out", str(out)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: --n 3000 samples every") and "year 9999" in err[0]
+        assert not out.exists()
+
+
 @pytest.mark.parametrize("flag,value,says", [
     ("--noise", "-1", "0 or more"), ("--load", "-0.5", "0 or more"), ("--noise", "nan", "0 or more"),
-    ("--n", "10", "50 or more"), ("--ts-s", "0", "more than 0 seconds"), ("--delay-s", "-1", "0 seconds or more"),
+    ("--n", "10", "50 to 1000000"), ("--n", "100000000", "50 to 1000000"), ("--seed", "-1", "0 or more"),
+    ("--ts-s", "0", "more than 0 seconds"), ("--delay-s", "-1", "0 seconds or more"),
     ("--tau-s", "-2", "0 seconds or more"), ("--gain", "0", "other than 0"),
     # a controller that never moves OP (or fills it with NaN), or silently loses its integral action
     ("--kc", "0", "other than 0"), ("--kc", "nan", "other than 0"), ("--ti-s", "0", "more than 0 seconds"),
@@ -240,3 +250,21 @@ def test_an_export_whose_pv_is_all_bad_is_judged_from_op_alone(tmp_path, capsys)
     assert d["class"] == "undershoot" and d["detection"]["pv_unusable"]
     judged = {e["test"] for e in d["evidence"] if e["decision"] != "cannot_judge"}
     assert {"model_fit", "valve_band"} <= judged and "kano_stuck" not in judged
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["bank", "train", "--cases", "3:1"], "would replace the installed bank"),
+    (["reproduce", "model-mode", "--steps", "99999999999"], "--steps 99999999999: give 100 to 1000000"),
+    (["reproduce", "table1", "--networks", ""], "name at least one network"),
+])
+def test_commands_that_would_overwrite_or_exhaust_refuse_in_one_line(capsys, argv, says):
+    # a bank of one case written over the installed one, a model-mode run of 745 GiB, and an
+    # empty network list that silently ran all six
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and says in err[0]
+
+
+def test_demo_refuses_zero_workers(capsys):
+    assert main(["demo", "--workers", "0"]) == 2
+    assert "--workers: 0: give 1 or more" in capsys.readouterr().err

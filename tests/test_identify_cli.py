@@ -127,6 +127,7 @@ def test_stuck_valve_exits_zero_with_a_warning(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "class unknown" in out and "deadband" not in out
     assert "S >= " in out and "J and the class are not judged" in out
+    assert out.startswith("FV3: STICTION (")          # the verdict the JSON gives, not "no evidence"
 
 
 def _rec(name, n, seg=0):

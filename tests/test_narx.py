@@ -243,3 +243,13 @@ def test_conditional_network_learns_the_plane():
     assert rmse_pct(y, net.free_run(2.5, 1.5, x, y[:2])) <= 0.1
     with pytest.raises(NotFittedError):
         ConditionalNarxSP().free_run(1.0, 1.0, x)
+
+
+def test_off_the_robustness_map_the_note_says_nothing_was_measured_there():
+    sel = load_bank().select(MAP_S[-1] + 8.0, 0.0)
+    note = sel.warning()
+    assert not sel.robust and note is not None
+    assert "outside the bank's robustness map" in note.message and "no free-run RMSE" in note.message
+    assert "its free-run RMSE there is" not in note.message
+    on_map = load_bank().select(6.0, 12.0)       # on the map, outside the model's robust region
+    assert not on_map.robust and "its free-run RMSE there is about 2.29 % of span" in on_map.warning().message

@@ -122,6 +122,14 @@ class Selection:
         robust region, else None."""
         if self.robust:
             return None
+        if not (MAP_S[0] <= self.S_query <= MAP_S[-1] and MAP_J[0] <= self.J_query <= MAP_J[-1]):
+            # beyond the map nothing was measured: its edge's value is no value "there"
+            return Note("robustness.outside_region",
+                        f"identified S={self.S_query:.2f} %, J={self.J_query:.2f} % lies outside the bank's "
+                        f"robustness map (S {MAP_S[0]:g}-{MAP_S[-1]:g} %, J {MAP_J[0]:g}-{MAP_J[-1]:g} % of span), "
+                        f"where no free-run RMSE of NARX-SP model {self.model} (trained for S={self.S:g} %, "
+                        f"J={self.J:g} %) was measured; at the map's nearest edge it is "
+                        f"{number(self.free_run_rmse)} % of span; treat its predictions as indicative only")
         return Note("robustness.outside_region",
                     f"identified S={self.S_query:.2f} %, J={self.J_query:.2f} % lies outside "
                     f"the robust region of NARX-SP model {self.model} (trained for "

@@ -18,7 +18,8 @@ def _default_dir() -> Path:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     t = sub.add_parser("train", help="train every bank case and write weights + manifest.json")
-    t.add_argument("--out", default=None, help="bank folder (default: the package's bank folder)")
+    t.add_argument("--out", default=None, help="bank folder (default: the package's bank folder, rebuilt with the "
+                                               "whole grid; --cases needs --out)")
     t.add_argument("--seed", type=int, default=0, help="training seed")
     t.add_argument("--cases", default=None,
                    help="only these cases, e.g. '3:1,1:3' (S:J in %% of span); default the grid")
@@ -60,6 +61,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.action == "train":
         cases = _parse_cases(args.cases) if args.cases else bank_grid()
+        if args.cases and not args.out:
+            # a manifest of a few cases would replace the installed bank's, leaving its other
+            # models unlisted: only the whole grid may rebuild it in place
+            raise DataError(f"--cases {args.cases}: a bank of these cases only would replace the installed "
+                            f"bank ({_default_dir()}); give --out DIR for it")
         out = Path(args.out) if args.out else _default_dir()
         out.mkdir(parents=True, exist_ok=True)
 

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ._args import whole_number
+
 
 def sample_logs() -> Path:
     """The repository's sample_logs/ (beside the package), else ./sample_logs."""
@@ -22,7 +24,8 @@ def sample_logs() -> Path:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="stiction-demo-out", help="output folder (default ./stiction-demo-out)")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    p.add_argument("--workers", type=whole_number(1, "1 or more"), default=None,
+                   help="worker processes (default: CPU count)")
     p.add_argument("--db", default=None, help="history database (default: the one `stiction history` reads, "
                                               "$STICTION_HOME/history.sqlite or ~/.local/share/stiction/history.sqlite)")
     from .batch import add_explain_argument
@@ -45,9 +48,10 @@ def run(args: argparse.Namespace) -> int:
     report(res)
     top = [r for r in res.rows if r["status"] == "ok"][:3]
     if top:
-        print("worst loops: " + ", ".join(f"{r['loop']} (severity {r['severity']:.0f}, {r['class']})"
+        print("worst loops: " + ", ".join(f"{r['loop']} (severity {r['severity']:.1f}, {r['class']})"
                                           for r in top))
-    print(f"history: {db} (`stiction history LOOP` reads it)")
+    reads = "`stiction history LOOP` reads it" if not args.db else f"`stiction history LOOP --db {db}` reads it"
+    print(f"history: {db} ({reads})")
     if args.explain == "off":
         print("missing physics was not run (it takes 3-40 s per loop): `stiction demo --explain on`, "
               f"or one loop: `stiction explain {src / 'FIC103.csv'}`")

@@ -17,6 +17,11 @@ from ...errors import DataError
 EXPERIMENTS = ("table1", "table2", "table3", "model-mode", "all")
 
 
+#: The longest model-mode run (samples): each step is a network evaluation, and the run's arrays are
+#: held whole.
+MAX_STEPS = 1_000_000
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("experiment", choices=EXPERIMENTS,
                    help="table1 (six networks x four classes), table2/table3 (robustness of base "
@@ -184,11 +189,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seeds < 1:
         raise DataError("--seeds must be at least 1")
-    if args.steps < 100:
-        raise DataError("--steps must be at least 100")
+    if not 100 <= args.steps <= MAX_STEPS:
+        raise DataError(f"--steps {args.steps}: give 100 to {MAX_STEPS} samples")
     nets = PAPER_NETWORKS
-    if args.networks:
+    if args.networks is not None:
         nets = tuple(n.strip() for n in args.networks.split(",") if n.strip())
+        if not nets:
+            raise DataError(f"--networks {args.networks!r}: name at least one network, or leave the option out "
+                            "for the paper's six")
         bad = [n for n in nets if n not in NETWORKS]
         if bad:
             raise DataError(f"unknown network(s) {', '.join(bad)} in --networks; choose from "

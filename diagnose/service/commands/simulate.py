@@ -23,8 +23,21 @@ MAX_SJ_PCT = 50.0
 INTEGRATING_BALANCE_PCT = 51.0
 
 
+#: The longest simulation: the loop runs sample by sample in Python (about a minute per million),
+#: and ten days at 1 s is more than any diagnosis here reads (`--max-samples` keeps 100 000).
+MAX_SIM_SAMPLES = 1_000_000
+
 #: identify refuses a shorter record, so a shorter simulation is a file nothing can diagnose
-_samples = whole_number(MIN_SAMPLES, f"{MIN_SAMPLES} or more samples (identify needs at least {MIN_SAMPLES})")
+_min_samples = whole_number(MIN_SAMPLES, f"{MIN_SAMPLES} to {MAX_SIM_SAMPLES} samples (identify needs at least "
+                                         f"{MIN_SAMPLES})")
+
+
+def _samples(text: str) -> int:
+    n = _min_samples(text)
+    if n > MAX_SIM_SAMPLES:
+        raise argparse.ArgumentTypeError(f"{text}: give {MIN_SAMPLES} to {MAX_SIM_SAMPLES} samples (the simulation "
+                                         "runs sample by sample)")
+    return n
 
 
 def _nonzero(what: str, note: str):
@@ -86,7 +99,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kc", type=_kc, default=None, help="controller gain (default: SIMC tuning)")
     p.add_argument("--ti-s", type=number(0.0, above=True, what="an integral time of more than 0 seconds"),
                    default=None, help="integral time, seconds (default: SIMC)")
-    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--seed", type=whole_number(0, "a whole number, 0 or more"), default=0, help="random seed")
     p.add_argument("--name", default="SIM", help="loop name (tag prefix of the columns)")
     p.add_argument("--start", type=_start, default=None, metavar="TIME",
                    help="time of the first sample, ISO 8601, UTC unless it carries an offset (default "
@@ -114,7 +127,12 @@ def run(args: argparse.Namespace) -> int:
                       u_balance_pct=INTEGRATING_BALANCE_PCT if args.process == "integrating" else None)
     if args.start is not None:
         rec = rec.replace(start=args.start)
-    write_wide(rec, args.out)
+    try:
+        write_wide(rec, args.out)
+    except OverflowError:
+        # the last time stamp lies past the year 9999 (a huge --ts-s or a late --start)
+        raise DataError(f"--n {args.n} samples every {args.ts_s:g} s from {args.start or '2026-01-01'} end after the "
+                        "year 9999; give a smaller --ts-s or --n, or an earlier --start") from None
     print(f"wrote {args.out}: {rec.n} samples at {rec.ts_s:g} s, S={args.S:g} %, J={args.J:g} %",
           file=sys.stderr)
     return 0
