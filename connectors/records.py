@@ -545,8 +545,14 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
         findings.append(far)
     if not usable:
         best = max((b - a for a, b in segs), default=0)
+        # where unreadable cells made the gaps, say which (decimal commas in a frame's text column,
+        # a tag exported as text): the count alone sends the user looking for missing rows
+        why = next((f for f in findings if f.code == "bad_values" and f.data.get("frac", 0) > 0.5
+                    and f.data.get("role") in ("op", "pv")), None)
+        said = (f"; {why.data['role'].upper()} column {why.data['column']!r} is mostly unreadable "
+                f"({why.message.split(': ', 1)[-1]})" if why is not None else "")
         raise ConnectorError(f"too few samples: the longest stretch without a gap has {best} sample{'' if best == 1 else 's'} "
-                             f"(need at least {min_samples})", path=label)
+                             f"(need at least {min_samples}){said}", path=label)
     if len(segs) > 1 or long_gaps:
         gap_s = [float(grid[segs[i + 1][0]] - grid[segs[i][1] - 1]) for i in range(len(segs) - 1)]
         findings.append(Finding("segment", f"split into {len(usable)} segment(s) at gaps longer than "

@@ -1159,3 +1159,18 @@ def test_spikes_and_sentinels_are_read_as_bad_values(tmp_path):
     one = x.copy()
     one[1500] = 1e300
     assert np.flatnonzero(gross_outliers(one)).tolist() == [1500]
+
+
+def test_too_few_samples_says_which_column_was_unreadable(tmp_path):
+    # PV written with decimal commas the reader cannot take for numbers, except a few rows: the
+    # error names the column and what it held, not only the length of the longest stretch
+    lines = wide_text(400, seed=5).splitlines()
+    out = [lines[0]]
+    for k, line in enumerate(lines[1:]):
+        t, op, pv = line.split(",")
+        out.append(",".join([t, op, pv if k % 20 < 5 else f'"{float(pv):.2f}"'.replace(".", ";")]))
+    f = tmp_path / "commas.csv"
+    f.write_text("\n".join(out) + "\n")
+    with pytest.raises(ConnectorError, match=r"too few samples: .* \(need at least 20\); PV column 'FIC1.PV' is "
+                                             r"mostly unreadable \(\d+ text states \("):
+        read_records(f)
