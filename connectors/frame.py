@@ -65,7 +65,8 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         raise DataError("the frame has several column levels; flatten them to one name per column")
     if not len(df):
         raise DataError("the frame has no rows")
-    if df.index.dtype == object or pd.api.types.is_string_dtype(df.index.dtype):
+    if not isinstance(df.index, pd.MultiIndex) and (df.index.dtype == object
+                                                    or pd.api.types.is_string_dtype(df.index.dtype)):
         # times left as text in the index (read_csv without parse_dates): read them as a time column
         name = str(df.index.name) if df.index.name is not None else "time"
         df = df.reset_index(names=[name if name not in map(str, df.columns) else INDEX])

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from diagnose.errors import ConnectorError, DataError
+from diagnose.errors import ConnectorError, DataError, ShortRecordError
 from diagnose.record import Finding, LoopRecord
 
 from .columns import FRAME_LABEL, option, role_of, split_tag
@@ -283,9 +283,14 @@ def _bad_finding(role: str, s: Series, n_rows: int) -> Finding | None:
                     "bad_quality": s.n_bad_quality, "examples": list(s.examples[:3]), "frac": round(frac, 4)})
 
 
-#: A value this many times the signal's robust range (1st to 99th percentile) beyond that range is
-#: no measurement: a spike, an overflow or a historian's sentinel for a bad value (-9999, 1e30).
+#: A value this many times the signal's robust range (1st to 99th percentile) beyond that range,
+#: and (`OUTLIER_SIZES`) far beyond the signal's own size, is no measurement: a spike, an overflow
+#: or a historian's sentinel for a bad value (-9999, 1e30).
 OUTLIER_RANGES = 5.0
+#: ... more than this many times max(|median|, robust range, 1) from the median. A plant's own
+#: extremes (a trip to 0, OP saturated at 100 %, a derivative kick) stay within a few times the
+#: signal's size; overflows and sentinels lie orders of magnitude beyond it.
+OUTLIER_SIZES = 50.0
 #: At most this share of a signal's samples may be called outliers; more is the signal's own spread.
 OUTLIER_MAX_SHARE = 0.01
 
@@ -296,9 +301,10 @@ SPIKE_MAX_SAMPLES = 3
 
 def gross_outliers(x: np.ndarray) -> np.ndarray:
     """Mask of the values of ``x`` that are no measurement: runs of values more than
-    `OUTLIER_RANGES` robust ranges outside its 1st to 99th percentile, with the signal back in
-    range on both sides, that are either spikes (at most `SPIKE_MAX_SAMPLES` long) or one value
-    repeated (a sentinel). A longer excursion that varies, or one the record starts or ends in, may
+    `OUTLIER_RANGES` robust ranges outside its 1st to 99th percentile and more than
+    `OUTLIER_SIZES` times the signal's size from its median, with the signal back in range on
+    both sides, that are either spikes (at most `SPIKE_MAX_SAMPLES` long) or one value repeated (a
+    sentinel). A longer excursion that varies, or one the record starts or ends in, may
     be the plant's own and is kept. Nothing is flagged in a signal that is flat over that range (a step
     off a flat line is a change, not an outlier) or where more than `OUTLIER_MAX_SHARE` would be."""
     x = np.asarray(x, dtype=float)
@@ -310,8 +316,11 @@ def gross_outliers(x: np.ndarray) -> np.ndarray:
     width = hi - lo
     if not width > 1e-12 * max(1.0, abs(hi), abs(lo)):
         return out
+    med = float(np.median(x[fin]))
+    size = max(abs(med), width, 1.0)
     with np.errstate(invalid="ignore"):
-        far = fin & ((x < lo - OUTLIER_RANGES * width) | (x > hi + OUTLIER_RANGES * width))
+        far = fin & ((x < lo - OUTLIER_RANGES * width) | (x > hi + OUTLIER_RANGES * width)) \
+            & (np.abs(x - med) > OUTLIER_SIZES * size)
     if not far.any() or np.count_nonzero(far) > OUTLIER_MAX_SHARE * np.count_nonzero(fin):
         return out
     edges = np.flatnonzero(np.diff(np.concatenate([[0], far.astype(np.int8), [0]])))
@@ -389,7 +398,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
     pv_dead = _no_values(pv_s, table) if _no_values(op_s) is None else None
     if pv_dead is not None:
         findings.append(Finding("pv_missing", f"PV column {pv_s.name!r} has {pv_dead}: the loop is judged "
-                                "from OP alone", "warning", {"column": pv_s.name}))
+                                "without PV, from OP alone (and the stem position where recorded)", "warning",
+                                {"column": pv_s.name}))
     for role, s in spec.roles.items():
         if role == "pv" and pv_dead is not None:
             s = Series(s.name, op_s.t, np.where(np.isfinite(op_s.x), 0.0, np.nan), first_line=s.first_line)
@@ -551,8 +561,8 @@ def build_records(spec: LoopSpec, options: dict) -> list[LoopRecord]:
                     and f.data.get("role") in ("op", "pv")), None)
         said = (f"; {why.data['role'].upper()} column {why.data['column']!r} is mostly unreadable "
                 f"({why.message.split(': ', 1)[-1]})" if why is not None else "")
-        raise ConnectorError(f"too few samples: the longest stretch without a gap has {best} sample{'' if best == 1 else 's'} "
-                             f"(need at least {min_samples}){said}", path=label)
+        raise ShortRecordError(f"too few samples: the longest stretch without a gap has {best} sample{'' if best == 1 else 's'} "
+                               f"(need at least {min_samples}){said}", path=label)
     if len(segs) > 1 or long_gaps:
         gap_s = [float(grid[segs[i + 1][0]] - grid[segs[i][1] - 1]) for i in range(len(segs) - 1)]
         findings.append(Finding("segment", f"split into {len(usable)} segment(s) at gaps longer than "

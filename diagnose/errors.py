@@ -49,6 +49,11 @@ class ConnectorError(StictionError, OSError):
         super().__init__(where + message)
 
 
+class ShortRecordError(ConnectorError, DataError):
+    """A source was read, but holds too few samples to diagnose: a `ConnectorError` as the reader
+    raises it, and a `DataError` as unusable data (too short) is documented to be."""
+
+
 class ModbusReadError(ConnectorError):
     """A Modbus device answered with an error or did not answer."""
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Mapping
@@ -49,6 +50,12 @@ class Finding:
     def to_dict(self) -> dict[str, Any]:
         return {"code": self.code, "message": self.message, "severity": self.severity,
                 "data": dict(self.data)}
+
+
+#: A calendar date and time of day in ISO 8601 with an optional UTC offset: what every reader
+#: and `to_frame` write, and what pandas and `datetime.fromisoformat` both read.
+_ISO_START = re.compile(r"^\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d{1,9})?)?)?"
+                        r"(?:Z|[+-]\d{2}:?\d{2})?$")
 
 
 def _as_series(name: str, values: Any, n: int | None) -> np.ndarray:
@@ -136,14 +143,16 @@ class LoopRecord:
             raise DataError("findings must be Finding objects (diagnose.record.Finding)")
         object.__setattr__(self, "findings", findings)
         object.__setattr__(self, "ts_s", float(self.ts_s))
-        if not isinstance(self.name, str):     # a tag that is a whole number (101) is still a name
+        if self.name is None:
+            object.__setattr__(self, "name", "LOOP")         # as from_frame names a nameless frame
+        elif not isinstance(self.name, str):   # a tag that is a whole number (101) is still a name
             object.__setattr__(self, "name", str(self.name))
-        if self.start is not None:
-            try:
-                datetime.fromisoformat(str(self.start))
-            except ValueError:
-                raise DataError(f"start={self.start!r}: give the first sample's time in ISO 8601, e.g. "
-                                "'2026-01-01T00:00:00Z', or None") from None
+        if isinstance(self.start, datetime):
+            # a datetime object: its ISO text (naive ones are UTC, as a naive ISO text is read)
+            object.__setattr__(self, "start", self.start.isoformat().replace("+00:00", "Z"))
+        if self.start is not None and not (isinstance(self.start, str) and _ISO_START.match(self.start)):
+            raise DataError(f"start={self.start!r}: give the first sample's time in ISO 8601, e.g. "
+                            "'2026-01-01T00:00:00Z', or None")
 
     @property
     def n(self) -> int:

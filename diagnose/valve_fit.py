@@ -237,8 +237,8 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     whose stem moves (|dy| > ``tol``) moves in the direction f of dy and sits at ``u - f (S - J) / 2``;
     a valve that stops sticks at the input of its last moving sample, x_ss. While it stays stuck the
     input stayed within S against the last direction and within J along it (lower bounds); the slip
-    that ends the stay went beyond S (a reversal) or beyond J (a restart): upper bounds. The stays
-    before the second motion are skipped (where the valve stuck before the record, and in which
+    that ends the stay went beyond S (a reversal) or beyond J (a restart): upper bounds. A stay
+    after the first moving sample is skipped (where the valve stuck before the record, and in which
     direction it last moved, are unknown).
 
     Returns ``(S_lo, S_hi, J_lo, J_hi, half)`` (``half`` the median of f (u - y) over moving samples),
@@ -253,10 +253,11 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     k_mov = np.flatnonzero(moving) + 1            # samples at which the stem moved
     half = float(np.median(f[k_mov - 1] * (u[k_mov] - y[k_mov])))
     # a stay runs from a moving sample k (the valve stops after it) to the next moving sample j;
-    # all stays at once (this runs at every dead time tried). The first motion leaves a state the
-    # record does not show (the stem's direction before it, hence where it sticks, is unknown: a
-    # valve can leave its first stuck point against its last direction of motion), so the stays
-    # start at the second.
+    # all stays at once (this runs at every dead time tried). The first moving sample jumps out of
+    # a state the record does not show: a valve can leave its first stuck point against the
+    # direction it last moved in, so that sample's dy need not be the valve's direction, and a
+    # stay after it would start from the wrong stuck point. The stays start at the second moving
+    # sample (a motion over several samples has the valve's direction from its second on).
     if k_mov.shape[0] < 3:
         return None
     ks, js = k_mov[1:-1], k_mov[2:]

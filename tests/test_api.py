@@ -424,9 +424,17 @@ def test_frames_as_a_notebook_user_hands_them_over(loop):
     said = next(f for f in got.findings if f.code == "resampled")
     assert said.data == {"data_ts_s": 1.0, "ts_s": 5.0} and "leave ts_s= out" in said.message
     assert "resampled" not in {f.code for f in diagnose.read_loops(df)[0].findings}
-    # too short: the minimum named is the diagnosis's
+    # too short: the minimum named is the diagnosis's, and a file's is a DataError too (as documented)
     with pytest.raises(diagnose.DataError, match=r"has 30 samples \(need at least 50\)"):
         diagnose.identify(df.iloc[:30])
+    short = path.parent / "short40.csv"
+    short.write_text("\n".join(path.read_text().splitlines()[:41]) + "\n")
+    with pytest.raises(diagnose.DataError, match=r"short40.csv: too few samples: .* has 40 samples \(need at least 50\)"):
+        diagnose.identify(short)
+    # a MultiIndex is not a text index
+    multi = df.reset_index().assign(unit="U1").set_index(["unit", "time"])
+    (got,) = diagnose.read_loops(multi, ts_s=1.0)
+    assert got.n == rec.n
 
 
 def test_a_record_checks_what_it_is_given_and_survives_a_frame_round_trip():

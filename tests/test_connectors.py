@@ -1152,6 +1152,11 @@ def test_spikes_and_sentinels_are_read_as_bad_values(tmp_path):
     flat = np.full(3000, 50.0)
     flat[2990:] = 60.0
     assert not gross_outliers(flat).any()
+    # a plant's own extremes: a trip to 0, OP saturated at 100 %, a derivative kick
+    for a, b, v in ((1000, 1040, 0.0), (2000, 2030, 100.0), (2500, 2501, 65.0)):
+        event = x.copy()
+        event[a:b] = v
+        assert not gross_outliers(event).any(), (a, b, v)
     # more than 1 % far away is the signal's own spread
     many = x.copy()
     many[::50] = 1e6

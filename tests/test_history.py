@@ -601,3 +601,24 @@ def test_a_version_3_database_gets_the_units_of_its_stored_results(tmp_path, mis
     assert [H.run_units(r) for r in rows] == ["fraction of span", "% of span"]
     assert [r["data_hash"] for r in rows] == ["d1", None]
     assert [H.size_pct(r) for r in rows] == pytest.approx([3.0, 3.0])
+
+
+def test_a_record_no_test_could_judge_is_no_healthy_run_in_the_history():
+    # PV dead and OP a slow wander: "no evidence either way" must not count as a run that said no
+    # stiction, nor show a size of 0
+    import numpy as np
+
+    from diagnose.record import LoopRecord
+    from diagnose.service import pipeline
+    from diagnose.service.history import row_from_stored, sticky_runs, verdict_of
+
+    rng = np.random.default_rng(3)
+    rec = LoopRecord(name="FIC9", ts_s=1.0, op=50.0 + np.cumsum(rng.normal(0.0, 0.05, 3000)),
+                     pv=np.full(3000, 60.0))
+    diag = pipeline.diagnose(rec, narx=False)
+    assert not diag.identification.verdict.judged
+    assert verdict_of(diag.identification) == {"stiction": None, "stiction_probability": None}
+    row = row_from_stored(json.loads(json.dumps(diag.to_dict())))
+    assert row["stiction"] is None and row["S_pct"] is None and row["J_pct"] is None
+    sticky = [{"stiction": 1, "stiction_probability": 0.9}] * 2
+    assert sticky_runs(sticky + [row]) == (2, 2, 0.9)

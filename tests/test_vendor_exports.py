@@ -106,7 +106,7 @@ def test_phd_confidence_columns_are_the_quality_of_the_values_beside_them(tmp_pa
         read_records(zero(4))
     (dead_pv,) = read_records(zero(2))
     (f,) = [f for f in dead_pv.findings if f.code == "pv_missing"]
-    assert re.search(rule.format("PV"), f.message) and f.message.endswith("the loop is judged from OP alone")
+    assert re.search(rule.format("PV"), f.message) and f.message.endswith("the loop is judged without PV, from OP alone (and the stem position where recorded)")
 
 
 def test_ip21_trend_columns_are_a_long_layout():

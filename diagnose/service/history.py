@@ -174,7 +174,10 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
 def verdict_of(ident: Any) -> dict[str, Any]:
     """An identification's verdict as the history stores it (the columns `sticky_runs` counts):
     a loop's runs so far plus this one make its persistence."""
-    return {"stiction": int(bool(ident.stiction)), "stiction_probability": finite_or_none(ident.stiction_probability)}
+    judged = ident.stiction or ident.verdict is None or bool(ident.verdict.judged)
+    # a record no test could judge says nothing either way: it is no "healthy" run to count
+    return {"stiction": int(bool(ident.stiction)) if judged else None,
+            "stiction_probability": finite_or_none(ident.stiction_probability) if judged else None}
 
 
 def stored_units(result: Mapping[str, Any]) -> str | None:
@@ -228,6 +231,10 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
     jlo, jhi = _pair(result.get("J_interval"))
     sev = result.get("severity")
     osc = result.get("oscillation")
+    # a record no test could judge said nothing either way: no verdict to count (`verdict_of`)
+    warned = result.get("warnings")
+    judged = not (isinstance(warned, list) and any(isinstance(w, Mapping) and w.get("code") == "nothing_judged"
+                                                   for w in warned))
     return {
         "loop": history_loop(str(result.get("loop") or result.get("loop_id"))),
         "run_at": run_at or utc_now(),
@@ -239,15 +246,16 @@ def row_from_stored(result: Mapping[str, Any], *, run_at: str | None = None, inp
         "tool_version": result.get("tool_version") or "",
         "status": status,
         "class": result.get("class"),
-        "S_pct": finite_or_none(result.get("S")), "S_lo": slo, "S_hi": shi,
-        "J_pct": finite_or_none(result.get("J")), "J_lo": jlo, "J_hi": jhi,
+        **(dict(S_pct=finite_or_none(result.get("S")), S_lo=slo, S_hi=shi,
+                J_pct=finite_or_none(result.get("J")), J_lo=jlo, J_hi=jhi) if judged else dict.fromkeys(SIZE_COLUMNS)),
         "sj_units": stored_units(result),
         "confidence": finite_or_none(result.get("confidence")),
         "severity": finite_or_none(sev.get("score")) if isinstance(sev, Mapping) else None,
         "oscillation_period_s": finite_or_none(osc.get("period_s")) if isinstance(osc, Mapping) else None,
         "verdict": error if status != "ok" else result.get("verdict"),
-        "stiction": _flag(result.get("stiction")) if status == "ok" else None,
-        "stiction_probability": finite_or_none(result.get("stiction_probability")) if status == "ok" else None,
+        "stiction": _flag(result.get("stiction")) if status == "ok" and judged else None,
+        "stiction_probability": finite_or_none(result.get("stiction_probability")) if status == "ok" and judged
+        else None,
         "result_json": json.dumps(result, separators=(",", ":"), allow_nan=False) if status == "ok" else None,
     }
 

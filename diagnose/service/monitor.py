@@ -557,19 +557,19 @@ class Monitor:
         self._loop = asyncio.get_running_loop()
         t0 = time.monotonic()
         caught = self._catch_signals()
-        # the workers are started and warmed up before the first poll: starting them blocks this
-        # thread until the fork server has imported the diagnosis stack (seconds on a busy
-        # machine), and polls missed meanwhile would cut the first window and read as an outage
-        self._ensure_pool()
-        for fut in self._warm:
-            try:
-                await asyncio.wait_for(asyncio.wrap_future(fut), WARM_UP_WAIT_S)
-            except Exception:   # noqa: BLE001 - too slow, or broken: a worker's fault shows with its window
-                break
-        self._poll_task = asyncio.ensure_future(self.poller.run(duration_s))
-        if self.stats.signal is not None:         # stopped while the workers started
-            self._poll_task.cancel()
         try:
+            # the workers are started and warmed up before the first poll: starting them blocks
+            # this thread until the fork server has imported the diagnosis stack (seconds on a busy
+            # machine), and polls missed meanwhile would cut the first window and read as an outage
+            self._ensure_pool()
+            deadline = time.monotonic() + WARM_UP_WAIT_S
+            while (not all(f.done() for f in self._warm) and self.stats.signal is None
+                   and time.monotonic() < deadline):
+                await asyncio.sleep(0.05)
+            t0 = time.monotonic()                  # the run's time is its polling time
+            self._poll_task = asyncio.ensure_future(self.poller.run(duration_s))
+            if self.stats.signal is not None:      # stopped while the workers started
+                self._poll_task.cancel()
             try:
                 await self._poll_task
             except asyncio.CancelledError:

@@ -257,10 +257,17 @@ def _source_line(diag: Diagnosis) -> str:
     return "; ".join(src) + "."
 
 
+def not_judged(ident: Identification) -> bool:
+    """No test could judge the record: its "no stiction" is the combiner's prior, not a finding."""
+    return not ident.stiction and ident.verdict is not None and not ident.verdict.judged
+
+
 def _found_rows(diag: Diagnosis) -> list[list[str]]:
     ident = diag.identification
     unit = "% of span" if ident.op_in_percent else ident.sj_units_text
     meaning = NOT_MOVING_MEANING if ident.valve_not_moving else CLASS_MEANING.get(ident.cls)
+    if not_judged(ident):
+        meaning = "not judged: no test could judge this record, so the valve may or may not stick (see the warnings)"
     alt = (f" (the data also allow: {', '.join(ident.class_alternatives)})" if ident.class_alternatives else "")
     rows = [["Class", ident.cls + (f": {meaning}" if meaning else "") + alt]]
     if not ident.stiction and ident.S_interval_pct is not None and ident.J_interval_pct is not None:
@@ -372,6 +379,8 @@ def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block
             blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
     elif codes & {"service.narx_unavailable", "service.narx_failed"}:
         blocks.append(("p", "No NARX-SP model: the bank could not be used (see the warnings above)."))
+    elif not_judged(diag.identification):
+        blocks.append(("p", "No NARX-SP model: no test could judge whether the valve sticks."))
     elif not diag.identification.stiction:
         blocks.append(("p", "No NARX-SP model: the valve shows no stiction, and the bank's models "
                             "describe sticky valves."))
