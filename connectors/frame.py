@@ -70,6 +70,9 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         # times left as text in the index (read_csv without parse_dates): read them as a time column
         name = str(df.index.name) if df.index.name is not None else "time"
         df = df.reset_index(names=[name if name not in map(str, df.columns) else INDEX])
+        text_index = True
+    else:
+        text_index = False
     names = [str(c) for c in df.columns]
     tz, dst = options.get("tz"), options.get("dst", "infer")
     t = None
@@ -84,6 +87,8 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
     elif isinstance(df.index, (pd.DatetimeIndex, pd.TimedeltaIndex)):
         t, absolute = _seconds(df.index, tz, dst, INDEX)
         tfmt, tzone = "index", _zone(df.index, tz)
+    elif text_index:
+        time_col = 0          # the index's times, whatever its name (a ts_s given then resamples them)
     elif not options.get("ts_s"):
         time_col = next((j for j, n in enumerate(names) if role_of(n) == "time" or is_time_header(n)
                          and role_of(n) is None), None)

@@ -218,6 +218,8 @@ def _series(name: str, values: Any) -> np.ndarray:
         x = np.asarray(values, dtype=float)
     except (TypeError, ValueError):
         raise DataError(f"{name} must be numbers, one per sample") from None
+    if x.ndim == 2 and 1 in x.shape:
+        x = x.ravel()                   # one column (or row) of a table
     if x.ndim != 1:
         raise DataError(f"{name} must be one series of samples, got shape {x.shape}")
     if x.size == 0:

@@ -97,6 +97,9 @@ def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -
             raise DataError(f"max_samples={n!r} (--max-samples): keeps fewer samples than a diagnosis needs "
                             f"({MIN_SAMPLES}); give {MIN_SAMPLES} or more, or 0 to keep every sample")
     gap = opts.get("max_gap_s")
+    if gap == 0 and not isinstance(gap, bool):
+        opts.pop("max_gap_s")           # 0: the reader's default, as it always meant
+        gap = None
     if gap is not None:
         if isinstance(gap, bool) or not isinstance(gap, numbers.Real) or not (math.isfinite(gap) and gap > 0):
             raise DataError(f"max_gap_s={gap!r}: the longest gap to fill must be a positive number of seconds")

@@ -412,6 +412,11 @@ def test_frames_as_a_notebook_user_hands_them_over(loop):
     (got,) = diagnose.read_loops(text_index)
     assert got.n == rec.n and got.ts_s == rec.ts_s and got.start == diagnose.read_loops(df)[0].start
     assert diagnose.read_loops(text_index, time="time")[0].n == rec.n
+    # ... also with a period given (resampled to it, not read by row order), or a name a column has
+    (got,) = diagnose.read_loops(text_index, ts_s=2.0)
+    assert got.ts_s == 2.0 and got.n == rec.n // 2 and "resampled" in {f.code for f in got.findings}
+    clash = text_index.rename_axis("FIC21.OP")
+    assert diagnose.read_loops(clash)[0].start == diagnose.read_loops(df)[0].start
     # columns named by numbers, chosen by number
     numbered = df.set_axis(range(df.shape[1]), axis=1)
     cols = list(df.columns)

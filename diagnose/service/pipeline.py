@@ -119,7 +119,8 @@ class NarxRun:
     Attributes
     ----------
     mv_hat_pct : array or None
-        The model's valve position over the whole record, % of span (None: the free run failed).
+        The model's valve position over the whole record, in OP's own units (% of span for an OP
+        in %; the bank's models run in % and the result is scaled back); None: the free run failed.
     pv_hat : array or None
         That valve path through the fitted process model.
     rmse_record : float or None
