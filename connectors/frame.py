@@ -68,9 +68,11 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
     if not isinstance(df.index, pd.MultiIndex) and (df.index.dtype == object
                                                     or pd.api.types.is_string_dtype(df.index.dtype)):
         # times left as text in the index (read_csv without parse_dates): read them as a time column
-        name = str(df.index.name) if df.index.name is not None else "time"
+        named = df.index.name is not None
+        name = str(df.index.name) if named else INDEX       # errors then place it in "the frame's index"
         df = df.reset_index(names=[name if name not in map(str, df.columns) else INDEX])
-        text_index = True
+        # with ts_s given, only an index named like a time column is one (labels are no time axis)
+        text_index = not options.get("ts_s") or (named and (is_time_header(name) or role_of(name) == "time"))
     else:
         text_index = False
     names = [str(c) for c in df.columns]
@@ -88,7 +90,7 @@ def table_from_frame(df: pd.DataFrame, options: dict) -> Table:
         t, absolute = _seconds(df.index, tz, dst, INDEX)
         tfmt, tzone = "index", _zone(df.index, tz)
     elif text_index:
-        time_col = 0          # the index's times, whatever its name (a ts_s given then resamples them)
+        time_col = 0          # the index's times, whatever its name (a ts_s given resamples them)
     elif not options.get("ts_s"):
         time_col = next((j for j, n in enumerate(names) if role_of(n) == "time" or is_time_header(n)
                          and role_of(n) is None), None)

@@ -417,6 +417,11 @@ def test_frames_as_a_notebook_user_hands_them_over(loop):
     assert got.ts_s == 2.0 and got.n == rec.n // 2 and "resampled" in {f.code for f in got.findings}
     clash = text_index.rename_axis("FIC21.OP")
     assert diagnose.read_loops(clash)[0].start == diagnose.read_loops(df)[0].start
+    # a text index of labels is no time axis where a period is given, and is said to be none without
+    labels = pd.DataFrame({"OP": rec.op, "PV": rec.pv}, index=[f"s{k}" for k in range(rec.n)])
+    assert diagnose.read_loops(labels, ts_s=1.0)[0].n == rec.n
+    with pytest.raises(diagnose.DataError, match=r"^the frame's index, row 0: cannot read timestamp 's0'"):
+        diagnose.read_loops(labels)
     # columns named by numbers, chosen by number
     numbered = df.set_axis(range(df.shape[1]), axis=1)
     cols = list(df.columns)
