@@ -23,6 +23,15 @@ import numpy as np
 
 from .errors import DataError
 
+
+def kept_digits(v: float | None) -> float | None:
+    """A rate as the JSON, the summary and the report keep it: 4 significant digits (more would
+    be noise); None for None or a value that is not finite."""
+    if v is None or not math.isfinite(v):
+        return None
+    return float(f"{v:.4g}")
+
+
 #: Seconds per day: travel and reversals are given per day of record.
 DAY_S = 86_400.0
 
@@ -81,11 +90,8 @@ class ValveActivity:
     service_factor: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON types, rounded to 4 significant digits (more would be noise)."""
-        def r(v: float | None) -> float | None:
-            if v is None or not math.isfinite(v):
-                return None
-            return float(f"{v:.4g}")
+        """Plain JSON types, rounded to 4 significant digits (`kept_digits`)."""
+        r = kept_digits
 
         return {"travel_pct_per_day": r(self.travel_pct_per_day),
                 "reversals_per_day": r(self.reversals_per_day),

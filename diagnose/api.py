@@ -69,6 +69,16 @@ def _check_data(data: Any) -> None:
                     f"LoopRecord{hint}")
 
 
+def _positive(v: Any) -> bool:
+    """A finite number above 0 (not a bool)."""
+    return not isinstance(v, bool) and isinstance(v, numbers.Real) and math.isfinite(v) and v > 0
+
+
+def _whole(v: Any, least: int) -> bool:
+    """A whole number of at least ``least`` (not a bool)."""
+    return not isinstance(v, bool) and isinstance(v, numbers.Real) and float(v).is_integer() and v >= least
+
+
 def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -> dict[str, Any]:
     """The reading options with their values checked (``ts_s`` as a float, ``max_samples`` as an
     int); a bad one raises a one-line `DataError` naming the keyword and its command-line flag.
@@ -84,12 +94,12 @@ def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -
     ts_s = opts.get("ts_s")
     if ts_s is not None:
         # 0 or NaN would otherwise read as "not given" further down and a period be guessed
-        if isinstance(ts_s, bool) or not isinstance(ts_s, numbers.Real) or not (math.isfinite(ts_s) and ts_s > 0):
+        if not _positive(ts_s):
             raise DataError(f"ts_s={ts_s!r} (--ts-s): the sample period must be a positive number of seconds")
         opts["ts_s"] = float(ts_s)
     n = opts.get("max_samples")
     if n is not None:
-        if isinstance(n, bool) or not isinstance(n, numbers.Real) or not float(n).is_integer() or n < 0:
+        if not _whole(n, 0):
             raise DataError(f"max_samples={n!r} (--max-samples): give a whole number of samples, 0 or more "
                             "(0 keeps all)")
         opts["max_samples"] = int(n)
@@ -101,13 +111,12 @@ def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -
         opts.pop("max_gap_s")           # 0: the reader's default, as it always meant
         gap = None
     if gap is not None:
-        if isinstance(gap, bool) or not isinstance(gap, numbers.Real) or not (math.isfinite(gap) and gap > 0):
+        if not _positive(gap):
             raise DataError(f"max_gap_s={gap!r}: the longest gap to fill must be a positive number of seconds")
         opts["max_gap_s"] = float(gap)
     least = opts.get("min_samples")
     if least is not None:
-        if isinstance(least, bool) or not isinstance(least, numbers.Real) or not float(least).is_integer() \
-                or least < 2:
+        if not _whole(least, 2):
             raise DataError(f"min_samples={least!r}: give a whole number of samples, 2 or more")
         opts["min_samples"] = int(least)
     dayfirst = opts.get("dayfirst")

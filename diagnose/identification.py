@@ -438,6 +438,12 @@ class Identification:
                 f"warnings={len(self.warnings)})")
 
     @property
+    def nothing_judged(self) -> bool:
+        """No test could judge the record: its "no stiction" is the combiner's prior, not a finding
+        (warning ``nothing_judged``)."""
+        return not self.stiction and self.verdict is not None and not self.verdict.judged
+
+    @property
     def evidence_text(self) -> str:
         """The tests by what they said: ``"stiction: a, b; no stiction: c; undetermined: d;
         cannot judge: e"`` (a decision no test gave is left out)."""
@@ -687,6 +693,22 @@ def _unique(warnings: list[Note]) -> tuple[Note, ...]:
     return tuple(dict.fromkeys(warnings))
 
 
+def _reported_size(stiction: bool, S: float, J: float, S_int: tuple[float, float], J_int: tuple[float, float],
+                   pct: float, units: str, no_band: str, warnings: list[Note]):
+    """The class, S, J and their intervals a verdict reports from a fit's (S, J) (in OP's units;
+    ``pct`` % of span per unit): 0 with the intervals' upper ends on a no-stiction verdict, and
+    class ``unknown`` without a size where other evidence found stiction the fit could not size
+    (``no_band`` says which fit, in the ``size_unknown`` warning)."""
+    if not stiction:
+        return "none", 0.0, 0.0, (0.0, float(S_int[1])), (0.0, float(J_int[1]))
+    cls = stiction_class(S * pct, J * pct)
+    if cls == "none" or S * pct < S_SIZE_MIN_PCT:
+        warnings.append(_warn("size_unknown", f"the evidence says the valve sticks but {no_band} "
+                              f"(S = {op_amount(S, units)}): S, J and the class cannot be given"))
+        return "unknown", None, None, S_int, J_int
+    return cls, S, J, S_int, J_int
+
+
 def _valve_improvement(valve_fit, op: np.ndarray, mv: np.ndarray, ts: float) -> float:
     """Relative fall of the OP -> MV cost from a linear valve to the fitted sticky one."""
     lin_v = fit_valve(op, mv, ts, stiction=False).hammerstein.cost
@@ -721,21 +743,8 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     cap = _confidence_caps(findings, record.n, vf.r2, "op_mv", warnings)
     verdict = combine(evidence, kind="op_mv", confidence_cap=cap)
     S, J = float(vf.S_pct), float(vf.J_pct)
-    S_out: float | None = S
-    J_out: float | None = J
-    S_int, J_int = vf.S_interval_pct, vf.J_interval_pct
-    if not verdict.stiction:
-        cls = "none"
-        S_out = J_out = 0.0
-        S_int, J_int = (0.0, float(S_int[1])), (0.0, float(J_int[1]))
-    else:
-        cls = stiction_class(S * pct, J * pct)
-        if cls == "none" or S * pct < S_SIZE_MIN_PCT:
-            cls = "unknown"
-            S_out = J_out = None
-            warnings.append(_warn("size_unknown",
-                                  f"the evidence says the valve sticks but the valve fit finds no band "
-                                  f"(S = {op_amount(S, units)}): S, J and the class cannot be given"))
+    cls, S_out, J_out, S_int, J_int = _reported_size(verdict.stiction, S, J, vf.S_interval_pct, vf.J_interval_pct,
+                                                     pct, units, "the valve fit finds no band", warnings)
     det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=S,
                     fitted_J_pct=J, integrating=integrating, pv_unusable=reason)
     return Identification(
@@ -929,28 +938,18 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
     det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=float(S),
                     fitted_J_pct=float(J), integrating=integrating, backlash_lr=backlash_lr,
                     class_test=None if ctest is None else ClassTest.from_search(ctest))
-    S_out: float | None = float(S)
-    J_out: float | None = float(J)
+    S_out: float | None
+    J_out: float | None
     if stiction and mv_still:
         # the class is read off how the valve breaks free and where it lands: a stem that never
         # moved shows neither, and S = OP's travel, J = 0 is a lower bound, not a deadband
         cls = "unknown"
         S_out = J_out = None
-    elif stiction:
-        cls = stiction_class(S * pct, J * pct)
-        if cls == "none" or S * pct < S_SIZE_MIN_PCT:
-            # other evidence found stiction the model fit could not size
-            cls = "unknown"
-            S_out = J_out = None
-            warnings.append(_warn("size_unknown",
-                                  f"the evidence says the valve sticks but the model fit finds no valve band "
-                                  f"(S = {op_amount(S, units)}): S, J and the class cannot be given"))
-        elif ctest is not None:
-            alternatives = tuple(k for k in ctest["plausible"] if k != cls)
     else:
-        cls = "none"
-        S_out = J_out = 0.0
-        S_int, J_int = (0.0, float(S_int[1])), (0.0, float(J_int[1]))
+        cls, S_out, J_out, S_int, J_int = _reported_size(stiction, float(S), float(J), S_int, J_int, pct, units,
+                                                         "the model fit finds no valve band", warnings)
+        if cls not in ("none", "unknown") and ctest is not None:
+            alternatives = tuple(k for k in ctest["plausible"] if k != cls)
     return Identification(
         loop=record.name, stiction=stiction, cls=cls, S_pct=S_out, J_pct=J_out,
         S_interval_pct=None if S_out is None else (float(S_int[0]), float(S_int[1])),

@@ -174,10 +174,10 @@ def row_from_diagnosis(diag: Diagnosis, *, run_at: str | None = None, input_hash
 def verdict_of(ident: Any) -> dict[str, Any]:
     """An identification's verdict as the history stores it (the columns `sticky_runs` counts):
     a loop's runs so far plus this one make its persistence."""
-    judged = ident.stiction or ident.verdict is None or bool(ident.verdict.judged)
     # a record no test could judge says nothing either way: it is no "healthy" run to count
-    return {"stiction": int(bool(ident.stiction)) if judged else None,
-            "stiction_probability": finite_or_none(ident.stiction_probability) if judged else None}
+    if ident.nothing_judged:
+        return {"stiction": None, "stiction_probability": None}
+    return {"stiction": int(bool(ident.stiction)), "stiction_probability": finite_or_none(ident.stiction_probability)}
 
 
 def stored_units(result: Mapping[str, Any]) -> str | None:

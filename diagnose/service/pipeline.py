@@ -312,7 +312,7 @@ def verdict_text(ident: Identification, warnings: Sequence[Note] = ()) -> str:
     conf = ident.confidence
     hedged = any(w.code == "data_quality.compression" for w in warnings)
     sure = f" (confidence {percent(conf)})"
-    if not ident.stiction and ident.verdict is not None and not ident.verdict.judged:
+    if ident.nothing_judged:
         return ("No evidence either way: no test could judge this record, so the valve may or may not "
                 "stick; see the warnings for what the data lack.")
     if not ident.stiction and ident.method == "op_only":

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-from ..activity import BAND_SIGMAS
+from ..activity import BAND_SIGMAS, kept_digits
 from ..plain import count, duration, number, percent, percent_change, sj_decimals
 from .history import end_of_record, persistence, run_units, shown_run, verdict_of
 
@@ -257,16 +257,11 @@ def _source_line(diag: Diagnosis) -> str:
     return "; ".join(src) + "."
 
 
-def not_judged(ident: Identification) -> bool:
-    """No test could judge the record: its "no stiction" is the combiner's prior, not a finding."""
-    return not ident.stiction and ident.verdict is not None and not ident.verdict.judged
-
-
 def _found_rows(diag: Diagnosis) -> list[list[str]]:
     ident = diag.identification
     unit = "% of span" if ident.op_in_percent else ident.sj_units_text
     meaning = NOT_MOVING_MEANING if ident.valve_not_moving else CLASS_MEANING.get(ident.cls)
-    if not_judged(ident):
+    if ident.nothing_judged:
         meaning = "not judged: no test could judge this record, so the valve may or may not stick (see the warnings)"
     alt = (f" (the data also allow: {', '.join(ident.class_alternatives)})" if ident.class_alternatives else "")
     rows = [["Class", ident.cls + (f": {meaning}" if meaning else "") + alt]]
@@ -313,9 +308,7 @@ def _detail_rows(diag: Diagnosis) -> list[list[str]]:
 def _rate(value: float | None, unit: str) -> str:
     """A per-day rate as the report shows it: never an exponent, and no more digits than the JSON
     and the summary keep (`ValveActivity.to_dict`: 4 significant), so all three give one number."""
-    if value is not None and math.isfinite(value):
-        value = float(f"{value:.4g}")
-    text = number(value)
+    text = number(kept_digits(value))
     return text if text == "-" else f"{text} {unit}"
 
 
@@ -379,7 +372,7 @@ def _narx_blocks(diag: Diagnosis, figs: set[str], codes: set[str]) -> list[Block
             blocks.append(("figure", "narx", FIGURE_CAPTIONS["narx"]))
     elif codes & {"service.narx_unavailable", "service.narx_failed"}:
         blocks.append(("p", "No NARX-SP model: the bank could not be used (see the warnings above)."))
-    elif not_judged(diag.identification):
+    elif diag.identification.nothing_judged:
         blocks.append(("p", "No NARX-SP model: no test could judge whether the valve sticks."))
     elif not diag.identification.stiction:
         blocks.append(("p", "No NARX-SP model: the valve shows no stiction, and the bank's models "

@@ -29,7 +29,7 @@ def summary(ident: Identification) -> str:
 
     lines = []
     verdict = "STICTION" if ident.stiction else "no stiction"
-    if not ident.stiction and ident.verdict is not None and not ident.verdict.judged:
+    if ident.nothing_judged:
         verdict = "no evidence either way"      # the combiner's prior, not a healthy valve
     prob = ident.stiction_probability
     head = f"{ident.loop}: {verdict} (class {ident.cls}"
