@@ -122,8 +122,12 @@ def evaluate(rows: list[dict]) -> dict:
     out["verdict_balanced_accuracy"] = float(0.5 * (tp / max(1, sticky.sum()) + tn / max(1, (~sticky).sum())))
     eS = [abs(r["S_fit"] - r["true_S"]) / r["true_S"] for r in rows if r["true_S"] > 0]
     eJ = [abs(r["J_fit"] - r["true_J"]) / r["true_J"] for r in rows if r["true_J"] > 0]
-    eS_det = [abs(r["S"] - r["true_S"]) / r["true_S"] for r in rows if r["true_S"] > 0 and r["stiction"]]
-    eJ_det = [abs(r["J"] - r["true_J"]) / r["true_J"] for r in rows if r["true_J"] > 0 and r["stiction"]]
+    # over the detected sticky loops the verdict sized (class "unknown" carries no S and J)
+    eS_det = [abs(r["S"] - r["true_S"]) / r["true_S"] for r in rows
+              if r["true_S"] > 0 and r["stiction"] and r["S"] is not None]
+    eJ_det = [abs(r["J"] - r["true_J"]) / r["true_J"] for r in rows
+              if r["true_J"] > 0 and r["stiction"] and r["J"] is not None]
+    out["detected_unsized"] = int(sum(1 for r in rows if r["stiction"] and r["S"] is None))
     out["median_rel_err_S"] = float(np.median(eS)) if eS else None
     out["median_rel_err_J"] = float(np.median(eJ)) if eJ else None
     out["median_rel_err_S_detected"] = float(np.median(eS_det)) if eS_det else None
@@ -133,7 +137,8 @@ def evaluate(rows: list[dict]) -> dict:
         m = truth == c
         if m.any():
             per[c] = {"n": int(m.sum()), "accuracy": float(np.mean(pred[m] == c)),
-                      "predicted": {k: int(np.sum(pred[m] == k)) for k in CLASS_ORDER if np.sum(pred[m] == k)}}
+                      "predicted": {k: int(np.sum(pred[m] == k)) for k in (*CLASS_ORDER, "unknown")
+                                    if np.sum(pred[m] == k)}}
     out["per_class"] = per
     kinds = sorted({r["kind"] for r in rows})
     out["per_kind_accuracy"] = {k: float(np.mean([r["class"] == r["true_class"] for r in rows if r["kind"] == k]))
@@ -189,6 +194,8 @@ def run(n_loops: int, seed: int, n: int, verbose: bool = True, definition: str =
                "class": res.cls, "class_alternatives": list(res.class_alternatives),
                "stiction": res.stiction, "S": res.S_pct, "J": res.J_pct,
                "S_fit": res.fitted_S_pct, "J_fit": res.fitted_J_pct,
+               "slips": next((int(e.extras["slips"]) for e in res.evidence
+                              if e.test == "valve_band" and "slips" in e.extras), None),
                "insample": res.detection.insample_improvement,
                "stiction_probability": res.stiction_probability, "confidence": res.confidence,
                "class_test": None if res.detection.class_test is None else res.detection.class_test.to_dict(),

@@ -716,17 +716,30 @@ def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]],
         if len(segs) > 1:
             base.append(Finding("segment", f"window split into {len(segs)} segments at the outages", "warning",
                                 {"segments": len(segs)}))
+    # SP and MV are optional: a lost poll or a spike in one of them leaves that signal out of the
+    # segment (the loop is still judged from OP and PV) instead of cutting OP and PV short; a
+    # spike kept would wreck the valve fit on the stem position
+    extra = {}
+    for r in ("sp", "mv"):
+        if r in lc.registers:
+            x = np.array(v[r], dtype=float)
+            x[gross_outliers(x)] = np.nan
+            extra[r] = x
     for i, (a, b) in enumerate(segs):
         jitter = float(np.max(np.abs(np.diff(tt[a:b]) - period_s))) if b - a > 1 else 0.0
         roles = {}
-        for r in ("sp", "mv"):
-            if r in lc.registers:
-                x = np.asarray(v[r], float)[a:b]
-                if np.all(np.isfinite(x)):
-                    roles[r] = x
+        left_out = []
+        for r, x in extra.items():
+            bad = int(np.count_nonzero(~np.isfinite(x[a:b])))
+            if bad:
+                left_out.append(Finding(f"{r}_left_out", f"{r.upper()} had {bad} lost or far-out value(s) in this "
+                                        f"segment: it is left out, and the loop is judged without it", "warning",
+                                        {"role": r, "count": bad}))
+            else:
+                roles[r] = x[a:b]
         rec = LoopRecord(name=lc.name, ts_s=period_s, op=op[a:b], pv=pv[a:b], sp=roles.get("sp"), mv=roles.get("mv"),
                          start=datetime.fromtimestamp(tt[a], timezone.utc).isoformat().replace("+00:00", "Z"),
-                         units={"op": "%", "mv": "%"}, source=source, findings=tuple(base),
+                         units={"op": "%", "mv": "%"}, source=source, findings=tuple(base + left_out),
                          meta={"format": "modbus", "segment": i, "n_segments": len(segs),
                                "t_first_s": float(tt[a]), "t_last_s": float(tt[b - 1]),
                                "jitter_s": round(jitter, 4), "quality_checked": True})

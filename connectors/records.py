@@ -293,6 +293,10 @@ OUTLIER_RANGES = 5.0
 OUTLIER_SIZES = 50.0
 #: At most this share of a signal's samples may be called outliers; more is the signal's own spread.
 OUTLIER_MAX_SHARE = 0.01
+#: Historians' and DCSs' bad-value sentinels: a run of exactly one of these values more than
+#: `OUTLIER_RANGES` robust ranges outside the signal's range is no measurement even where it is not
+#: `OUTLIER_SIZES` times the signal's size (-9999 on a flow of thousands, -999 on a level in %).
+SENTINELS = (-999.0, -9999.0, -99999.0, -999999.0)
 
 
 #: A run of far values at most this long that returns to the signal's range is a spike.
@@ -301,12 +305,13 @@ SPIKE_MAX_SAMPLES = 3
 
 def gross_outliers(x: np.ndarray) -> np.ndarray:
     """Mask of the values of ``x`` that are no measurement: runs of values more than
-    `OUTLIER_RANGES` robust ranges outside its 1st to 99th percentile and more than
-    `OUTLIER_SIZES` times the signal's size from its median, with the signal back in range on
-    both sides, that are either spikes (at most `SPIKE_MAX_SAMPLES` long) or one value repeated (a
-    sentinel). A longer excursion that varies, or one the record starts or ends in, may
-    be the plant's own and is kept. Nothing is flagged in a signal that is flat over that range (a step
-    off a flat line is a change, not an outlier) or where more than `OUTLIER_MAX_SHARE` would be."""
+    `OUTLIER_RANGES` robust ranges outside its 1st to 99th percentile and either more than
+    `OUTLIER_SIZES` times the signal's size from its median or a known sentinel (`SENTINELS`),
+    with the signal back in range on both sides, that are either spikes (at most
+    `SPIKE_MAX_SAMPLES` long) or one value repeated (a sentinel). A longer excursion that varies,
+    or one the record starts or ends in, may be the plant's own and is kept. Nothing is flagged in a
+    signal that is flat over that range (a step off a flat line is a change, not an outlier) or
+    where more than `OUTLIER_MAX_SHARE` would be."""
     x = np.asarray(x, dtype=float)
     out = np.zeros(x.shape, bool)
     fin = np.isfinite(x)
@@ -320,7 +325,7 @@ def gross_outliers(x: np.ndarray) -> np.ndarray:
     size = max(abs(med), width, 1.0)
     with np.errstate(invalid="ignore"):
         far = fin & ((x < lo - OUTLIER_RANGES * width) | (x > hi + OUTLIER_RANGES * width)) \
-            & (np.abs(x - med) > OUTLIER_SIZES * size)
+            & ((np.abs(x - med) > OUTLIER_SIZES * size) | np.isin(x, SENTINELS))
     if not far.any() or np.count_nonzero(far) > OUTLIER_MAX_SHARE * np.count_nonzero(fin):
         return out
     edges = np.flatnonzero(np.diff(np.concatenate([[0], far.astype(np.int8), [0]])))

@@ -59,6 +59,11 @@ S_MIN_PCT = 0.5
 #: Smallest fitted S (% of span) reported as a size when the verdict is stiction; below it the
 #: class is ``unknown`` and S, J are not given (the fit found no band the evidence could be sized by).
 S_SIZE_MIN_PCT = 0.1
+#: Fewest slips of the fitted valve (times its modelled stem starts moving after standing still in
+#: the record) from which S, J and the class are reported: one or two slips fit many (S, J) pairs
+#: about equally well, and the intervals taken on the fit's error surface do not show it (they
+#: measure the noise around the chosen valley, not which valley). The verdict itself does not use it.
+SIZE_MIN_SLIPS = 3
 #: In-sample relative reduction of the prediction-error cost (valve model against the linear model,
 #: whole record, same noise model) at which the fit's row says stiction (set above what healthy
 #: valves reach in the simulated calibration set; docs/fitting.md).
@@ -694,17 +699,26 @@ def _unique(warnings: list[Note]) -> tuple[Note, ...]:
 
 
 def _reported_size(stiction: bool, S: float, J: float, S_int: tuple[float, float], J_int: tuple[float, float],
-                   pct: float, units: str, no_band: str, warnings: list[Note]):
+                   pct: float, units: str, no_band: str, warnings: list[Note], slips: int):
     """The class, S, J and their intervals a verdict reports from a fit's (S, J) (in OP's units;
     ``pct`` % of span per unit): 0 with the intervals' upper ends on a no-stiction verdict, and
     class ``unknown`` without a size where other evidence found stiction the fit could not size
-    (``no_band`` says which fit, in the ``size_unknown`` warning)."""
+    (``no_band`` says which fit, in the ``size_unknown`` warning) or where the fitted valve slips
+    fewer than `SIZE_MIN_SLIPS` times."""
     if not stiction:
         return "none", 0.0, 0.0, (0.0, float(S_int[1])), (0.0, float(J_int[1]))
     cls = stiction_class(S * pct, J * pct)
     if cls == "none" or S * pct < S_SIZE_MIN_PCT:
         warnings.append(_warn("size_unknown", f"the evidence says the valve sticks but {no_band} "
                               f"(S = {op_amount(S, units)}): S, J and the class cannot be given"))
+        return "unknown", None, None, S_int, J_int
+    if slips < SIZE_MIN_SLIPS:
+        times = {0: "never slips", 1: "slips only once", 2: "slips only twice"}.get(slips, f"slips only {slips} times")
+        warnings.append(_warn("size_unknown",
+                              f"the evidence says the valve sticks, but the fitted valve {times} in this "
+                              f"record (its fit: S = {op_amount(S, units)}, J = {op_amount(J, units)}): "
+                              f"too few slips to size S and J or tell the class (needs "
+                              f"{SIZE_MIN_SLIPS}); a longer record, or one with setpoint moves, shows more"))
         return "unknown", None, None, S_int, J_int
     return cls, S, J, S_int, J_int
 
@@ -735,16 +749,17 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     vf = fit_valve(op, mv, ts)
     ins = _valve_improvement(vf, op, mv, ts)
     op_noise = _op_noise_pct(op)
+    slips = _slips(vf.hammerstein.simulate(op)[0])
     fit_rows = _fit_evidence(S_pct=float(vf.S_pct), S_int=vf.S_interval_pct, ins=ins, n_eff=vf.hammerstein.n_eff,
                              ins_own_noise=None, backlash_lr=None, op_noise_pct=op_noise,
                              op_range_pct=float(np.percentile(op, 99) - np.percentile(op, 1)),
-                             slips=_slips(vf.hammerstein.simulate(op)[0]), osc=osc, method="op_mv", op_units=units)
+                             slips=slips, osc=osc, method="op_mv", op_units=units)
     evidence = tuple(run_all(op, record.pv, ts, sp=record.sp, integrating=integrating, op_units=units)) + fit_rows
     cap = _confidence_caps(findings, record.n, vf.r2, "op_mv", warnings)
     verdict = combine(evidence, kind="op_mv", confidence_cap=cap)
     S, J = float(vf.S_pct), float(vf.J_pct)
     cls, S_out, J_out, S_int, J_int = _reported_size(verdict.stiction, S, J, vf.S_interval_pct, vf.J_interval_pct,
-                                                     pct, units, "the valve fit finds no band", warnings)
+                                                     pct, units, "the valve fit finds no band", warnings, slips)
     det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=S,
                     fitted_J_pct=J, integrating=integrating, pv_unusable=reason)
     return Identification(
@@ -947,7 +962,7 @@ def identify(record: LoopRecord, *, use_mv: bool = True, class_test: bool = True
         S_out = J_out = None
     else:
         cls, S_out, J_out, S_int, J_int = _reported_size(stiction, float(S), float(J), S_int, J_int, pct, units,
-                                                         "the model fit finds no valve band", warnings)
+                                                         "the model fit finds no valve band", warnings, slips)
         if cls not in ("none", "unknown") and ctest is not None:
             alternatives = tuple(k for k in ctest["plausible"] if k != cls)
     return Identification(

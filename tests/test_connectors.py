@@ -1164,6 +1164,17 @@ def test_spikes_and_sentinels_are_read_as_bad_values(tmp_path):
     one = x.copy()
     one[1500] = 1e300
     assert np.flatnonzero(gross_outliers(one)).tolist() == [1500]
+    # a known sentinel not 50 times the signal's size: -9999 on a flow of thousands, -999 on a level
+    flow = 3000.0 + 20.0 * rng.normal(size=3000)
+    flow[700:704] = -9999.0
+    assert np.flatnonzero(gross_outliers(flow)).tolist() == [700, 701, 702, 703]
+    level = 50.0 + 5.0 * rng.normal(size=3000)
+    level[100] = -999.0
+    assert np.flatnonzero(gross_outliers(level)).tolist() == [100]
+    # the same values inside the signal's own spread are measurements
+    wide = -5000.0 + 3000.0 * rng.normal(size=3000)
+    wide[50] = -9999.0
+    assert not gross_outliers(wide).any()
 
 
 def test_too_few_samples_says_which_column_was_unreadable(tmp_path):

@@ -93,6 +93,39 @@ def test_a_valve_that_never_moves_is_a_result_with_a_warning():
     assert res.fitted_S_pct == pytest.approx(np.percentile(rec.op, 99.5) - np.percentile(rec.op, 0.5))
 
 
+
+def _one_slip_record(seed: int = 1) -> LoopRecord:
+    """OP wanders over about a fifth of the span; the stem moves once, by 2 %."""
+    rng = np.random.default_rng(seed)
+    n = 3000
+    op = np.clip(50.0 + np.cumsum(rng.normal(0.0, 0.3, n)), 30.0, 70.0)
+    mv = np.full(n, 50.0)
+    mv[1800:] = 52.0
+    pv = 2.0 * mv + rng.normal(0.0, 0.1, n)
+    return LoopRecord(name="ONE_SLIP", ts_s=1.0, op=op, pv=pv, mv=mv)
+
+
+@pytest.mark.parametrize("pv_dead", [False, True])
+def test_a_valve_that_slipped_once_is_sticky_but_not_sized(pv_dead):
+    # one slip fits many (S, J) pairs (it was reported as an overshoot valve, S 11 % and J 20 %,
+    # with intervals that looked tight): the verdict stands, the size and class are not given
+    rec = _one_slip_record()
+    if pv_dead:
+        rec = rec.replace(pv=np.full(rec.n, 1.0))
+    res = identify(rec)
+    assert res.method == "op_mv" and res.stiction
+    assert res.cls == "unknown" and res.S_pct is None and res.J_pct is None
+    said = next(w.message for w in res.warnings if w.code == "size_unknown")
+    assert "slips only once" in said and "needs 3" in said
+    assert res.to_dict()["S_interval"] is None
+
+
+def test_a_valve_with_many_slips_is_still_sized():
+    rec = sticky_loop(3.0, 1.0, n=1500, noise_std=0.02, load_walk_std=0.01, seed=3)
+    res = identify(rec)
+    assert res.stiction and res.S_pct == pytest.approx(3.0, abs=0.2)
+    assert not any(w.code == "size_unknown" for w in res.warnings)
+
 def test_a_still_stem_under_a_small_op_travel_says_nothing_and_op_pv_judges():
     # OP wanders 0.3 % of span: a healthy valve with a positioner's deadband need not follow, so a
     # still stem is no proof of stiction; the verdict is the one the same record gets without MV

@@ -310,6 +310,32 @@ def test_window_records_cut_at_lost_polls_without_inventing_values():
     assert spike.data == {"role": "pv", "count": 1, "first_value": 1e30} and spike.severity == "warning"
 
 
+def test_a_spike_or_lost_poll_in_the_stem_position_leaves_it_out_of_its_stretch_only():
+    from connectors.modbus import LoopConfig, RegisterMap, window_records
+
+    lc = LoopConfig("L", "d", {"op": RegisterMap(0), "pv": RegisterMap(2), "sp": RegisterMap(4),
+                               "mv": RegisterMap(6)})
+    n = 100
+    t = list(1000.0 + np.arange(n))
+    op = np.r_[50 + np.sin(np.arange(n) / 3)]
+    op[50] = math.nan                                            # one lost poll: two stretches
+    mv = 50 + np.sin(np.arange(n) / 3)
+    mv[20] = 65535.0                                             # a sentinel in the first stretch
+    sp = np.ones(n)
+    sp[70] = math.nan                                            # SP lost once in the second
+    recs = window_records(lc, t, {"op": list(op), "pv": list(np.cos(np.arange(n) / 3)), "sp": list(sp),
+                                  "mv": mv}, 1.0, 20)
+    assert [r.n for r in recs] == [50, 49] and mv[20] == 65535.0          # not cut at MV or SP
+    first, second = recs
+    assert first.mv is None and first.sp is not None
+    assert second.mv is not None and np.all(second.mv < 52) and second.sp is None
+    left = {f.code: f for f in first.findings}
+    assert left["mv_left_out"].data == {"role": "mv", "count": 1} and left["mv_left_out"].severity == "warning"
+    assert "sp_left_out" not in left
+    codes = {f.code for f in second.findings}
+    assert "sp_left_out" in codes and "mv_left_out" not in codes
+
+
 from hypothesis import example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
