@@ -83,6 +83,8 @@ SHARP_MIN_S_PCT = 1.0
 #: likelihood ratio over the linear model, ``n_eff ln(c_linear / c_deadband)``, exceeds the 0.1 %
 #: quantile of chi-square with one degree of freedom (docs/fitting.md).
 BACKLASH_LR = 10.83
+#: Largest magnitude a signal may reach: beyond it no plant measurement lies, and squares overflow.
+MAX_MAGNITUDE = 1e100
 #: Upper bound on the confidence of a verdict judged from OP's shape alone (PV unusable).
 OP_ONLY_CONFIDENCE_CAP = 0.75
 #: A level tag (ISA letters L..C: LIC, LC, LRC) says the process is integrating.
@@ -546,6 +548,13 @@ def _check(record: LoopRecord) -> None:
                f"{MIN_SAMPLES} or more, or 0 to keep every sample" if cut else "give a longer record")
         raise DataError(f"loop {record.name!r} has {record.n} samples; identification needs at least "
                         f"{MIN_SAMPLES} ({fix})")
+    for role in ("op", "pv", "sp", "mv"):
+        x = getattr(record, role)
+        if x is not None and x.size and float(np.nanmax(np.abs(x))) > MAX_MAGNITUDE:
+            # squares of such values overflow in every variance and spectrum the tests take
+            raise DataError(f"loop {record.name!r}: {role.upper()} reaches {float(np.nanmax(np.abs(x))):.3g} in "
+                            "magnitude, which no plant measurement does (an overflow or a unit error in the "
+                            "export): check the column's values")
     if np.ptp(record.op) <= 0:
         raise DataError(f"loop {record.name!r}: OP is constant ({record.op[0]:g}) over the whole record; "
                         "the controller never moved the valve, so stiction cannot be identified "

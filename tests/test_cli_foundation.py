@@ -51,6 +51,31 @@ def test_simulate_writes_a_loop_with_the_true_mv(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().err
 
 
+def test_simulate_refuses_an_overflow_and_warns_of_a_valve_that_never_moved(tmp_path, capsys):
+    out = tmp_path / "x.csv"
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", "300", "--gain", "1e300", "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: the simulated PV overflowed (--gain 1e+300") and len(err.splitlines()) == 1
+    assert not out.exists()
+    # a controller gain of the wrong sign: the loop runs away from the band and the stem never moves
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", "500", "--kc", "-1", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the simulated valve never moved" in err and "--kc" in err and out.exists()
+    assert main(["simulate", "--S", "3", "--J", "1", "--n", "500", "--out", str(out)]) == 0
+    assert "never moved" not in capsys.readouterr().err
+
+
+def test_identify_refuses_values_no_plant_measures(tmp_path, capsys):
+    rng = np.random.default_rng(4)
+    t = np.arange(400)
+    f = tmp_path / "huge.csv"
+    f.write_text("t,OP,PV\n" + "".join(f"{k},{50 + np.sin(k / 9):.4f},{1e300 * (1 + rng.random()):.6g}\n"
+                                       for k in t))
+    assert main(["identify", str(f)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {f}") and "PV reaches" in err and "magnitude" in err
+    assert len(err.splitlines()) == 1
+
 def test_simulate_start_sets_the_time_column_so_nightly_exports_make_a_history(tmp_path, capsys):
     # every simulated export began at 2026-01-01T00:00:00Z: a week of "nightly" files were one record
     # seven times over (the same start and end), so the batch found no earlier run for any of them

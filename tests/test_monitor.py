@@ -211,6 +211,8 @@ def test_a_device_that_never_answers_is_named_and_the_exit_is_non_zero(tmp_path,
     err = out.err.splitlines()
     assert any("device sim (127.0.0.1:" in ln and "no answer" in ln for ln in err), out.err
     assert any("never answered" in ln for ln in err)
+    # the closing line does not leave "0 outage(s)" alone for a device that was never up
+    assert "0 outage(s), 1 device(s) never answered (sim)" in out.out
     last = err[-1]
     assert last.startswith("error: ") and str(cfg) in last and "nothing was read" in last
     assert "Traceback" not in out.err

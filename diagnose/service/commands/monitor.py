@@ -45,9 +45,12 @@ def run(args: argparse.Namespace) -> int:
                         explain=explain_mode(args.explain), figures=args.figures)
     dropped = f", {stats.dropped} dropped at the stop" if stats.dropped else ""
     stopped = f", stopped by {signal.Signals(stats.signal).name}" if stats.signal is not None else ""
+    # a device that never answered had no outage (it was never up): say so beside the outages
+    never = (f", {len(stats.never_answered)} device(s) never answered ({', '.join(stats.never_answered)})"
+             if stats.never_answered else "")
     print(f"{stats.diagnosed} windows diagnosed, {stats.failed} failed, {stats.skipped_short} too short{dropped}; "
           f"{stats.polls} polls ({stats.polls_failed} failed, {stats.polls_missed} missed) in {duration(stats.wall_s)}, "
-          f"{stats.outages} outage(s), {stats.reconnects} reconnection(s), "
+          f"{stats.outages} outage(s){never}, {stats.reconnects} reconnection(s), "
           f"poller CPU {stats.poll_cpu_s:.1f} s{stopped}; results in {args.out}", file=sys.stdout)
     if stats.signal is not None:
         return 128 + stats.signal  # the shell's code for a signal: 130 for SIGINT, 143 for SIGTERM

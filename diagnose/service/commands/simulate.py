@@ -107,6 +107,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output CSV file")
 
 
+def _check_loop(rec, args: argparse.Namespace) -> None:
+    """Refuse a simulation that overflowed."""
+    import numpy as np
+
+    from ...identification import MAX_MAGNITUDE
+
+    for role in ("op", "pv", "mv"):
+        x = getattr(rec, role)
+        if not np.all(np.isfinite(x)) or float(np.max(np.abs(x))) > MAX_MAGNITUDE:
+            given = ", ".join(f"{flag} {v:g}" for flag, v in (("--gain", args.gain), ("--noise", args.noise),
+                                                               ("--load", args.load), ("--kc", args.kc),
+                                                               ("--tau-s", args.tau_s)) if v is not None)
+            raise DataError(f"the simulated {role.upper()} overflowed ({given}): give values of a plant's size")
+
+
+def _warn_still_valve(rec, args: argparse.Namespace) -> None:
+    """A valve that never moved leaves nothing to identify: say so (the file may still be wanted)."""
+    import numpy as np
+
+    if np.ptp(rec.mv) == 0:
+        print(f"warning: the simulated valve never moved (OP travelled {np.ptp(rec.op):.3g} % of span against S = "
+              f"{args.S:g} %): the record shows no stiction to identify; simulate more samples (--n), or check "
+              "that --kc has the process gain's sign and --gain, --noise and --load a plant's size", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     from connectors.historian import write_wide
     from ...simulate import sticky_loop
@@ -125,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
                       load_walk_std=args.load, f0=args.f0, seed=args.seed, name=args.name,
                       Kc=args.kc, Ti_s=args.ti_s,
                       u_balance_pct=INTEGRATING_BALANCE_PCT if args.process == "integrating" else None)
+    _check_loop(rec, args)
     if args.start is not None:
         rec = rec.replace(start=args.start)
     try:
@@ -135,4 +161,5 @@ def run(args: argparse.Namespace) -> int:
                         "year 9999; give a smaller --ts-s or --n, or an earlier --start") from None
     print(f"wrote {args.out}: {rec.n} samples at {rec.ts_s:g} s, S={args.S:g} %, J={args.J:g} %",
           file=sys.stderr)
+    _warn_still_valve(rec, args)
     return 0
