@@ -89,6 +89,10 @@ MAX_MAGNITUDE = 1e100
 OP_ONLY_CONFIDENCE_CAP = 0.75
 #: A level tag (ISA letters L..C: LIC, LC, LRC) says the process is integrating.
 _LEVEL_TAG = re.compile(r"(?<![A-Z])L[IR]?C(?=[0-9_.\-]|$)")
+#: A flow tag (FIC, FC, FRC) says the process is self-regulating: a flow answers its valve within
+#: seconds and settles; where the fit prefers an integrator it is following slow drift, not the
+#: plant, and the evidence tests are those for self-regulating loops.
+_FLOW_TAG = re.compile(r"(?<![A-Z])F[IR]?C(?=[0-9_.\-]|$)")
 
 
 #: A regular cycle this slow (seconds) is a daily, shift or weather pattern of the plant (ambient
@@ -587,7 +591,10 @@ def _op_noise_pct(op: np.ndarray) -> float:
 
 
 def _integrating_hint(record: LoopRecord, fit: HammersteinFit | None) -> bool | None:
-    """Is the process integrating? The fit's chosen structure, or a level tag (``LIC``/``LC``)."""
+    """Is the process integrating? A flow tag (``FIC``/``FC``) says no; otherwise the fit's chosen
+    structure, or a level tag (``LIC``/``LC``)."""
+    if _FLOW_TAG.search(record.name or "") and not _LEVEL_TAG.search(record.name or ""):
+        return False
     if fit is not None and fit.process is not None and fit.process.kind == "integrating":
         return True
     if _LEVEL_TAG.search(record.name or ""):

@@ -374,3 +374,20 @@ def test_a_verdict_no_test_could_judge_says_so_rather_than_no_stiction():
     assert saw.verdict.judged == ("op_shape",) and saw.stiction
     assert "nothing_judged" not in {w.code for w in saw.warnings}
     assert ": STICTION (" in summary(saw).splitlines()[0]
+
+
+def test_a_flow_tag_is_self_regulating_whatever_the_fit_chose():
+    # the tests for integrating loops read a flow loop wrongly: the tag's process type wins
+    from diagnose.identification import _integrating_hint
+
+    rec = sticky_loop(3.0, 1.0, n=1500, kind="integrating", gain=0.02, noise_std=0.02, load_walk_std=0.01,
+                      seed=2, u_balance_pct=51.0)
+    res = identify(rec.replace(name="LOOP7"))
+    assert res.process.kind == "integrating" and res.detection.integrating is True
+    for name, want in (("2111FIC46005", False), ("FC12.PV", False), ("FRC3", False), ("LIC4", True),
+                       ("LOOP7", True), ("PIC9", True), ("DIFIC1", True)):
+        assert _integrating_hint(rec.replace(name=name), res.fit) is want, name
+    flow = identify(rec.replace(name="FIC7"))
+    assert flow.detection.integrating is False
+    ev = {e.test: e for e in flow.evidence}
+    assert ev["horch_integrating"].decision == "cannot_judge" and ev["horch_xcorr"].reason != "wrong_process_type"
