@@ -676,6 +676,10 @@ class ModbusPoller:
         return self.stats
 
 
+#: How far outside 0..100 % of span a stem position read over Modbus may lie and still be one.
+MV_SLACK_PCT = 50.0
+
+
 def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]], period_s: float,
                    min_samples: int, *, source: str | None = None,
                    order: list[Finding] | None = None) -> list[LoopRecord]:
@@ -723,7 +727,13 @@ def window_records(lc: LoopConfig, t: list[float], v: Mapping[str, list[float]],
     for r in ("sp", "mv"):
         if r in lc.registers:
             x = np.array(v[r], dtype=float)
-            x[gross_outliers(x)] = np.nan
+            bad = gross_outliers(x)
+            if r == "mv":
+                # the stem position is read in % of span: half a span beyond it is no position (a
+                # flat stem with one garbage register read is no outlier by the spread rule)
+                with np.errstate(invalid="ignore"):
+                    bad |= (x < -MV_SLACK_PCT) | (x > 100.0 + MV_SLACK_PCT)
+            x[bad] = np.nan
             extra[r] = x
     for i, (a, b) in enumerate(segs):
         jitter = float(np.max(np.abs(np.diff(tt[a:b]) - period_s))) if b - a > 1 else 0.0

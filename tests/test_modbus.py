@@ -334,6 +334,13 @@ def test_a_spike_or_lost_poll_in_the_stem_position_leaves_it_out_of_its_stretch_
     assert "sp_left_out" not in left
     codes = {f.code for f in second.findings}
     assert "sp_left_out" in codes and "mv_left_out" not in codes
+    # a still stem (a stuck valve) with one garbage read: no spread to judge it by, but no position
+    still = np.full(n, 42.0)
+    still[70] = 655.35
+    recs = window_records(lc, t, {"op": list(op), "pv": list(np.cos(np.arange(n) / 3)), "sp": list(np.ones(n)),
+                                  "mv": still}, 1.0, 20)
+    assert recs[0].mv is not None and np.all(recs[0].mv == 42.0) and recs[1].mv is None
+    assert {f.code for f in recs[1].findings} >= {"mv_left_out"}
 
 
 from hypothesis import example, given, settings  # noqa: E402
