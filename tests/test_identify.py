@@ -93,7 +93,6 @@ def test_a_valve_that_never_moves_is_a_result_with_a_warning():
     assert res.fitted_S_pct == pytest.approx(np.percentile(rec.op, 99.5) - np.percentile(rec.op, 0.5))
 
 
-
 def _one_slip_record(seed: int = 1) -> LoopRecord:
     """OP wanders over about a fifth of the span; the stem moves once, by 2 %."""
     rng = np.random.default_rng(seed)
@@ -107,8 +106,8 @@ def _one_slip_record(seed: int = 1) -> LoopRecord:
 
 @pytest.mark.parametrize("pv_dead", [False, True])
 def test_a_valve_that_slipped_once_is_sticky_but_not_sized(pv_dead):
-    # one slip fits many (S, J) pairs (it was reported as an overshoot valve, S 11 % and J 20 %,
-    # with intervals that looked tight): the verdict stands, the size and class are not given
+    # one slip fits many (S, J) pairs about equally well (here an overshoot valve of S 11 % and
+    # J 20 % with intervals that look tight): the verdict stands, the size and class are not given
     rec = _one_slip_record()
     if pv_dead:
         rec = rec.replace(pv=np.full(rec.n, 1.0))
@@ -125,6 +124,7 @@ def test_a_valve_with_many_slips_is_still_sized():
     res = identify(rec)
     assert res.stiction and res.S_pct == pytest.approx(3.0, abs=0.2)
     assert not any(w.code == "size_unknown" for w in res.warnings)
+
 
 def test_a_still_stem_under_a_small_op_travel_says_nothing_and_op_pv_judges():
     # OP wanders 0.3 % of span: a healthy valve with a positioner's deadband need not follow, so a

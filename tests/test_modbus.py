@@ -317,7 +317,7 @@ def test_a_spike_or_lost_poll_in_the_stem_position_leaves_it_out_of_its_stretch_
                                "mv": RegisterMap(6)})
     n = 100
     t = list(1000.0 + np.arange(n))
-    op = np.r_[50 + np.sin(np.arange(n) / 3)]
+    op = 50 + np.sin(np.arange(n) / 3)
     op[50] = math.nan                                            # one lost poll: two stretches
     mv = 50 + np.sin(np.arange(n) / 3)
     mv[20] = 65535.0                                             # a sentinel in the first stretch
