@@ -764,7 +764,17 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
         integrating = True
     pct = pct_per_op_unit(units)
     vf = fit_valve(op, mv, ts)
+    S_seen, J_seen = float(vf.S_pct), float(vf.J_pct)
     ins = _valve_improvement(vf, op, mv, ts)
+    if S_seen * pct < S_MIN_PCT:
+        # the stem is seen directly and no PV test can weigh in: a band within what a positioner
+        # allows is read as none, or a precisely fitted 0.2 % backlash (or a band fitted to a stem
+        # that follows a noiseless OP ramp) would be called stiction on the fit's rows alone
+        warnings.append(_warn("band_below_resolution",
+                              f"the stem position shows a band of {op_amount(S_seen, units)}, under the "
+                              f"{S_MIN_PCT:g} % of span a positioner normally allows: read as a valve without "
+                              "a band"))
+        vf, ins = fit_valve(op, mv, ts, stiction=False), 0.0
     op_noise = _op_noise_pct(op)
     slips = _slips(vf.hammerstein.simulate(op)[0])
     fit_rows = _fit_evidence(S_pct=float(vf.S_pct), S_int=vf.S_interval_pct, ins=ins, n_eff=vf.hammerstein.n_eff,
@@ -777,15 +787,15 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     S, J = float(vf.S_pct), float(vf.J_pct)
     cls, S_out, J_out, S_int, J_int = _reported_size(verdict.stiction, S, J, vf.S_interval_pct, vf.J_interval_pct,
                                                      pct, units, "the valve fit finds no band", warnings, slips)
-    det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=S,
-                    fitted_J_pct=J, integrating=integrating, pv_unusable=reason)
+    det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=S_seen,
+                    fitted_J_pct=J_seen, integrating=integrating, pv_unusable=reason)
     return Identification(
         loop=record.name, stiction=verdict.stiction, cls=cls, S_pct=S_out, J_pct=J_out,
         S_interval_pct=None if S_out is None else (float(S_int[0]), float(S_int[1])),
         J_interval_pct=None if J_out is None else (float(J_int[0]), float(J_int[1])),
         process=None, rmse=float(vf.rmse), r2=float(vf.r2), oscillation=osc, warnings=_unique(warnings),
         confidence=float(min(max(verdict.confidence, 0.0), 1.0)), method="op_mv", detection=det,
-        data_quality=findings, valve_fit=vf, n=record.n, ts_s=ts, fitted_S_pct=S, fitted_J_pct=J,
+        data_quality=findings, valve_fit=vf, n=record.n, ts_s=ts, fitted_S_pct=S_seen, fitted_J_pct=J_seen,
         evidence=evidence, verdict=verdict, source=record.source, activity=record_activity(record),
         record=record)
 

@@ -391,3 +391,26 @@ def test_a_flow_tag_is_self_regulating_whatever_the_fit_chose():
     assert flow.detection.integrating is False
     ev = {e.test: e for e in flow.evidence}
     assert ev["horch_integrating"].decision == "cannot_judge" and ev["horch_xcorr"].reason != "wrong_process_type"
+
+
+def test_a_band_within_a_positioners_resolution_seen_on_the_stem_alone_is_no_stiction():
+    # PV unusable (two levels), the stem recorded: a 0.2 % backlash is fitted exactly, and against
+    # a noiseless OP ramp (no noise to weigh the band by) the fit's rows alone, with no PV test to
+    # weigh in, give a probability of 0.99
+    from diagnose.stiction_model import simulate_valve
+
+    n = 2000
+    t = np.arange(n)
+    op = 50.0 + 5.0 * (2.0 * np.abs((t / 400.0) % 1.0 - 0.5) * 2.0 - 1.0)
+    mv = simulate_valve(op, 0.2, 0.0, 1) + np.random.default_rng(5).normal(0.0, 0.02, n)
+    pv = np.where(t % 400 < 200, 10.0, 11.0)
+    res = identify(LoopRecord(name="PIC3", ts_s=1.0, op=op, pv=pv, mv=mv))
+    assert res.method == "op_mv" and res.detection.pv_unusable
+    assert not res.stiction and res.cls == "none" and res.stiction_probability < 0.5
+    said = next(w.message for w in res.warnings if w.code == "band_below_resolution")
+    assert "0.2" in said and "0.5 %" in said
+    assert res.fitted_S_pct == pytest.approx(0.2, abs=0.05)
+    # the same stem with a band a positioner would not allow is stiction
+    big = identify(LoopRecord(name="PIC3", ts_s=1.0, op=op, pv=pv, mv=simulate_valve(op, 2.0, 0.0, 1)))
+    assert big.stiction and big.S_pct == pytest.approx(2.0, abs=0.05)
+    assert not any(w.code == "band_below_resolution" for w in big.warnings)
