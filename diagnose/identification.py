@@ -765,7 +765,6 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     pct = pct_per_op_unit(units)
     vf = fit_valve(op, mv, ts)
     S_seen, J_seen = float(vf.S_pct), float(vf.J_pct)
-    ins = _valve_improvement(vf, op, mv, ts)
     if S_seen * pct < S_MIN_PCT:
         # the stem is seen directly and no PV test can weigh in: a band within what a positioner
         # allows is read as none, or a precisely fitted 0.2 % backlash (or a band fitted to a stem
@@ -775,6 +774,8 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
                               f"{S_MIN_PCT:g} % of span a positioner normally allows: read as a valve without "
                               "a band"))
         vf, ins = fit_valve(op, mv, ts, stiction=False), 0.0
+    else:
+        ins = _valve_improvement(vf, op, mv, ts)
     op_noise = _op_noise_pct(op)
     slips = _slips(vf.hammerstein.simulate(op)[0])
     fit_rows = _fit_evidence(S_pct=float(vf.S_pct), S_int=vf.S_interval_pct, ins=ins, n_eff=vf.hammerstein.n_eff,
