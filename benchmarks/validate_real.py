@@ -94,6 +94,9 @@ def plant_windows(data: Path, verbose: bool) -> dict:
                "insample": (d.get("detection") or {}).get("insample_improvement"),
                "S_fit": (d.get("detection") or {}).get("fitted_S_pct"),
                "J_fit": (d.get("detection") or {}).get("fitted_J_pct"),
+               # how many times the fitted valve slips: S, J and the class need three (fitting.md)
+               "slips": next(((e.get("extras") or {}).get("slips") for e in d.get("evidence") or []
+                              if e.get("test") == "valve_band"), None),
                "oscillating": (d.get("oscillation") or {}).get("oscillating"), "error": d.get("error"),
                "time_s": dt, "n": rec.n}
         rows.append(row)
