@@ -765,6 +765,8 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     pct = pct_per_op_unit(units)
     vf = fit_valve(op, mv, ts)
     S_seen, J_seen = float(vf.S_pct), float(vf.J_pct)
+    # the band the stem shows bounds S from above even where it is read as none
+    S_int, J_int = vf.S_interval_pct, vf.J_interval_pct
     if S_seen * pct < S_MIN_PCT:
         # the stem is seen directly and no PV test can weigh in: a band within what a positioner
         # allows is read as none, or a precisely fitted 0.2 % backlash (or a band fitted to a stem
@@ -786,7 +788,7 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     cap = _confidence_caps(findings, record.n, vf.r2, "op_mv", warnings)
     verdict = combine(evidence, kind="op_mv", confidence_cap=cap)
     S, J = float(vf.S_pct), float(vf.J_pct)
-    cls, S_out, J_out, S_int, J_int = _reported_size(verdict.stiction, S, J, vf.S_interval_pct, vf.J_interval_pct,
+    cls, S_out, J_out, S_int, J_int = _reported_size(verdict.stiction, S, J, S_int, J_int,
                                                      pct, units, "the valve fit finds no band", warnings, slips)
     det = Detection(insample_improvement=ins, op_noise_pct=op_noise, S_min_pct=S_MIN_PCT, fitted_S_pct=S_seen,
                     fitted_J_pct=J_seen, integrating=integrating, pv_unusable=reason)

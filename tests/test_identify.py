@@ -410,6 +410,8 @@ def test_a_band_within_a_positioners_resolution_seen_on_the_stem_alone_is_no_sti
     said = next(w.message for w in res.warnings if w.code == "band_below_resolution")
     assert "0.2" in said and "0.5 %" in said
     assert res.fitted_S_pct == pytest.approx(0.2, abs=0.05)
+    # the band the stem showed still bounds S: "at most" that, not at most 0
+    assert res.to_dict()["S_interval"][1] >= res.fitted_S_pct
     # the same stem with a band a positioner would not allow is stiction
     big = identify(LoopRecord(name="PIC3", ts_s=1.0, op=op, pv=pv, mv=simulate_valve(op, 2.0, 0.0, 1)))
     assert big.stiction and big.S_pct == pytest.approx(2.0, abs=0.05)
