@@ -27,7 +27,7 @@ import dataclasses
 import math
 import numbers
 import os
-from typing import IO, TYPE_CHECKING, Any, Mapping, Sequence
+from typing import IO, TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 from .errors import DataError, StictionError
 from .notes import Note
@@ -79,6 +79,17 @@ def _whole(v: Any, least: int) -> bool:
     return not isinstance(v, bool) and isinstance(v, numbers.Real) and float(v).is_integer() and v >= least
 
 
+def _checked(opts: dict[str, Any], key: str, ok: Callable[[Any], bool], convert: Callable[[Any], Any],
+             says: str) -> None:
+    """``opts[key]``, where given, converted, or a one-line `DataError`: ``key=value`` and ``says``."""
+    v = opts.get(key)
+    if v is None:
+        return
+    if not ok(v):
+        raise DataError(f"{key}={v!r}{says}")
+    opts[key] = convert(v)
+
+
 def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -> dict[str, Any]:
     """The reading options with their values checked (``ts_s`` as a float, ``max_samples`` as an
     int); a bad one raises a one-line `DataError` naming the keyword and its command-line flag.
@@ -91,34 +102,21 @@ def check_read_options(options: Mapping[str, Any], *, diagnosis: bool = False) -
     from connectors.timebase import DST_POLICIES, zone_of
 
     opts = dict(options)
-    ts_s = opts.get("ts_s")
-    if ts_s is not None:
-        # 0 or NaN would otherwise read as "not given" further down and a period be guessed
-        if not _positive(ts_s):
-            raise DataError(f"ts_s={ts_s!r} (--ts-s): the sample period must be a positive number of seconds")
-        opts["ts_s"] = float(ts_s)
+    # 0 or NaN would otherwise read as "not given" further down and a period be guessed
+    _checked(opts, "ts_s", _positive, float,
+             " (--ts-s): the sample period must be a positive number of seconds")
     n = opts.get("max_samples")
-    if n is not None:
-        if not _whole(n, 0):
-            raise DataError(f"max_samples={n!r} (--max-samples): give a whole number of samples, 0 or more "
-                            "(0 keeps all)")
-        opts["max_samples"] = int(n)
-        if diagnosis and 0 < opts["max_samples"] < MIN_SAMPLES:
-            raise DataError(f"max_samples={n!r} (--max-samples): keeps fewer samples than a diagnosis needs "
-                            f"({MIN_SAMPLES}); give {MIN_SAMPLES} or more, or 0 to keep every sample")
+    _checked(opts, "max_samples", lambda v: _whole(v, 0), int,
+             " (--max-samples): give a whole number of samples, 0 or more (0 keeps all)")
+    if diagnosis and n is not None and 0 < opts["max_samples"] < MIN_SAMPLES:
+        raise DataError(f"max_samples={n!r} (--max-samples): keeps fewer samples than a diagnosis needs "
+                        f"({MIN_SAMPLES}); give {MIN_SAMPLES} or more, or 0 to keep every sample")
     gap = opts.get("max_gap_s")
     if gap == 0 and not isinstance(gap, bool):
         opts.pop("max_gap_s")           # 0: the reader's default, as it always meant
-        gap = None
-    if gap is not None:
-        if not _positive(gap):
-            raise DataError(f"max_gap_s={gap!r}: the longest gap to fill must be a positive number of seconds")
-        opts["max_gap_s"] = float(gap)
-    least = opts.get("min_samples")
-    if least is not None:
-        if not _whole(least, 2):
-            raise DataError(f"min_samples={least!r}: give a whole number of samples, 2 or more")
-        opts["min_samples"] = int(least)
+    _checked(opts, "max_gap_s", _positive, float,
+             ": the longest gap to fill must be a positive number of seconds")
+    _checked(opts, "min_samples", lambda v: _whole(v, 2), int, ": give a whole number of samples, 2 or more")
     dayfirst = opts.get("dayfirst")
     if dayfirst is not None and not isinstance(dayfirst, bool):
         raise DataError(f"dayfirst={dayfirst!r} (--dayfirst/--monthfirst): give True (day first), False "
