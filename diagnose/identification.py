@@ -591,14 +591,26 @@ def _op_noise_pct(op: np.ndarray) -> float:
     return 1.4826 * mad / math.sqrt(2.0)
 
 
+def _tag_process(name: str | None) -> bool | None:
+    """What the loop's tag says of its process: True (integrating) for a level tag, False
+    (self-regulating) for a flow tag that is not also a level tag, None where it says neither."""
+    name = name or ""
+    if _LEVEL_TAG.search(name):
+        return True
+    if _FLOW_TAG.search(name):
+        return False
+    return None
+
+
 def _integrating_hint(record: LoopRecord, fit: HammersteinFit | None) -> bool | None:
     """Is the process integrating? A flow tag (``FIC``/``FC``) says no; otherwise the fit's chosen
     structure, or a level tag (``LIC``/``LC``)."""
-    if _FLOW_TAG.search(record.name or "") and not _LEVEL_TAG.search(record.name or ""):
+    tag = _tag_process(record.name)
+    if tag is False:
         return False
     if fit is not None and fit.process is not None and fit.process.kind == "integrating":
         return True
-    if _LEVEL_TAG.search(record.name or ""):
+    if tag:
         return True
     return False if fit is not None else None
 
@@ -760,8 +772,8 @@ def _identify_valve_only(record: LoopRecord, findings: tuple[Finding, ...], warn
     warnings.append(_warn("pv_unusable",
                           f"PV is unusable ({reason}): the valve is sized from the stem position (MV) alone; "
                           "no process model, and the PV-based tests cannot judge"))
-    if integrating is None and _LEVEL_TAG.search(record.name or ""):
-        integrating = True
+    if integrating is None:
+        integrating = _tag_process(record.name)
     pct = pct_per_op_unit(units)
     vf = fit_valve(op, mv, ts)
     S_seen, J_seen = float(vf.S_pct), float(vf.J_pct)
@@ -811,8 +823,8 @@ def _identify_op_only(record: LoopRecord, findings: tuple[Finding, ...], warning
     warnings.append(_warn("pv_unusable",
                           f"PV is unusable ({reason}): the verdict is judged from OP's shape alone and is "
                           "less certain; S and J need a usable PV or a recorded stem position that moves"))
-    if integrating is None and _LEVEL_TAG.search(record.name or ""):
-        integrating = True
+    if integrating is None:
+        integrating = _tag_process(record.name)
     evidence = run_all(op, record.pv, ts, sp=record.sp, integrating=integrating,
                        op_units=_op_units({w.code for w in warnings}))
     cap = min(OP_ONLY_CONFIDENCE_CAP, _confidence_caps(findings, record.n, None, "op_only", warnings))

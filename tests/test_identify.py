@@ -391,6 +391,12 @@ def test_a_flow_tag_is_self_regulating_whatever_the_fit_chose():
     assert flow.detection.integrating is False
     ev = {e.test: e for e in flow.evidence}
     assert ev["horch_integrating"].decision == "cannot_judge" and ev["horch_xcorr"].reason != "wrong_process_type"
+    # PV unusable, the stem recorded: no fit says what the process is, the tag alone does (one
+    # rule for every path: a flow tag is not left unknown there)
+    stem = rec.replace(pv=np.full(rec.n, 1.0))
+    for name, want in (("FIC7", False), ("LIC7", True), ("LOOP7", None)):
+        res = identify(stem.replace(name=name))
+        assert res.method == "op_mv" and res.detection.pv_unusable and res.detection.integrating is want, name
 
 
 def test_a_band_within_a_positioners_resolution_seen_on_the_stem_alone_is_no_stiction():
