@@ -95,9 +95,10 @@ sys.path.insert(0, sys.argv[2])
 from benchmarks.validate_physics_plantsim import record, _row
 effect, seed, index, n, with_mv, restricted, mv_noise = (sys.argv[3], int(sys.argv[4]), int(sys.argv[5]),
     int(sys.argv[6]), sys.argv[7] == "1", sys.argv[8] == "1", float(sys.argv[9]))
+kw = {} if sys.argv[10] == "default" else {"threads": int(sys.argv[10])}
 rec, meta = record(effect, seed, index, n, with_mv, restricted, mv_noise)
 t0 = time.perf_counter()
-ex = explain(rec, target="auto" if with_mv else "pv")
+ex = explain(rec, target="auto" if with_mv else "pv", **kw)
 print(json.dumps(_row(effect, seed, index, with_mv, meta, ex.missing_physics, time.perf_counter() - t0,
                       [h.name for h in ex.hypotheses if h.accepted], ex.baseline_rmse, ex.improved_rmse)))
 """
@@ -106,11 +107,13 @@ print(json.dumps(_row(effect, seed, index, with_mv, meta, ex.missing_physics, ti
 def run_baseline(job: tuple, tree: str) -> dict:
     """The same record explained by the tree at ``tree`` (its own interpreter process: the two
     packages share a name). The record itself is drawn by this tree's plantsim, passed in by
-    seed: plantsim is the same in both."""
-    effect, seed, index, n, with_mv, restricted, mv_noise, _ = job
+    seed: plantsim is the same in both. It gets this tree's ``--threads`` too, or the two trees' times
+    would compare one thread with all of them."""
+    effect, seed, index, n, with_mv, restricted, mv_noise, threads = job
     env = dict(os.environ, PYTHONPATH=tree)
     out = subprocess.run([sys.executable, "-c", BASELINE_CHILD, tree, str(ROOT), effect, str(seed), str(index), str(n),
-                          "1" if with_mv else "0", "1" if restricted else "0", str(mv_noise)],
+                          "1" if with_mv else "0", "1" if restricted else "0", str(mv_noise),
+                          "default" if threads is None else str(threads)],
                          cwd=tree, env=env, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
