@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import StictionError
 
-ABI = 6
+ABI = 7
 
 
 class KernelsMissingError(StictionError, ImportError):
@@ -47,12 +47,12 @@ _D = ctypes.c_double
 _C = ctypes.c_int
 _lib = _load()
 for _name, _args, _res in (
-    ("valve_run", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I], None),
+    ("valve_run", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I], None),
     ("score", [_P, _I, _P, _I, _P, _I, _C, _D, _D, _P, _P, _P, _I, _P, _D, _P, _D], _C),
-    ("fused_sse", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I, _P,
-                   _P, _D, _P], _C),
-    ("fused_sse_load", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _C, _P,
-                        _P, _D, _P], _C),
+    ("fused_sse", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P, _I,
+                   _P, _P, _D, _P], _C),
+    ("fused_sse_load", [_P, _I, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _D, _P,
+                        _C, _P, _P, _D, _P], _C),
     ("valve_step1", [_P, _P, _D], _D),
     ("valve_start1", [_P, _P, _D, _D, _D, _D], _D),
     ("lag_filter", [_P, _I, _D, _D, _I, _C, _D, _P], None),
@@ -100,21 +100,26 @@ def _ptr(a: np.ndarray) -> int:
 
 
 def valve_run(x, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts_s: float,
-              out: np.ndarray) -> np.ndarray:
+              out: np.ndarray, *, t0=None, tw=None) -> np.ndarray:
     """m candidate valves over the input x (all parameter arrays of length m) into out (m, n).
 
-    Per candidate: stiction opening (S_up, J_up) and closing (S_dn, J_dn), % of span; linear drift
-    dS, dJ per second; starting direction f0; actuator lag pole a_lag (0: none); start state y0 /
-    xs0 (NaN: at rest at x[0]). out must be C-contiguous float64 of shape (m, n).
+    Per candidate: stiction opening (S_up, J_up) and closing (S_dn, J_dn), % of span; drift dS, dJ
+    per second, from t0 seconds into the record for tw seconds (None: from the start, for ever; a
+    tw of one sample period is a step of dS ts at t0); starting direction f0; actuator lag pole
+    a_lag (0: none); start state y0 / xs0 (NaN: at rest at x[0]). out must be C-contiguous float64
+    of shape (m, n).
     """
     x = _f64(x)
-    arrs = [_f64(a) for a in (S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0)]
+    arrs = [_f64(a) for a in (S_up, J_up, S_dn, J_dn, dS, dJ)]
+    win = [None if a is None else _f64(a) for a in (t0, tw)]
+    rest = [_f64(a) for a in (f0, a_lag, y0, xs0)]
     m, n = arrs[0].shape[0], x.shape[0]
-    if any(a.shape != (m,) for a in arrs) or out.shape != (m, n) or out.dtype != np.float64 \
-            or not out.flags.c_contiguous or not out.flags.writeable:
+    if any(a.shape != (m,) for a in arrs + rest + [w for w in win if w is not None]) or out.shape != (m, n) \
+            or out.dtype != np.float64 or not out.flags.c_contiguous or not out.flags.writeable:
         raise ValueError("valve_run: inconsistent shapes")
     if m and n:
-        _lib.valve_run(_ptr(x), n, m, *(_ptr(a) for a in arrs), float(ts_s), _ptr(out), n)
+        _lib.valve_run(_ptr(x), n, m, *(_ptr(a) for a in arrs), *(None if w is None else _ptr(w) for w in win),
+                       *(_ptr(a) for a in rest), float(ts_s), _ptr(out), n)
     return out
 
 
@@ -163,13 +168,18 @@ def score(data: ScoreData, valves: np.ndarray, structs: np.ndarray,
     return out[0], out[1]
 
 
+#: Columns of the fused kernels' per-candidate parameter rows (`fused_sse`).
+PARAM_COLUMNS = 12
+
+
 def fused_sse(x, params: np.ndarray, cc, a1, a2, d, integ, ts_s: float, E, y, w, sgn: float) -> np.ndarray:
     """Training SSE of m augmented models (see ``fused_sse`` in diagnose/csrc/kernels.c).
 
-    ``params`` is (m, 10): S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0.
+    ``params`` is (m, 12): S_up, J_up, S_dn, J_dn, dS, dJ, the drift's start t0 and length tw
+    (seconds; 0 and inf: from the start, for ever), f0, a_lag, y0, xs0.
     """
     x, y, w, E = _f64(x), _f64(y), _f64(w), _f64(E)
-    cols = [np.ascontiguousarray(params[:, j], dtype=np.float64) for j in range(10)]
+    cols = [np.ascontiguousarray(params[:, j], dtype=np.float64) for j in range(PARAM_COLUMNS)]
     cc, a1, a2 = _f64(cc), _f64(a1), _f64(a2)
     d = np.ascontiguousarray(d, dtype=np.int64)
     ib = np.ascontiguousarray(integ, dtype=np.bool_).view(np.uint8)
@@ -191,7 +201,7 @@ def fused_sse_load(x, params: np.ndarray, cc, a1, a2, d, integ, ts_s: float, wlo
     """`fused_sse` with each candidate's own sinusoidal load: the extra columns are [t] (``with_t``)
     and sin(w t), cos(w t) with ``w = wload[i]`` rad/s (see ``fused_sse_load`` in kernels.c)."""
     x, y, w = _f64(x), _f64(y), _f64(w)
-    cols = [np.ascontiguousarray(params[:, j], dtype=np.float64) for j in range(10)]
+    cols = [np.ascontiguousarray(params[:, j], dtype=np.float64) for j in range(PARAM_COLUMNS)]
     cc, a1, a2, wl = _f64(cc), _f64(a1), _f64(a2), _f64(wload)
     d = np.ascontiguousarray(d, dtype=np.int64)
     ib = np.ascontiguousarray(integ, dtype=np.bool_).view(np.uint8)

@@ -157,16 +157,19 @@ def test_valve_run_with_a_start_state_equals_kanos_model_started_there():
 def test_augmented_valve_batch_and_stepped_valve_are_the_same_kernel_at_every_variant():
     rng = np.random.default_rng(7)
     x = _walk(rng, 1500)
-    params = dict(S_up=[3.0, 1.0, 2.5], J_up=[1.0, 0.5, 3.0], S_dn=[2.0, 1.0, 4.0], J_dn=[0.4, 0.5, 1.0],
-                  dS_pct_per_s=[0.0, 1e-3, -5e-4], dJ_pct_per_s=[0.0, 5e-4, 0.0], f0=[1, -1, 1],
-                  tau_lag_s=[0.0, 3.0, 1.0])
+    # the last two drift within a window: a ramp from 300 s for 400 s, and a step at 700 s (one sample)
+    params = dict(S_up=[3.0, 1.0, 2.5, 2.0, 2.0], J_up=[1.0, 0.5, 3.0, 1.0, 1.0], S_dn=[2.0, 1.0, 4.0, 2.0, 2.0],
+                  J_dn=[0.4, 0.5, 1.0, 1.0, 1.0], dS_pct_per_s=[0.0, 1e-3, -5e-4, 4e-3, 1.5],
+                  dJ_pct_per_s=[0.0, 5e-4, 0.0, 2e-3, 0.5], f0=[1, -1, 1, 1, -1], tau_lag_s=[0.0, 3.0, 1.0, 0.0, 2.0],
+                  drift_from_s=[0.0, 0.0, 0.0, 300.0, 700.0], drift_for_s=[math.inf, math.inf, math.inf, 400.0, 1.0])
     outs = _variants(lambda: augmented_valve(x, **params, ts_s=1.0))
     for o in outs[1:]:
         assert np.array_equal(o, outs[0])
-    for i in range(3):
+    for i in range(5):
         ref = AugmentedValve(params["S_up"][i], params["J_up"][i], params["S_dn"][i], params["J_dn"][i],
                              dS_pct_per_s=params["dS_pct_per_s"][i], dJ_pct_per_s=params["dJ_pct_per_s"][i],
-                             tau_lag_s=params["tau_lag_s"][i], ts_s=1.0, f0=params["f0"][i])
+                             tau_lag_s=params["tau_lag_s"][i], ts_s=1.0, f0=params["f0"][i],
+                             drift_from_s=params["drift_from_s"][i], drift_for_s=params["drift_for_s"][i])
         y = [ref.reset(x[0])] + [ref.step(v) for v in x[1:]]
         assert np.array_equal(outs[0][i], np.asarray(y))
 
@@ -211,18 +214,21 @@ def test_fused_kernel_equals_a_plain_least_squares_fit():
     y = rng.normal(size=n).cumsum() * 0.05 + 0.3 * x
     w = (np.arange(n) > 50).astype(float)
     E = np.column_stack([np.sin(np.arange(n) / 30.0)])
-    params = np.array([[3.0, 1.0, 2.0, 0.5, 0.0, 0.0, 1.0, 0.5, np.nan, np.nan],
-                       [2.0, 2.0, 2.0, 2.0, 1e-3, 0.0, -1.0, 0.0, x[0] - 1.0, np.nan]])
-    cc = np.array([0.0, 1.5])
-    a1 = np.array([0.9, 0.8])
-    a2 = np.array([-1.0, 0.5])
-    d = np.array([2, 0])
-    integ = np.array([False, False])
+    # S_up, J_up, S_dn, J_dn, dS, dJ, drift start and length (s), f0, a_lag, y0, xs0; the last a step
+    params = np.array([[3.0, 1.0, 2.0, 0.5, 0.0, 0.0, 0.0, np.inf, 1.0, 0.5, np.nan, np.nan],
+                       [2.0, 2.0, 2.0, 2.0, 1e-3, 0.0, 0.0, np.inf, -1.0, 0.0, x[0] - 1.0, np.nan],
+                       [2.0, 1.0, 2.0, 1.0, 1.2, 0.4, 400.0, 1.0, 1.0, 0.0, np.nan, np.nan]])
+    cc = np.array([0.0, 1.5, 0.0])
+    a1 = np.array([0.9, 0.8, 0.85])
+    a2 = np.array([-1.0, 0.5, -1.0])
+    d = np.array([2, 0, 1])
+    integ = np.array([False, False, False])
     out = kernels.fused_sse(x, params, cc, a1, a2, d, integ, 1.0, E, y, w, 0.0)
-    for i in range(2):
-        S_up, J_up, S_dn, J_dn, dS, dJ, f0, a, y0, xs0 = params[i]
+    for i in range(3):
+        S_up, J_up, S_dn, J_dn, dS, dJ, t0, tw, f0, a, y0, xs0 = params[i]
         stem = augmented_valve(x, S_up=S_up, J_up=J_up, S_dn=S_dn, J_dn=J_dn, dS_pct_per_s=dS, dJ_pct_per_s=dJ,
-                               f0=f0, tau_lag_s=-1.0 / math.log(a) if a > 0 else 0.0, ts_s=1.0, y0_pct=y0)
+                               f0=f0, tau_lag_s=-1.0 / math.log(a) if a > 0 else 0.0, ts_s=1.0, y0_pct=y0,
+                               drift_from_s=t0, drift_for_s=tw)
         u = stem if cc[i] == 0 else 100.0 * np.expm1(cc[i] * stem / 100.0) / math.expm1(cc[i])
         ud = np.r_[np.full(d[i], u[0]), u[: n - d[i]]]
         z1 = np.empty(n)

@@ -190,9 +190,9 @@ def test_fused_kernel_is_the_same_at_every_vector_width(gain_sign):
         cols = ([t] if s.process.kind == "integrating" else []) + [np.sin(wl * t), np.cos(wl * t)]
         got = train_sse(stage, [s.replace(period_s=None)])   # the same model without its load ...
         assert got[0] >= g * (1 - 1e-9)                     # ... trains no better
-        P = kernels.fused_sse(x[:n], np.array([[s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, 0.0, 0.0, s.f0,
-                                                math.exp(-1.0 / s.tau_lag_s) if s.tau_lag_s else 0.0, np.nan,
-                                                np.nan]]), [s.char_c],
+        row = [s.S_up_pct, s.J_up_pct, s.S_dn_pct, s.J_dn_pct, 0.0, 0.0, 0.0, np.inf, s.f0,
+               math.exp(-1.0 / s.tau_lag_s) if s.tau_lag_s else 0.0, np.nan, np.nan]
+        P = kernels.fused_sse(x[:n], np.array([row]), [s.char_c],
                               [math.exp(-1.0 / s.process.tau_s) if s.process.tau_s else 0.0],
                               [(math.exp(-1.0 / s.process.tau2_s) if s.process.tau2_s else 0.0)
                                if s.process.kind == "soptd" else -1.0],
@@ -998,3 +998,35 @@ def test_the_text_picks_the_best_refused_hypothesis_by_its_relative_change_not_a
     runs = {"loop": run("loop", 0.5, 0.30), "valve": run("valve", 1e-5, 0.02)}
     text = _text(SimpleNamespace(name="X"), None, runs, "loop", 1.0, 1.0)
     assert "(h_loop) changes the held-out RMSE of PV by -30 %" in text and "h_valve" not in text
+
+
+def test_a_step_in_friction_is_named_with_its_time_from_the_stem():
+    # friction that changes in one step (a valve repacked or re-tightened mid-record: S 5 -> 2.5 %,
+    # J 2 -> 1 % at 900 s of the record) is neither the plain valve nor a linear drift: a drift
+    # fitted to it is wrong on both sides of the step and worse beyond the fitted span. The step's
+    # time and the friction before and after it are found, and the held-out part (after 1950 s)
+    # is predicted better than by the plain valve
+    ts, warmup = 1.0, 300
+    valve = AugmentedValve(5.0, 2.0, dS_pct_per_s=-2.5, dJ_pct_per_s=-1.0, ts_s=ts, drift_from_s=900.0 + warmup,
+                           drift_for_s=ts)
+    rng = np.random.default_rng(11)
+    n = 3000
+    load = np.cumsum(rng.normal(0.0, 0.02, n))
+    rec = simulate_loop(n=n, ts_s=ts, process=make_process("foptd", gain=1.2, tau_s=15.0, delay_s=2.0),
+                        controller=simc_pi(1.2, 15.0, 2.0, ts), valve=valve, load=load, noise_std=0.05, seed=4,
+                        warmup=warmup)
+    rec = rec.replace(mv=rec.mv + rng.normal(0.0, 0.1, n))
+    ex = explain(rec, target="mv", hypotheses=["time_varying_friction"])
+    assert ex.missing_physics == "time_varying_friction"
+    (h,) = ex.hypotheses
+    p = h.params
+    assert p["change_for_s"] == ts and h.n_extra == 3
+    assert abs(p["change_from_s"] - 900.0) <= 10.0
+    assert p["S_start_pct"] == pytest.approx(5.0, rel=0.05) and p["S_end_pct"] == pytest.approx(2.5, rel=0.05)
+    assert p["J_end_pct"] < p["J_start_pct"]
+    # a linear drift over the whole record reports the record as the change's length
+    drift = {x.name: x for x in explain(concealed_loop("time_varying_friction", 5001, n=3000, with_mv=True,
+                                                       min_moves=(0.65, 10, 5))[0],
+                                        target="mv", hypotheses=["time_varying_friction"]).hypotheses}
+    d = drift["time_varying_friction"]
+    assert d.n_extra == 2 and d.params["change_from_s"] == 0.0 and d.params["change_for_s"] == 3000.0

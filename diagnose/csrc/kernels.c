@@ -26,7 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 6
+#define KERNELS_ABI 7
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -422,7 +422,7 @@ void hp_filter_2d(const double *v, int64_t n, int64_t m, int64_t ldv, double a, 
 
 typedef void (*valve_run_fn)(const double *, int64_t, int64_t, const double *, const double *,
                              const double *, const double *, const double *, const double *,
-                             const double *, const double *, const double *, const double *, double,
+                             const double *, const double *, const double *, const double *, const double *, const double *, double,
                              double *, int64_t);
 typedef int (*score_fn)(const double *, int64_t, const double *, int64_t, const double *, int64_t, int, double,
                         double, const double *, const double *, const double *, int64_t, const double *, double,
@@ -442,6 +442,7 @@ static const score_fn SCORE[] = {
 };
 typedef int (*fused_fn)(const double *, int64_t, int64_t, const double *, const double *, const double *,
                         const double *, const double *, const double *, const double *, const double *,
+                        const double *, const double *,
                         const double *, const double *, const double *, const double *, const double *,
                         const int64_t *, const uint8_t *, double, const double *, int64_t, const double *,
                         const double *, double, double *);
@@ -453,6 +454,7 @@ static const fused_fn FUSED[] = {
 };
 typedef int (*fused_load_fn)(const double *, int64_t, int64_t, const double *, const double *, const double *,
                              const double *, const double *, const double *, const double *, const double *,
+                             const double *, const double *,
                              const double *, const double *, const double *, const double *, const double *,
                              const int64_t *, const uint8_t *, double, const double *, int, const double *,
                              const double *, double, double *);
@@ -516,11 +518,11 @@ int kernels_set_isa(int level)
 
 void valve_run(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-               const double *f0, const double *a_lag, const double *y0, const double *xs0, double ts,
+               const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0, double ts,
                double *out, int64_t ld)
 {
     ensure_isa();
-    VALVE_RUN[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, ts, out, ld);
+    VALVE_RUN[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, ts, out, ld);
 }
 
 int score(const double *x, int64_t n, const double *valves, int64_t m, const double *structs, int64_t P,
@@ -534,19 +536,20 @@ int score(const double *x, int64_t n, const double *valves, int64_t m, const dou
 
 /*
  * Training SSE of m candidate augmented models (`stiction explain`): the valve (valve_step.h, per
- * direction S and J drifting linearly in time, actuator lag a_lag, start y0 / xs0), run LANES
+ * direction S and J drifting linearly in time within the window dt0 .. dt0 + dtw (NULL: the whole
+ * record; dtw one sample: a step), actuator lag a_lag, start y0 / xs0), run LANES
  * candidates at a time, then their process and sums in the same lanes. Returns 0, or -1 when memory runs out or
  * q is too large.
  */
 int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-              const double *f0, const double *a_lag, const double *y0, const double *xs0,
+              const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0,
               const double *cc, const double *a1, const double *a2, const int64_t *d,
               const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
               const double *w, double sgn, double *out)
 {
     ensure_isa();
-    return FUSED[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+    return FUSED[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                              ts_s, E, q, y, w, sgn, out);
 }
 
@@ -557,13 +560,13 @@ int fused_sse(const double *x, int64_t n, int64_t m, const double *S_up, const d
  */
 int fused_sse_load(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                    const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-                   const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                   const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0,
                    const double *cc, const double *a1, const double *a2, const int64_t *d,
                    const uint8_t *integ, double ts_s, const double *wload, int with_t, const double *y,
                    const double *w, double sgn, double *out)
 {
     ensure_isa();
-    return FUSED_LOAD[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+    return FUSED_LOAD[isa_for(m)](x, n, m, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                                   ts_s, wload, with_t, y, w, sgn, out);
 }
 

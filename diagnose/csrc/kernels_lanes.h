@@ -30,7 +30,7 @@ static inline __attribute__((always_inline)) KATTR VT V(nonneg_, SFX)(VT v)
 /*
  * nv (1 or 2) vectors of LANES candidate valves over x[0..n): lane g of vector u (its parameters at
  * index u * LANES + g) has stiction (su, ju) opening and (sd, jd) closing, drift (ds, dj) per
- * second, starting direction f, actuator lag pole a (0: none) and start state y0 / xs0 (NaN: at
+ * second from t0 for tw seconds (t0_ / tw_ NULL: from the start, for ever), starting direction f, actuator lag pole a (0: none) and start state y0 / xs0 (NaN: at
  * rest at the first input). With vec it writes all lanes' (lagged) stems of sample k as the one
  * vector il[u][k]; without (nv = 1 only), lane g's stem to rows[g][0..n). Two vectors advance side
  * by side (the step is a chain of dependent operations); each lane does the same operations either
@@ -38,11 +38,12 @@ static inline __attribute__((always_inline)) KATTR VT V(nonneg_, SFX)(VT v)
  */
 static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
     const int nv, const double *x, int64_t n, const double *su_, const double *ju_, const double *sd_,
-    const double *jd_, const double *ds_, const double *dj_, const double *f_, const double *a_,
+    const double *jd_, const double *ds_, const double *dj_, const double *t0_, const double *tw_,
+    const double *f_, const double *a_,
     const double *y0_, const double *xs0_, double ts, double **rows, VT *const *il, const int vec)
 {
     VT su0[2], ju0[2], sd0[2], jd0[2], ds[2], dj[2], f[2], a[2], yp[2], xss[2], z[2];
-    VT su[2], ju[2], sd[2], jd[2];
+    VT su[2], ju[2], sd[2], jd[2], t0[2], tw[2];
     MT stuck[2];
     int drift[2] = {0, 0}, lag[2] = {0, 0};
     double xp = clip100(x[0]);
@@ -57,6 +58,14 @@ static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
             if (a[u][g] != 0.0)
                 lag[u] = 1;
         }
+        /* the drift runs from t0 for tw seconds (none given: from the start, for ever) */
+        double t0a[LANES], twa[LANES];
+        for (int g = 0; g < LANES; g++) {
+            t0a[g] = t0_ != NULL ? t0_[u * LANES + g] : 0.0;
+            twa[g] = tw_ != NULL ? tw_[u * LANES + g] : INFINITY;
+        }
+        memcpy(&t0[u], t0a, sizeof(VT));
+        memcpy(&tw[u], twa, sizeof(VT));
         su[u] = V(nonneg_, SFX)(su0[u]);
         ju[u] = V(nonneg_, SFX)(ju0[u]);
         sd[u] = V(nonneg_, SFX)(sd0[u]);
@@ -93,7 +102,11 @@ static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
         int stop = v == 0.0 || up_k != up;
         for (int u = 0; u < nv; u++) {
             if (drift[u]) {
-                double t = (double)k * ts;
+                /* time into the drift window: 0 before t0, tw after its end (t itself for a
+                 * drift from the start for ever, bit for bit) */
+                VT t = ((VT){0.0} + (double)k * ts) - t0[u];
+                t = V(nonneg_, SFX)(t);
+                t = (VT)(((MT)tw[u] & (tw[u] < t)) | ((MT)t & ~(tw[u] < t)));
                 su[u] = V(nonneg_, SFX)(su0[u] + ds[u] * t);
                 sd[u] = V(nonneg_, SFX)(sd0[u] + ds[u] * t);
                 ju[u] = V(nonneg_, SFX)(ju0[u] + dj[u] * t);
@@ -114,40 +127,43 @@ static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
 
 static KATTR void V(valve_lanes_, SFX)(const double *x, int64_t n, const double *su, const double *ju,
                                         const double *sd, const double *jd, const double *ds, const double *dj,
-                                        const double *f, const double *a, const double *y0, const double *xs0,
-                                        double ts, double **rows)
+                                        const double *t0, const double *tw, const double *f, const double *a,
+                                        const double *y0, const double *xs0, double ts, double **rows)
 {
-    V(valve_core_, SFX)(1, x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, rows, NULL, 0);
+    V(valve_core_, SFX)(1, x, n, su, ju, sd, jd, ds, dj, t0, tw, f, a, y0, xs0, ts, rows, NULL, 0);
 }
 
 /* valve_lanes writing all lanes' stems of sample k as the one vector il[k] */
 static KATTR void V(valve_lanes_vec_, SFX)(const double *x, int64_t n, const double *su, const double *ju,
                                             const double *sd, const double *jd, const double *ds,
-                                            const double *dj, const double *f, const double *a,
-                                            const double *y0, const double *xs0, double ts, VT *il)
+                                            const double *dj, const double *t0, const double *tw,
+                                            const double *f, const double *a, const double *y0,
+                                            const double *xs0, double ts, VT *il)
 {
-    V(valve_core_, SFX)(1, x, n, su, ju, sd, jd, ds, dj, f, a, y0, xs0, ts, NULL, &il, 1);
+    V(valve_core_, SFX)(1, x, n, su, ju, sd, jd, ds, dj, t0, tw, f, a, y0, xs0, ts, NULL, &il, 1);
 }
 
 /* m candidate valves (arrays of m) -> out (m rows, leading dimension ld); see valve_lanes. */
 KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-                              const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                              const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0,
                               double ts, double *out, int64_t ld)
 {
     if (n <= 0)
         return;
     for (int64_t i0 = 0; i0 < m; i0 += LANES) {
         double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
-        double y[LANES], s[LANES];
+        double y[LANES], s[LANES], t0[LANES], tw[LANES];
         double *rows[LANES];
         for (int g = 0; g < LANES; g++) {
             int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last valve */
             su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
             ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; y[g] = y0[i]; s[g] = xs0[i];
+            t0[g] = dt0 != NULL ? dt0[i] : 0.0;
+            tw[g] = dtw != NULL ? dtw[i] : INFINITY;
             rows[g] = out + i * ld;
         }
-        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, y, s, ts, rows);
+        V(valve_lanes_, SFX)(x, n, su, ju, sd, jd, ds, dj, t0, tw, f, a, y, s, ts, rows);
     }
 }
 
@@ -264,10 +280,10 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
         for (int h = 0; h < nv * LANES; h++)
             plain_valve(&pv, h, valves, m, i0 + h < m ? i0 + h : m - 1);    /* spare lanes repeat the last */
         if (nv == 2)
-            V(valve_core_, SFX)(2, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
+            V(valve_core_, SFX)(2, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
                                 rows, 1);
         else
-            V(valve_core_, SFX)(1, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
+            V(valve_core_, SFX)(1, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
                                 rows, 1);
         for (int u = 0; u < nv; u++) {
             VT first = rows[u][0];
@@ -408,7 +424,7 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 V(proc_lane_, SFX)(g, pi[g], a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
             }
             VT *u0 = il + dmax;
-            V(valve_lanes_vec_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, u0);
+            V(valve_lanes_vec_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, u0);
             VT first = u0[0];
             for (int64_t k = 0; k < n; k++)
                 u0[k] -= first;
@@ -462,7 +478,7 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 plain_valve(&pv, g, valves, m, need_i[h]);
                 o4[g] = need_u[h];
             }
-            V(valve_lanes_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, pv.F, ZEROS, pv.y0, pv.xs0, ts, o4);
+            V(valve_lanes_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, o4);
             for (int h = 0; h < nneed; h++) {
                 double *row = need_u[h];
                 double first = row[0];
@@ -521,19 +537,22 @@ static VT *V(fused_rows_, SFX)(int64_t n, int64_t m, const int64_t *d, int64_t *
  */
 static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, int64_t i0, const double *S_up,
                                         const double *J_up, const double *S_dn, const double *J_dn,
-                                        const double *dS, const double *dJ, const double *f0,
+                                        const double *dS, const double *dJ, const double *dt0,
+                                        const double *dtw, const double *f0,
                                         const double *a_lag, const double *y0, const double *xs0,
                                         const double *cc, const double *a1, const double *a2, const int64_t *d,
                                         const uint8_t *integ, double ts_s, VT *buf, int64_t maxd, int64_t *off,
                                         int *same, VT *A1, VT *B1, VT *A2, VT *B2, VT *I, VT *N, VT *u0)
 {
     double su[LANES], ju[LANES], sd[LANES], jd[LANES], ds[LANES], dj[LANES], f[LANES], a[LANES];
-    double yv[LANES], sv[LANES];
+    double yv[LANES], sv[LANES], t0[LANES], tw[LANES];
     *same = 1;
     for (int g = 0; g < LANES; g++) {
         int64_t i = i0 + g < m ? i0 + g : m - 1;        /* spare lanes repeat the last candidate */
         su[g] = S_up[i]; ju[g] = J_up[i]; sd[g] = S_dn[i]; jd[g] = J_dn[i];
         ds[g] = dS[i]; dj[g] = dJ[i]; f[g] = f0[i]; a[g] = a_lag[i]; yv[g] = y0[i]; sv[g] = xs0[i];
+        t0[g] = dt0 != NULL ? dt0[i] : 0.0;
+        tw[g] = dtw != NULL ? dtw[i] : INFINITY;
         off[g] = maxd - d[i];
         *same &= off[g] == off[0];
         (*A1)[g] = a1[i];
@@ -545,7 +564,7 @@ static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, in
         (*N)[g] = integ[i] ? 0.0 : 1.0;
     }
     VT *rows = buf + maxd;
-    V(valve_lanes_vec_, SFX)(x, n, su, ju, sd, jd, ds, dj, f, a, yv, sv, ts_s, rows);
+    V(valve_lanes_vec_, SFX)(x, n, su, ju, sd, jd, ds, dj, t0, tw, f, a, yv, sv, ts_s, rows);
     for (int g = 0; g < LANES; g++) {
         int64_t i = i0 + g < m ? i0 + g : m - 1;
         characteristic_row((double *)rows + g, n, LANES, cc[i]);
@@ -563,7 +582,7 @@ static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, in
  */
 KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                          const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-                         const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                         const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0,
                          const double *cc, const double *a1, const double *a2, const int64_t *d,
                          const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
                          const double *w, double sgn, double *out)
@@ -583,7 +602,7 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
         int64_t off[LANES];
         int same;
         VT A1, B1, A2, B2, I, N, u0;
-        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                              ts_s, buf, maxd, off, &same, &A1, &B1, &A2, &B2, &I, &N, &u0);
         const VT *in = buf + off[0];
         VT z1 = u0, z2 = u0, ac = {0.0}, szz = {0.0}, sz = {0.0}, szy = {0.0};
@@ -637,8 +656,8 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
  */
 KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-                              const double *f0, const double *a_lag, const double *y0, const double *xs0,
-                              const double *cc, const double *a1, const double *a2, const int64_t *d,
+                              const double *dt0, const double *dtw, const double *f0, const double *a_lag,
+                              const double *y0, const double *xs0, const double *cc, const double *a1, const double *a2, const int64_t *d,
                               const uint8_t *integ, double ts_s, const double *wload, int with_t,
                               const double *y, const double *w, double sgn, double *out)
 {
@@ -656,7 +675,7 @@ KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const doubl
         int64_t off[LANES];
         int same;
         VT A1, B1, A2, B2, I, N, u0, rs, rc;
-        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
                              ts_s, buf, maxd, off, &same, &A1, &B1, &A2, &B2, &I, &N, &u0);
         const VT *in = buf + off[0];
         for (int g = 0; g < LANES; g++) {

@@ -47,7 +47,12 @@ class Structure:
     S_up_pct, J_up_pct, S_dn_pct, J_dn_pct : float
         Stiction opening / closing, % of span.
     dS_pct_per_s, dJ_pct_per_s : float
-        Linear drift of S and J from the first sample, % of span per second.
+        Rate at which S and J change while they drift, % of span per second.
+    drift_from_s, drift_for_s : float
+        When the drift starts (seconds after the first sample) and how long it lasts (seconds;
+        inf: to the end). 0 and inf are a linear drift over the whole record; a drift of one
+        sample period is a step of ``dS_pct_per_s * ts`` at ``drift_from_s`` (friction changed by
+        a maintenance action, a trip, a temperature change).
     f0 : {+1, -1}
         Starting direction of the valve.
     tau_lag_s : float
@@ -72,6 +77,8 @@ class Structure:
     J_dn_pct: float = 0.0
     dS_pct_per_s: float = 0.0
     dJ_pct_per_s: float = 0.0
+    drift_from_s: float = 0.0
+    drift_for_s: float = math.inf
     f0: int = 1
     tau_lag_s: float = 0.0
     char_c: float = 0.0
@@ -184,7 +191,8 @@ def stems(stage: Stage, structs, n: int | None = None) -> np.ndarray:
     P = Pool(structs).table()[0]
     return augmented_valve(stage.x[:n], S_up=P[:, 0], J_up=P[:, 1], S_dn=P[:, 2], J_dn=P[:, 3],
                            dS_pct_per_s=P[:, 4], dJ_pct_per_s=P[:, 5], f0=P[:, 6], tau_lag_s=P[:, 7],
-                           y0_pct=P[:, 12], xs0_pct=P[:, 13], ts_s=stage.ts_s)
+                           y0_pct=P[:, 12], xs0_pct=P[:, 13], drift_from_s=P[:, 14], drift_for_s=P[:, 15],
+                           ts_s=stage.ts_s)
 
 
 def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):
@@ -236,14 +244,20 @@ def _row(s: Structure) -> tuple:
     p = s.process
     return _VALVE_FIELDS(s) + (p.tau_s, p.tau2_s if p.kind == "soptd" else -1.0, p.delay_s,
                                np.nan if s.y0_pct is None else s.y0_pct,
-                               np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct)
+                               np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct,
+                               s.drift_from_s, s.drift_for_s)
+
+
+#: Columns of a parameter row (`_row`).
+ROW_WIDTH = 16
 
 
 #: The fields a `Candidates` column may set, and their column in the kernels' parameter rows
 #: (`_row`); ``period_s`` is passed beside the rows.
 _ROW_COLUMN = {"S_up_pct": 0, "J_up_pct": 1, "S_dn_pct": 2, "J_dn_pct": 3, "dS_pct_per_s": 4,
                "dJ_pct_per_s": 5, "f0": 6, "tau_lag_s": 7, "char_c": 8, "tau_s": 9, "tau2_s": 10,
-               "delay_s": 11, "y0_pct": 12, "xs0_pct": 13, "period_s": None}
+               "delay_s": 11, "y0_pct": 12, "xs0_pct": 13, "drift_from_s": 14, "drift_for_s": 15,
+               "period_s": None}
 
 
 class Candidates(Sequence[Structure]):
@@ -311,8 +325,8 @@ class Candidates(Sequence[Structure]):
         return self.base.replace(**kw)
 
     def rows(self) -> np.ndarray:
-        """The kernels' parameter rows (`_row`), shape (n, 14)."""
-        P = np.empty((self._n, 14))
+        """The kernels' parameter rows (`_row`), shape (n, `ROW_WIDTH`)."""
+        P = np.empty((self._n, ROW_WIDTH))
         P[:] = _row(self.base)
         for k, col in self.columns.items():
             j = _ROW_COLUMN[k]
@@ -368,14 +382,14 @@ class Pool(Sequence[Structure]):
         return part[i - (self._ends[k - 1] if k else 0)] if isinstance(part, Candidates) else part
 
     def table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Parameter rows (n, 14), whether each candidate has a load, whether its process is
+        """Parameter rows (n, `ROW_WIDTH`), whether each candidate has a load, whether its process is
         integrating, and its load's angular frequency (rad/s; NaN without a load)."""
         rows, load, integ, freq = [], [], [], []
         singles: list[Structure] = []
 
         def flush():
             if singles:
-                rows.append(np.array([_row(s) for s in singles], dtype=np.float64).reshape(len(singles), 14))
+                rows.append(np.array([_row(s) for s in singles], dtype=np.float64).reshape(len(singles), ROW_WIDTH))
                 load.append(np.array([s.period_s is not None for s in singles]))
                 integ.append(np.array([s.process.kind == "integrating" for s in singles]))
                 freq.append(np.array([np.nan if s.period_s is None else 2.0 * np.pi / s.period_s for s in singles],
@@ -395,7 +409,7 @@ class Pool(Sequence[Structure]):
             freq.append(np.full(m, np.nan) if per is None else 2.0 * np.pi / per)
         flush()
         if not rows:
-            return np.empty((0, 14)), np.empty(0, bool), np.empty(0, bool), np.empty(0)
+            return np.empty((0, ROW_WIDTH)), np.empty(0, bool), np.empty(0, bool), np.empty(0)
         return np.concatenate(rows), np.concatenate(load), np.concatenate(integ), np.concatenate(freq)
 
 
@@ -432,8 +446,8 @@ def train_sse(stage: Stage, structs: Iterable[Union[Structure, Candidates]]) -> 
             t2 = P[:, 10]
             a2 = np.where(t2 > 0, np.exp(-ts / np.where(t2 > 0, t2, 1.0)), np.where(t2 < 0, -1.0, 0.0))
             d = np.maximum(np.round(P[:, 11] / ts), 0).astype(np.int64)
-            params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 6], a_lag,
-                                      P[:, 12], P[:, 13]])
+            params = np.column_stack([P[:, 0], P[:, 1], P[:, 2], P[:, 3], P[:, 4], P[:, 5], P[:, 14], P[:, 15],
+                                      P[:, 6], a_lag, P[:, 12], P[:, 13]])
             ig = np.full(m, integ, np.bool_)
             if load:
                 out[idx] = kernels.fused_sse_load(x, params, P[:, 8], a1, a2, d, ig, ts,

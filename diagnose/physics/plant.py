@@ -28,7 +28,8 @@ class AugmentedValve:
     S_dn_pct, J_dn_pct : float, optional
         Stiction while closing (direction -1); default the opening values.
     dS_pct_per_s, dJ_pct_per_s : float
-        Linear drift of S and J per second after `reset` (clipped at 0).
+        Drift of S and J per second (clipped at 0), from ``drift_from_s`` after `reset` for
+        ``drift_for_s`` seconds (default: from the start, for ever; one sample period: a step).
     tau_lag_s : float
         First-order actuator lag after the friction element, seconds (0: none).
     ts_s : float
@@ -40,7 +41,7 @@ class AugmentedValve:
     def __init__(self, S_up_pct: float, J_up_pct: float, S_dn_pct: float | None = None,
                  J_dn_pct: float | None = None, *, dS_pct_per_s: float = 0.0,
                  dJ_pct_per_s: float = 0.0, tau_lag_s: float = 0.0, ts_s: float = 1.0,
-                 f0: int = 1) -> None:
+                 f0: int = 1, drift_from_s: float = 0.0, drift_for_s: float = math.inf) -> None:
         S_dn_pct = S_up_pct if S_dn_pct is None else S_dn_pct
         J_dn_pct = J_up_pct if J_dn_pct is None else J_dn_pct
         for nm, v in (("S_up_pct", S_up_pct), ("J_up_pct", J_up_pct), ("S_dn_pct", S_dn_pct),
@@ -51,6 +52,9 @@ class AugmentedValve:
             raise DataError("ts_s must be > 0 and tau_lag_s >= 0 seconds")
         if f0 not in (1, -1):
             raise DataError(f"starting direction f0 must be +1 or -1, got {f0!r}")
+        if not (drift_from_s >= 0 and drift_for_s >= 0):
+            raise DataError("drift_from_s and drift_for_s must be >= 0 seconds")
+        self.t0, self.tw = float(drift_from_s), float(drift_for_s)
         self.S_up, self.J_up, self.S_dn, self.J_dn = map(float, (S_up_pct, J_up_pct, S_dn_pct, J_dn_pct))
         self.dS, self.dJ = float(dS_pct_per_s), float(dJ_pct_per_s)
         self.ts_s = float(ts_s)
@@ -68,7 +72,8 @@ class AugmentedValve:
         return self.z
 
     def _sj(self) -> tuple[float, float, float, float]:
-        t = self.k * self.ts_s
+        # the kernel's operations in its order: time since the drift began, within its length
+        t = min(max(self.k * self.ts_s - self.t0, 0.0), self.tw)
         return (max(self.S_up + self.dS * t, 0.0), max(self.J_up + self.dJ * t, 0.0),
                 max(self.S_dn + self.dS * t, 0.0), max(self.J_dn + self.dJ * t, 0.0))
 

@@ -5,7 +5,8 @@ candidate valves over one input series. Each candidate has
 
 * separate stiction for the two directions of motion: ``S_up, J_up`` (opening, f = +1) and
   ``S_dn, J_dn`` (closing, f = -1), % of span;
-* a linear drift of S and J over the record, ``dS_pct_per_s``, ``dJ_pct_per_s`` (values clipped at 0);
+* a drift of S and J, ``dS_pct_per_s``, ``dJ_pct_per_s`` (values clipped at 0), over the record or
+  within a window (``drift_from_s``, ``drift_for_s``; one sample long: a step);
 * a first-order actuator lag *after* the friction element, discrete pole ``a_lag`` (0: no lag);
 * a starting direction ``f0``.
 
@@ -34,7 +35,7 @@ def _param(v, m: int) -> np.ndarray:
 
 def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0,
                     dJ_pct_per_s=0.0, f0=1, tau_lag_s=0.0, ts_s: float = 1.0,
-                    y0_pct=np.nan, xs0_pct=np.nan) -> np.ndarray:
+                    y0_pct=np.nan, xs0_pct=np.nan, drift_from_s=0.0, drift_for_s=math.inf) -> np.ndarray:
     """Stem position of one or many augmented valves driven by one input series.
 
     Parameters
@@ -46,7 +47,7 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
     S_dn, J_dn : float or array (m,), optional
         Stiction while closing (default: the opening values).
     dS_pct_per_s, dJ_pct_per_s : float or array (m,)
-        Linear drift of S and J, % of span per second from the first sample.
+        Rate of change of S and J while they drift, % of span per second.
     f0 : {+1, -1} or array (m,)
         Direction of the last motion before the record.
     tau_lag_s : float or array (m,)
@@ -59,6 +60,9 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
         stuck at the first input sample.
     xs0_pct : float or array (m,)
         Input value at which the valve stuck (with ``y0_pct``; NaN: ``y0 + f0 (S - J) / 2``).
+    drift_from_s, drift_for_s : float or array (m,)
+        When the drift starts (seconds after the first sample) and how long it lasts (seconds;
+        inf: to the end). One sample period makes it a step of the rate times ``ts_s``.
 
     Returns
     -------
@@ -71,10 +75,11 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
         raise DataError(f"ts_s must be > 0 seconds, got {ts_s}")
     S_dn = S_up if S_dn is None else S_dn
     J_dn = J_up if J_dn is None else J_dn
-    params = [S_up, J_up, S_dn, J_dn, dS_pct_per_s, dJ_pct_per_s, f0, tau_lag_s, y0_pct, xs0_pct]
+    params = [S_up, J_up, S_dn, J_dn, dS_pct_per_s, dJ_pct_per_s, f0, tau_lag_s, y0_pct, xs0_pct, drift_from_s,
+              drift_for_s]
     scalar = all(np.ndim(p) == 0 for p in params)
     m = max(int(np.size(p)) for p in params)
-    S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, tau_, y0_, xs0_ = (_param(p, m) for p in params)
+    S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, tau_, y0_, xs0_, t0_, tw_ = (_param(p, m) for p in params)
     for nm, arr in (("S_up", S_up_), ("J_up", J_up_), ("S_dn", S_dn_), ("J_dn", J_dn_)):
         if np.any(~np.isfinite(arr)) or np.any(arr < 0):
             raise DataError(f"{nm} must be finite and >= 0 % of span")
@@ -84,8 +89,10 @@ def augmented_valve(x_pct, *, S_up, J_up, S_dn=None, J_dn=None, dS_pct_per_s=0.0
         raise DataError("tau_lag_s must be finite and >= 0 seconds")
     a = np.where(tau_ > 0, np.exp(-ts_s / np.where(tau_ > 0, tau_, 1.0)), 0.0)
     out = np.empty((m, x.shape[0]))
+    if np.any(~(t0_ >= 0)) or np.any(~(tw_ >= 0)):
+        raise DataError("drift_from_s and drift_for_s must be >= 0 seconds")
     kernels.valve_run(x, S_up_, J_up_, S_dn_, J_dn_, dS_, dJ_, f0_, np.ascontiguousarray(a), y0_, xs0_,
-                      float(ts_s), out)
+                      float(ts_s), out, t0=t0_, tw=tw_)
     return out[0] if scalar else out
 
 

@@ -168,11 +168,16 @@ class PhysicsHypothesis:
         missing = set(self.param_names) - set(params)
         if missing:  # pragma: no cover - programming error in a subclass
             raise RuntimeError(f"{self.name}: params lack {sorted(missing)}")
-        return Fitted(name=self.name, params=params, structure=struct, n_extra=self.n_extra,
+        return Fitted(name=self.name, params=params, structure=struct, n_extra=self.n_params(struct),
                       train_sse=sse, stage=stage.name)
 
     def _search(self, stage: Stage, baseline: PlainModel) -> Structure:
         raise NotImplementedError
+
+    def n_params(self, struct: Structure) -> int:
+        """Parameters the fitted ``struct`` adds to the plain model (default `n_extra`; a
+        hypothesis with variants of different size says which its fit is)."""
+        return self.n_extra
 
     def material(self, params: Mapping[str, float], record_s: float, residual_rms: float) -> bool:
         """Whether the fitted effect is large enough to be physics rather than a nudge within the
@@ -196,6 +201,7 @@ def transplants(stage: Stage, fitted: Structure, plain: Structure) -> list[Struc
     out.append(plain.replace(S_up_pct=fitted.S_up_pct * k, S_dn_pct=fitted.S_dn_pct * k,
                              J_up_pct=fitted.J_up_pct * k, J_dn_pct=fitted.J_dn_pct * k,
                              dS_pct_per_s=fitted.dS_pct_per_s * k, dJ_pct_per_s=fitted.dJ_pct_per_s * k,
+                             drift_from_s=fitted.drift_from_s, drift_for_s=fitted.drift_for_s,
                              tau_lag_s=fitted.tau_lag_s, char_c=fitted.char_c, period_s=fitted.period_s,
                              process=process))
     return out

@@ -1,5 +1,5 @@
-"""Time-varying friction: S and J drifting linearly over the record (wear, temperature,
-maintenance)."""
+"""Time-varying friction: S and J drifting linearly over the record (wear, temperature) or changing
+in one step (a maintenance action, a trip, a change of service)."""
 
 from __future__ import annotations
 
@@ -14,23 +14,35 @@ from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 
 
 class TimeVaryingFriction(PhysicsHypothesis):
-    """S and J drifting linearly over the record (wear, temperature, maintenance)."""
+    """S and J drifting linearly over the record (wear, temperature), or changing in one step at a
+    time the search finds (a maintenance action, a trip)."""
 
     name = "time_varying_friction"
-    param_names = ("S_start_pct", "J_start_pct", "dS_pct_per_h", "dJ_pct_per_h")
+    param_names = ("S_start_pct", "J_start_pct", "dS_pct_per_h", "dJ_pct_per_h", "S_end_pct", "J_end_pct",
+                   "change_from_s", "change_for_s")
     side = VALVE_SIDE
     n_extra = 2
-    description = "friction drifting over the record"
+    description = "friction changing over the record"
+
+    def n_params(self, struct) -> int:
+        # a step adds its time to the two sizes of the change
+        return self.n_extra + (1 if is_step(struct) else 0)
 
     def _search(self, stage, baseline):
         reference = baseline.structure
-        T = max(stage.n_fit * stage.ts_s, stage.ts_s)
         # S at the start and at the end of the fitted span, both on fine geometric grids (an
         # output-error stiction fit is sharp in S: a few per cent move every slip), around the
         # plain fits' S (a drifting valve's plain fit sits near its mid-span S); J drifts alike
         centres = {round(max(reference.S_up_pct, 0.2), 6)}
         if baseline.identified is not None and baseline.identified.S_up_pct > 0.2:
             centres.add(round(baseline.identified.S_up_pct, 6))
+        drift = self._drift_search(stage, baseline, reference, centres)
+        step = self._step_search(stage, reference, centres)
+        return best_of(stage, [drift, step])[0]
+
+    def _drift_search(self, stage, baseline, reference, centres):
+        """S and J drifting linearly from the first sample to the last."""
+        T = max(stage.n_fit * stage.ts_s, stage.ts_s)
         best = self._grid(stage, reference, centres, T)
         if stage.name == "valve":
             return fine_valve(stage, best, "dS_pct_per_s")
@@ -56,7 +68,71 @@ class TimeVaryingFriction(PhysicsHypothesis):
         b, c = best_of(stage, [b])
         return (b, c) if c < cost else (best, cost)
 
+    def _step_search(self, stage, reference, centres):
+        """S and J changing in one step: a grid of the step's time (every 5 % of the fitted span)
+        x S before it (0.5-2 times the plain fit's) x S after it (0.5-2 times that; both geometric,
+        7 % steps) x two J/S, from the reference's start; the best few distinct steps get their
+        initial state fitted, the best two are polished (`_step_rounds`). A step is not a steep
+        drift: the valve is the same before and after it, and a linear drift fitted to a step is
+        wrong on both sides and worse beyond the fitted span."""
+        ts = stage.ts_s
+        T = max(stage.n_fit * ts, ts)
+        times = np.round(T * np.arange(0.05, 0.951, 0.05) / ts) * ts
+        # the plain fit sits near the friction of the longer side of the step: S before it can be
+        # half or twice that
+        m_start = np.exp(np.arange(math.log(0.5), math.log(2.0), 0.07))
+        q = np.exp(np.concatenate([np.arange(-0.7, -0.035, 0.07), np.arange(0.07, 0.71, 0.07)]))
+        r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
+        parts = [reference]
+        for Sc in centres:
+            t, s0, qq, r = mesh(times, Sc * m_start, q, sorted({round(r0, 3), 0.5}))
+            parts.append(Candidates(reference, S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r,
+                                    dS_pct_per_s=s0 * (qq - 1.0) / ts, dJ_pct_per_s=s0 * r * (qq - 1.0) / ts,
+                                    drift_from_s=t, drift_for_s=ts))
+        cands = Pool(parts)
+        sse = train_sse(stage, cands)
+        tops = best_distinct(cands, sse, lambda c: (round(c.drift_from_s / (0.05 * T)),
+                                                    round(math.log(max(c.S_up_pct, 1e-3)) / 0.07),
+                                                    round(math.log(max(step_after(c), 1e-3)) / 0.07)), 6)
+        tops = [fit_initial_state(stage, c)[0] for c in tops if is_step(c)]
+        if not tops:
+            return reference
+        ranked = sorted(tops, key=lambda c: best_of(stage, [c])[1])
+        best, _ = best_of(stage, [self._step_rounds(stage, c) for c in ranked[:2]])
+        return best
+
+    @staticmethod
+    def _step_rounds(stage, best):
+        """Local polish of a step: its time with S before and after it, then J before and after,
+        then the initial state and (OP -> PV) the dynamics; twice, the second finer."""
+        ts = stage.ts_s
+        T = max(stage.n_fit * ts, ts)
+        for rnd in range(2):
+            span = 0.06 if rnd == 0 else 0.02
+            t0 = best.drift_from_s
+            s0, s1 = best.S_up_pct, step_after(best)
+            j0, j1 = best.J_up_pct, best.J_up_pct + best.dJ_pct_per_s * ts
+            dt = (0.05 if rnd == 0 else 0.01) * T
+            tt, ms, mq = mesh(np.clip(np.round((t0 + np.linspace(-dt, dt, 11)) / ts) * ts, ts, T),
+                              1.0 + np.linspace(-span, span, 7), 1.0 + np.linspace(-span, span, 7))
+            r0, r1 = j0 / max(s0, 1e-9), j1 / max(s1, 1e-9)
+            grid = Candidates(best, drift_from_s=tt, S_up_pct=s0 * ms, S_dn_pct=s0 * ms, J_up_pct=r0 * s0 * ms,
+                              J_dn_pct=r0 * s0 * ms, dS_pct_per_s=(s1 * mq - s0 * ms) / ts,
+                              dJ_pct_per_s=(r1 * s1 * mq - r0 * s0 * ms) / ts)
+            best, _ = best_of(stage, [grid, best])
+            s0, s1 = best.S_up_pct, step_after(best)
+            j0, j1 = max(best.J_up_pct, 0.02), max(best.J_up_pct + best.dJ_pct_per_s * ts, 0.02)
+            a, b = mesh(1.0 + np.linspace(-3 * span, 3 * span, 9), 1.0 + np.linspace(-3 * span, 3 * span, 9))
+            grid = Candidates(best, J_up_pct=j0 * a, J_dn_pct=j0 * a, dJ_pct_per_s=(j1 * b - j0 * a) / ts)
+            best, _ = best_of(stage, [grid, best])
+            best, _ = fit_initial_state(stage, best, local=True)
+            if not stage.fixed_dynamics:
+                best, _ = refit_dynamics(stage, best, rounds=1)
+        return best
+
     def _polish(self, stage, best, again=False):
+        if is_step(best):
+            return self._step_rounds(stage, best)
         if stage.name == "valve":
             return fine_valve(stage, best, "dS_pct_per_s", profile=not again)
         return self._rounds(stage, best, max(stage.n_fit * stage.ts_s, stage.ts_s))
@@ -117,14 +193,32 @@ class TimeVaryingFriction(PhysicsHypothesis):
         return best
 
     def _params(self, struct, reference, stage, coef):
+        record_s = stage.n * stage.ts_s
+        t0 = struct.drift_from_s
+        length = min(struct.drift_for_s, max(record_s - t0, 0.0))
         return {"S_start_pct": struct.S_up_pct, "J_start_pct": struct.J_up_pct,
-                "dS_pct_per_h": struct.dS_pct_per_s * 3600.0, "dJ_pct_per_h": struct.dJ_pct_per_s * 3600.0}
+                "dS_pct_per_h": struct.dS_pct_per_s * 3600.0, "dJ_pct_per_h": struct.dJ_pct_per_s * 3600.0,
+                "S_end_pct": max(struct.S_up_pct + struct.dS_pct_per_s * length, 0.0),
+                "J_end_pct": max(struct.J_up_pct + struct.dJ_pct_per_s * length, 0.0),
+                "change_from_s": t0, "change_for_s": length}
 
     def material(self, params, record_s, residual_rms):
-        # S or J changes by at least MIN_RELATIVE_EFFECT of the starting S over the record
+        # S or J changes by at least MIN_RELATIVE_EFFECT of the starting S over the record (a step
+        # by its size, however steep)
         big = max(params["S_start_pct"], 0.2)
-        change = max(abs(params["dS_pct_per_h"]), abs(params["dJ_pct_per_h"])) * record_s / 3600.0
+        change = max(abs(params["S_end_pct"] - params["S_start_pct"]),
+                     abs(params["J_end_pct"] - params["J_start_pct"]))
         return change >= MIN_RELATIVE_EFFECT * big
+
+
+def is_step(struct) -> bool:
+    """Whether a structure's friction changes in one step (a drift one sample long)."""
+    return bool(math.isfinite(struct.drift_for_s)) and (struct.dS_pct_per_s != 0.0 or struct.dJ_pct_per_s != 0.0)
+
+
+def step_after(struct) -> float:
+    """S after a step (the drift's rate over its length); S itself where there is none."""
+    return struct.S_up_pct + struct.dS_pct_per_s * struct.drift_for_s if is_step(struct) else struct.S_up_pct
 
 
 def _coarse_drift_starts(stage: Stage, reference: Structure, k: int = 3) -> list[Structure]:
