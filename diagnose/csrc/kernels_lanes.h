@@ -30,8 +30,9 @@ static inline __attribute__((always_inline)) KATTR VT V(nonneg_, SFX)(VT v)
 /*
  * nv (1 or 2) vectors of LANES candidate valves over x[0..n): lane g of vector u (its parameters at
  * index u * LANES + g) has stiction (su, ju) opening and (sd, jd) closing, drift (ds, dj) per
- * second from t0 for tw seconds (t0_ / tw_ NULL: from the start, for ever), starting direction f, actuator lag pole a (0: none) and start state y0 / xs0 (NaN: at
- * rest at the first input). With vec it writes all lanes' (lagged) stems of sample k as the one
+ * second from t0 for tw seconds (t0_ / tw_ NULL: from the start, for ever), starting direction
+ * f, actuator lag pole a (0: none) and start state y0 / xs0 (NaN: at rest at the first input).
+ * With vec it writes all lanes' (lagged) stems of sample k as the one
  * vector il[u][k]; without (nv = 1 only), lane g's stem to rows[g][0..n). Two vectors advance side
  * by side (the step is a chain of dependent operations); each lane does the same operations either
  * way. valve_lanes and valve_lanes_vec below are the one-vector forms.
@@ -146,7 +147,8 @@ static KATTR void V(valve_lanes_vec_, SFX)(const double *x, int64_t n, const dou
 /* m candidate valves (arrays of m) -> out (m rows, leading dimension ld); see valve_lanes. */
 KATTR void V(valve_run_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-                              const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                              const double *dt0, const double *dtw, const double *f0, const double *a_lag,
+                              const double *y0, const double *xs0,
                               double ts, double *out, int64_t ld)
 {
     if (n <= 0)
@@ -280,10 +282,12 @@ static KATTR int V(score_blocks_, SFX)(const double *x, int64_t n, const double 
         for (int h = 0; h < nv * LANES; h++)
             plain_valve(&pv, h, valves, m, i0 + h < m ? i0 + h : m - 1);    /* spare lanes repeat the last */
         if (nv == 2)
-            V(valve_core_, SFX)(2, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
+            V(valve_core_, SFX)(2, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0,
+                                pv.xs0, ts, NULL,
                                 rows, 1);
         else
-            V(valve_core_, SFX)(1, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, NULL,
+            V(valve_core_, SFX)(1, x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0,
+                                pv.xs0, ts, NULL,
                                 rows, 1);
         for (int u = 0; u < nv; u++) {
             VT first = rows[u][0];
@@ -424,7 +428,8 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 V(proc_lane_, SFX)(g, pi[g], a1, a2, integ, ts, &A1, &B1, &A2, &B2, &I, &N);
             }
             VT *u0 = il + dmax;
-            V(valve_lanes_vec_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, u0);
+            V(valve_lanes_vec_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0,
+                                     pv.xs0, ts, u0);
             VT first = u0[0];
             for (int64_t k = 0; k < n; k++)
                 u0[k] -= first;
@@ -478,7 +483,8 @@ KATTR int V(score_, SFX)(const double *x, int64_t n, const double *valves, int64
                 plain_valve(&pv, g, valves, m, need_i[h]);
                 o4[g] = need_u[h];
             }
-            V(valve_lanes_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0, pv.xs0, ts, o4);
+            V(valve_lanes_, SFX)(x, n, pv.S, pv.J, pv.S, pv.J, ZEROS, ZEROS, NULL, NULL, pv.F, ZEROS, pv.y0,
+                                 pv.xs0, ts, o4);
             for (int h = 0; h < nneed; h++) {
                 double *row = need_u[h];
                 double first = row[0];
@@ -582,7 +588,8 @@ static KATTR void V(fused_front_, SFX)(const double *x, int64_t n, int64_t m, in
  */
 KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                          const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
-                         const double *dt0, const double *dtw, const double *f0, const double *a_lag, const double *y0, const double *xs0,
+                         const double *dt0, const double *dtw, const double *f0, const double *a_lag,
+                         const double *y0, const double *xs0,
                          const double *cc, const double *a1, const double *a2, const int64_t *d,
                          const uint8_t *integ, double ts_s, const double *E, int64_t q, const double *y,
                          const double *w, double sgn, double *out)
@@ -602,7 +609,8 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
         int64_t off[LANES];
         int same;
         VT A1, B1, A2, B2, I, N, u0;
-        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2,
+                             d, integ,
                              ts_s, buf, maxd, off, &same, &A1, &B1, &A2, &B2, &I, &N, &u0);
         const VT *in = buf + off[0];
         VT z1 = u0, z2 = u0, ac = {0.0}, szz = {0.0}, sz = {0.0}, szy = {0.0};
@@ -657,7 +665,8 @@ KATTR int V(fused_, SFX)(const double *x, int64_t n, int64_t m, const double *S_
 KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const double *S_up, const double *J_up,
                               const double *S_dn, const double *J_dn, const double *dS, const double *dJ,
                               const double *dt0, const double *dtw, const double *f0, const double *a_lag,
-                              const double *y0, const double *xs0, const double *cc, const double *a1, const double *a2, const int64_t *d,
+                              const double *y0, const double *xs0, const double *cc, const double *a1,
+                              const double *a2, const int64_t *d,
                               const uint8_t *integ, double ts_s, const double *wload, int with_t,
                               const double *y, const double *w, double sgn, double *out)
 {
@@ -675,7 +684,8 @@ KATTR int V(fused_load_, SFX)(const double *x, int64_t n, int64_t m, const doubl
         int64_t off[LANES];
         int same;
         VT A1, B1, A2, B2, I, N, u0, rs, rc;
-        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2, d, integ,
+        V(fused_front_, SFX)(x, n, m, i0, S_up, J_up, S_dn, J_dn, dS, dJ, dt0, dtw, f0, a_lag, y0, xs0, cc, a1, a2,
+                             d, integ,
                              ts_s, buf, maxd, off, &same, &A1, &B1, &A2, &B2, &I, &N, &u0);
         const VT *in = buf + off[0];
         for (int g = 0; g < LANES; g++) {
