@@ -93,12 +93,12 @@ class TimeVaryingFriction(PhysicsHypothesis):
         sse = train_sse(stage, cands)
         tops = best_distinct(cands, sse, lambda c: (round(c.drift_from_s / (0.05 * T)),
                                                     round(math.log(max(c.S_up_pct, 1e-3)) / 0.07),
-                                                    round(math.log(max(step_after(c), 1e-3)) / 0.07)), 6)
-        tops = [fit_initial_state(stage, c)[0] for c in tops if is_step(c)]
-        if not tops:
+                                                    round(math.log(max(step_after(c)[0], 1e-3)) / 0.07)), 6)
+        # each with its own start state, ranked by the training SSE that fit returns
+        fitted = sorted((fit_initial_state(stage, c) for c in tops if is_step(c)), key=lambda cs: cs[1])
+        if not fitted:
             return reference
-        ranked = sorted(tops, key=lambda c: best_of(stage, [c])[1])
-        best, _ = best_of(stage, [self._step_rounds(stage, c) for c in ranked[:2]])
+        best, _ = best_of(stage, [self._step_rounds(stage, c) for c, _ in fitted[:2]])
         return best
 
     @staticmethod
@@ -110,8 +110,7 @@ class TimeVaryingFriction(PhysicsHypothesis):
         for rnd in range(2):
             span = 0.06 if rnd == 0 else 0.02
             t0 = best.drift_from_s
-            s0, s1 = best.S_up_pct, step_after(best)
-            j0, j1 = best.J_up_pct, best.J_up_pct + best.dJ_pct_per_s * ts
+            (s0, j0), (s1, j1) = (best.S_up_pct, best.J_up_pct), step_after(best)
             dt = (0.05 if rnd == 0 else 0.01) * T
             tt, ms, mq = mesh(np.clip(np.round((t0 + np.linspace(-dt, dt, 11)) / ts) * ts, ts, T),
                               1.0 + np.linspace(-span, span, 7), 1.0 + np.linspace(-span, span, 7))
@@ -120,8 +119,8 @@ class TimeVaryingFriction(PhysicsHypothesis):
                               J_dn_pct=r0 * s0 * ms, dS_pct_per_s=(s1 * mq - s0 * ms) / ts,
                               dJ_pct_per_s=(r1 * s1 * mq - r0 * s0 * ms) / ts)
             best, _ = best_of(stage, [grid, best])
-            s0, s1 = best.S_up_pct, step_after(best)
-            j0, j1 = max(best.J_up_pct, 0.02), max(best.J_up_pct + best.dJ_pct_per_s * ts, 0.02)
+            (s0, j0), (s1, j1) = (best.S_up_pct, best.J_up_pct), step_after(best)
+            j0, j1 = max(j0, 0.02), max(j1, 0.02)
             a, b = mesh(1.0 + np.linspace(-3 * span, 3 * span, 9), 1.0 + np.linspace(-3 * span, 3 * span, 9))
             grid = Candidates(best, J_up_pct=j0 * a, J_dn_pct=j0 * a, dJ_pct_per_s=(j1 * b - j0 * a) / ts)
             best, _ = best_of(stage, [grid, best])
@@ -216,9 +215,13 @@ def is_step(struct) -> bool:
     return bool(math.isfinite(struct.drift_for_s)) and (struct.dS_pct_per_s != 0.0 or struct.dJ_pct_per_s != 0.0)
 
 
-def step_after(struct) -> float:
-    """S after a step (the drift's rate over its length); S itself where there is none."""
-    return struct.S_up_pct + struct.dS_pct_per_s * struct.drift_for_s if is_step(struct) else struct.S_up_pct
+def step_after(struct) -> tuple[float, float]:
+    """S and J after a step (the drift's rates over its length); S and J themselves where there is
+    none."""
+    if not is_step(struct):
+        return struct.S_up_pct, struct.J_up_pct
+    return (struct.S_up_pct + struct.dS_pct_per_s * struct.drift_for_s,
+            struct.J_up_pct + struct.dJ_pct_per_s * struct.drift_for_s)
 
 
 def _coarse_drift_starts(stage: Stage, reference: Structure, k: int = 3) -> list[Structure]:
