@@ -127,15 +127,19 @@ def refine_plain(stage: Stage, struct: Structure, rounds: int = 2) -> tuple[Stru
     return struct, sse
 
 
-def global_sj(stage: Stage, struct: Structure, span: float | None = None, step: float = 0.025) -> Structure:
+#: J/S of `global_sj`'s grid
+GLOBAL_RATIOS = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.45)
+
+
+def global_sj(stage: Stage, struct: Structure, span: float | None = None, step: float = 0.025,
+              ratios: Sequence[float] = GLOBAL_RATIOS) -> Structure:
     """Fine global symmetric (S, J, f0) grid at fixed other parameters (S in geometric steps of
-    ``step`` from 0.2 % to 80 % of OP's range), then a local polish."""
+    ``step`` from 0.2 % to 80 % of OP's range, J/S at ``ratios``), then a local polish."""
     if span is None:
         span = float(np.ptp(stage.x[: stage.n_fit]))
     hi = max(0.8 * span, 0.3)
     S_grid = np.exp(np.arange(math.log(0.2), math.log(hi) + 1e-9, math.log1p(step)))
-    ratios = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.45)
-    s, r, f = mesh(S_grid, ratios, (1, -1))
+    s, r, f = mesh(S_grid, np.asarray(ratios, float), (1, -1))
     grid = Candidates(struct, S_up_pct=s, S_dn_pct=s, J_up_pct=s * r, J_dn_pct=s * r, f0=f)
     best = best_of(stage, [grid, struct.replace(S_up_pct=0.0, S_dn_pct=0.0, J_up_pct=0.0, J_dn_pct=0.0),
                            struct])[0]
@@ -287,8 +291,8 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None, *, pro
 PROFILE_FULL = 4
 
 
-def profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Structure:
-    """J/S over its whole range (x the extra at +-15 %), each with its own initial valve state: the
+def profile_ratio(stage: Stage, struct: Structure, extra: str | None, max_ratio: float = 1.45) -> Structure:
+    """J/S over 0 to ``max_ratio`` (x the extra at +-15 %), each with its own initial valve state: the
     first start grid (`start_grid`) at every value, then for the best `PROFILE_FULL` values the
     whole start search (`fit_initial_state`).
 
@@ -302,7 +306,7 @@ def profile_ratio(stage: Stage, struct: Structure, extra: str | None) -> Structu
         kw, de = _extra_scale(extra, e0, em)
         combos += [struct.replace(J_up_pct=S0 * r, J_dn_pct=S0 * r, dS_pct_per_s=struct.dS_pct_per_s * de,
                                   dJ_pct_per_s=struct.dS_pct_per_s * r * de, **kw)
-                   for r in np.linspace(0.0, 1.45, 30)]
+                   for r in np.linspace(0.0, max_ratio, max(2, round(30 * max_ratio / 1.45)))]
     # every value with the first start grid in one pass; the best few get the whole start search
     grids = [start_grid(stage, c) for c in combos]
     sse = train_sse(stage, [part for grid in grids for part in grid.parts]).reshape(len(combos), -1)

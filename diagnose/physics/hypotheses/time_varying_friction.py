@@ -3,14 +3,22 @@ in one step (a maintenance action, a trip, a change of service)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
 from ..model import Candidates, Pool, Stage, Structure, mesh, train_sse
 from ..search import (best_distinct, best_of, dynamics_starts, fine_valve, fit_initial_state, keyword_columns,
-                      refit_dynamics, valve_dynamics_starts, y0_options)
+                      global_sj, profile_ratio, refit_dynamics, valve_dynamics_starts, y0_options)
 from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
+
+#: the largest J/S the drift and step grids start from: the plain fit's own J/S up to this (a
+#: valve that overshoots far, J near 2 S, is searched from its own ratio; the polish rounds move J
+#: too little to get there from a lower one)
+MAX_J_OVER_S = 2.0
+#: J/S of the grid that fits the valve on each side of a step
+SIDE_RATIOS = tuple(np.round(np.arange(0.0, MAX_J_OVER_S + 1e-9, 0.1), 2))
 
 
 class TimeVaryingFriction(PhysicsHypothesis):
@@ -82,7 +90,7 @@ class TimeVaryingFriction(PhysicsHypothesis):
         # half or twice that
         m_start = np.exp(np.arange(math.log(0.5), math.log(2.0), 0.07))
         q = np.exp(np.concatenate([np.arange(-0.7, -0.035, 0.07), np.arange(0.07, 0.71, 0.07)]))
-        r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
+        r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), MAX_J_OVER_S)
         parts = [reference]
         for Sc in centres:
             t, s0, qq, r = mesh(times, Sc * m_start, q, sorted({round(r0, 3), 0.5}))
@@ -98,7 +106,14 @@ class TimeVaryingFriction(PhysicsHypothesis):
         fitted = sorted((fit_initial_state(stage, c) for c in tops if is_step(c)), key=lambda cs: cs[1])
         if not fitted:
             return reference
-        best, _ = best_of(stage, [self._step_rounds(stage, c) for c, _ in fitted[:2]])
+        starts = [c for c, _ in fitted[:2]]
+        # the valve on each side of the best step fitted as a plain valve on that side alone (the
+        # grid's two J/S and the rounds' small steps stop short of a J far from the plain fit's,
+        # and of the S a clean stem pins to a twentieth of a per cent)
+        sides = _side_fits(stage, starts[0])
+        if sides is not None:
+            starts.append(sides)
+        best, _ = best_of(stage, [self._step_rounds(stage, c) for c in starts])
         return best
 
     @staticmethod
@@ -124,6 +139,11 @@ class TimeVaryingFriction(PhysicsHypothesis):
             a, b = mesh(1.0 + np.linspace(-3 * span, 3 * span, 9), 1.0 + np.linspace(-3 * span, 3 * span, 9))
             grid = Candidates(best, J_up_pct=j0 * a, J_dn_pct=j0 * a, dJ_pct_per_s=(j1 * b - j0 * a) / ts)
             best, _ = best_of(stage, [grid, best])
+            if rnd == 1:
+                # the grids above step the time by several samples and S by over half a per cent; a
+                # slip's timing resolves one sample, and S on a clean stem a twentieth of a per cent
+                best = _step_time_samples(stage, best, 6)
+                best = _step_sizes_fine(stage, best)
             best, _ = fit_initial_state(stage, best, local=True)
             if not stage.fixed_dynamics:
                 best, _ = refit_dynamics(stage, best, rounds=1)
@@ -143,7 +163,7 @@ class TimeVaryingFriction(PhysicsHypothesis):
         further candidates to keep (e.g. the drift the search restarts from)."""
         m_start = np.exp(np.arange(math.log(0.55), math.log(1.35), 0.03))
         q_end = np.exp(np.concatenate([np.arange(-0.6, -0.035, 0.03), np.arange(0.04, 0.61, 0.03)]))
-        r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), 1.45)
+        r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), MAX_J_OVER_S)
         # J/S 0 (a deadband) among them: the polish rounds scale J and cannot reach 0 from a band
         ratios = sorted({round(r0, 3), 0.0, 0.3, 0.6, 0.9})
         parts = [reference] + list(extra)
@@ -222,6 +242,54 @@ def step_after(struct) -> tuple[float, float]:
         return struct.S_up_pct, struct.J_up_pct
     return (struct.S_up_pct + struct.dS_pct_per_s * struct.drift_for_s,
             struct.J_up_pct + struct.dJ_pct_per_s * struct.drift_for_s)
+
+
+def _side_fits(stage: Stage, step: Structure) -> Structure | None:
+    """The step with the friction before and after it each fitted as a plain valve (`global_sj`:
+    S and J/S on a fine grid, `profile_ratio`, and on the valve stage `fine_valve`) on the training
+    samples of its own side, a margin of 3 % of the fitted span away from the step; None when a
+    side is shorter than a tenth of the training part. The dynamics are the step's."""
+    ts = stage.ts_s
+    k = int(round(step.drift_from_s / ts))
+    margin = max(int(0.03 * stage.n_fit), 1)
+    idx = np.arange(stage.n)
+    n_tr = int(stage.train.sum())
+    plain = step.replace(dS_pct_per_s=0.0, dJ_pct_per_s=0.0, drift_from_s=0.0, drift_for_s=math.inf)
+    fitted = []
+    for side in (idx < k - margin, idx > k + margin):
+        train = stage.train & side
+        if int(train.sum()) < 0.1 * n_tr:
+            return None
+        sub = dataclasses.replace(stage, train=train)
+        side_fit = global_sj(sub, plain, ratios=SIDE_RATIOS)
+        # the valve's start state and J trade off: J/S again with the start fitted at each value
+        side_fit = profile_ratio(sub, side_fit, None, max_ratio=MAX_J_OVER_S)
+        if stage.name == "valve":
+            side_fit = fine_valve(sub, side_fit, profile=False)
+        fitted.append(side_fit)
+    (s0, j0), (s1, j1) = ((f.S_up_pct, f.J_up_pct) for f in fitted)
+    cand = step.replace(S_up_pct=s0, S_dn_pct=s0, J_up_pct=j0, J_dn_pct=j0, f0=fitted[0].f0,
+                        dS_pct_per_s=(s1 - s0) / ts, dJ_pct_per_s=(j1 - j0) / ts)
+    return fit_initial_state(stage, cand)[0]
+
+
+def _step_time_samples(stage: Stage, best: Structure, k: int) -> Structure:
+    """The step's time moved by up to ``k`` samples either way (sizes held): the better-trained."""
+    ts = stage.ts_s
+    T = max(stage.n_fit * ts, ts)
+    times = np.clip(best.drift_from_s + ts * np.arange(-k, k + 1), ts, T)
+    return best_of(stage, [Candidates(best, drift_from_s=times), best])[0]
+
+
+def _step_sizes_fine(stage: Stage, best: Structure) -> Structure:
+    """S after the step, then S before it, each over +-1.5 % in 0.05 % steps (J held)."""
+    ts = stage.ts_s
+    m = 1.0 + np.linspace(-0.015, 0.015, 61)
+    s0, (s1, _) = best.S_up_pct, step_after(best)
+    best, _ = best_of(stage, [Candidates(best, dS_pct_per_s=(s1 * m - s0) / ts), best])
+    s1 = step_after(best)[0]
+    grid = Candidates(best, S_up_pct=s0 * m, S_dn_pct=s0 * m, dS_pct_per_s=(s1 - s0 * m) / ts)
+    return best_of(stage, [grid, best])[0]
 
 
 def _coarse_drift_starts(stage: Stage, reference: Structure, k: int = 3) -> list[Structure]:
