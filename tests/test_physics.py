@@ -1000,6 +1000,18 @@ def test_the_text_picks_the_best_refused_hypothesis_by_its_relative_change_not_a
     assert "(h_loop) changes the held-out RMSE of PV by -30 %" in text and "h_valve" not in text
 
 
+def _stem_loop(valve, *, gain: float, tau_s: float, rng_seed: int, seed: int, mv_noise: float, n: int = 3000):
+    """A PI loop on FOPTD (dead time 2 s, 1 s sampling, 300 warm-up samples) around ``valve``,
+    with a random-walk load and the stem measured through ``mv_noise`` % of noise."""
+    ts, warmup = 1.0, 300
+    rng = np.random.default_rng(rng_seed)
+    load = np.cumsum(rng.normal(0.0, 0.02, n))
+    rec = simulate_loop(n=n, ts_s=ts, process=make_process("foptd", gain=gain, tau_s=tau_s, delay_s=2.0),
+                        controller=simc_pi(gain, tau_s, 2.0, ts), valve=valve, load=load, noise_std=0.05, seed=seed,
+                        warmup=warmup)
+    return rec.replace(mv=rec.mv + rng.normal(0.0, mv_noise, n))
+
+
 def test_a_step_in_friction_is_named_with_its_time_from_the_stem():
     # friction that changes in one step (a valve repacked or re-tightened mid-record: S 5 -> 2.5 %,
     # J 2 -> 1 % at 900 s of the record) is neither the plain valve nor a linear drift: a drift
@@ -1009,13 +1021,7 @@ def test_a_step_in_friction_is_named_with_its_time_from_the_stem():
     ts, warmup = 1.0, 300
     valve = AugmentedValve(5.0, 2.0, dS_pct_per_s=-2.5, dJ_pct_per_s=-1.0, ts_s=ts, drift_from_s=900.0 + warmup,
                            drift_for_s=ts)
-    rng = np.random.default_rng(11)
-    n = 3000
-    load = np.cumsum(rng.normal(0.0, 0.02, n))
-    rec = simulate_loop(n=n, ts_s=ts, process=make_process("foptd", gain=1.2, tau_s=15.0, delay_s=2.0),
-                        controller=simc_pi(1.2, 15.0, 2.0, ts), valve=valve, load=load, noise_std=0.05, seed=4,
-                        warmup=warmup)
-    rec = rec.replace(mv=rec.mv + rng.normal(0.0, 0.1, n))
+    rec = _stem_loop(valve, gain=1.2, tau_s=15.0, rng_seed=11, seed=4, mv_noise=0.1)
     ex = explain(rec, target="mv", hypotheses=["time_varying_friction"])
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses
@@ -1040,13 +1046,7 @@ def test_a_step_on_a_valve_that_overshoots_far_is_found_to_the_stems_precision()
     ts, warmup = 1.0, 300
     valve = AugmentedValve(3.0, 5.7, dS_pct_per_s=2.1, dJ_pct_per_s=3.99, ts_s=ts, drift_from_s=1100.0 + warmup,
                            drift_for_s=ts)
-    rng = np.random.default_rng(23)
-    n = 3000
-    load = np.cumsum(rng.normal(0.0, 0.02, n))
-    rec = simulate_loop(n=n, ts_s=ts, process=make_process("foptd", gain=1.0, tau_s=10.0, delay_s=2.0),
-                        controller=simc_pi(1.0, 10.0, 2.0, ts), valve=valve, load=load, noise_std=0.05, seed=5,
-                        warmup=warmup)
-    rec = rec.replace(mv=rec.mv + rng.normal(0.0, 0.02, n))
+    rec = _stem_loop(valve, gain=1.0, tau_s=10.0, rng_seed=23, seed=5, mv_noise=0.02)
     ex = explain(rec, target="mv", hypotheses=["time_varying_friction"])
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses
@@ -1063,14 +1063,8 @@ def test_a_lag_small_against_the_stems_noise_is_named_on_overwhelming_evidence()
     # effect is named (and the message of a refusal would say which rule applied)
     from diagnose.physics.explain import DECISIVE_BIC
 
-    ts, warmup, n = 1.0, 300, 3000
-    valve = AugmentedValve(3.0, 0.0, tau_lag_s=2.0, ts_s=ts)
-    rng = np.random.default_rng(3)
-    load = np.cumsum(rng.normal(0.0, 0.02, n))
-    rec = simulate_loop(n=n, ts_s=ts, process=make_process("foptd", gain=1.0, tau_s=10.0, delay_s=2.0),
-                        controller=simc_pi(1.0, 10.0, 2.0, ts), valve=valve, load=load, noise_std=0.05, seed=3,
-                        warmup=warmup)
-    rec = rec.replace(mv=rec.mv + rng.normal(0.0, 0.1, n))
+    valve = AugmentedValve(3.0, 0.0, tau_lag_s=2.0, ts_s=1.0)
+    rec = _stem_loop(valve, gain=1.0, tau_s=10.0, rng_seed=3, seed=3, mv_noise=0.1)
     ex = explain(rec, target="mv", hypotheses=["actuator_lag"])
     (h,) = ex.hypotheses
     assert ex.missing_physics == "actuator_lag" and h.accepted

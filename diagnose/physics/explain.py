@@ -231,9 +231,8 @@ def _plain_projections(s: Structure, n_mid: int = 0, ts_s: float = 1.0) -> list[
     elif s.dS_pct_per_s or s.dJ_pct_per_s:
         out.append(base)
         # a step: the friction after it; a drift: at mid-training
-        t = s.drift_for_s if math.isfinite(s.drift_for_s) else n_mid * ts_s
-        if t:
-            S, J = max(s.S_up_pct + s.dS_pct_per_s * t, 0.0), max(s.J_up_pct + s.dJ_pct_per_s * t, 0.0)
+        if math.isfinite(s.drift_for_s) or n_mid:
+            S, J = s.friction_at(math.inf if math.isfinite(s.drift_for_s) else n_mid * ts_s)
             out.append(base.replace(S_up_pct=S, S_dn_pct=S, J_up_pct=J, J_dn_pct=J))
     else:
         out.append(base)

@@ -92,6 +92,15 @@ class Structure:
         return cls(S_up_pct=S_pct, J_up_pct=J_pct, S_dn_pct=S_pct, J_dn_pct=J_pct, f0=int(f0),
                    process=process)
 
+    def friction_at(self, t_s: float) -> tuple[float, float]:
+        """Opening S and J ``t_s`` seconds after the first sample: the drift within its window
+        (after a step, the friction after it), clipped at 0 as the valve kernel clips them."""
+        t = min(max(t_s - self.drift_from_s, 0.0), self.drift_for_s)
+        # a rate of 0 leaves S or J as they are at any time, also for ever (0 * inf is NaN)
+        dS = self.dS_pct_per_s * t if self.dS_pct_per_s else 0.0
+        dJ = self.dJ_pct_per_s * t if self.dJ_pct_per_s else 0.0
+        return max(self.S_up_pct + dS, 0.0), max(self.J_up_pct + dJ, 0.0)
+
     def replace(self, **kw) -> "Structure":
         # hot path of the searches (hundreds of thousands of candidates): a plain copy of the
         # fields instead of dataclasses.replace (no __post_init__ to run)

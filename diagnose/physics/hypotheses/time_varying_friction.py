@@ -65,7 +65,7 @@ class TimeVaryingFriction(PhysicsHypothesis):
         # other dynamics only (the second best adds little)
         mid = 0.5 * T
         for st in dynamics_starts(stage, best, k=1):
-            around = centres | {round(max(best.S_up_pct + best.dS_pct_per_s * mid, 0.2), 6)}
+            around = centres | {round(max(best.friction_at(mid)[0], 0.2), 6)}
             best, cost = self._restart(stage, st, around, T, best, cost)
         return best
 
@@ -215,11 +215,10 @@ class TimeVaryingFriction(PhysicsHypothesis):
         record_s = stage.n * stage.ts_s
         t0 = struct.drift_from_s
         length = min(struct.drift_for_s, max(record_s - t0, 0.0))
+        S_end, J_end = struct.friction_at(record_s)
         return {"S_start_pct": struct.S_up_pct, "J_start_pct": struct.J_up_pct,
                 "dS_pct_per_h": struct.dS_pct_per_s * 3600.0, "dJ_pct_per_h": struct.dJ_pct_per_s * 3600.0,
-                "S_end_pct": max(struct.S_up_pct + struct.dS_pct_per_s * length, 0.0),
-                "J_end_pct": max(struct.J_up_pct + struct.dJ_pct_per_s * length, 0.0),
-                "change_from_s": t0, "change_for_s": length}
+                "S_end_pct": S_end, "J_end_pct": J_end, "change_from_s": t0, "change_for_s": length}
 
     def material(self, params, record_s, residual_rms):
         # S or J changes by at least MIN_RELATIVE_EFFECT of the starting S over the record (a step
@@ -236,12 +235,10 @@ def is_step(struct) -> bool:
 
 
 def step_after(struct) -> tuple[float, float]:
-    """S and J after a step (the drift's rates over its length); S and J themselves where there is
-    none."""
+    """S and J after a step; S and J themselves where there is none."""
     if not is_step(struct):
         return struct.S_up_pct, struct.J_up_pct
-    return (struct.S_up_pct + struct.dS_pct_per_s * struct.drift_for_s,
-            struct.J_up_pct + struct.dJ_pct_per_s * struct.drift_for_s)
+    return struct.friction_at(math.inf)
 
 
 def _side_fits(stage: Stage, step: Structure) -> Structure | None:
