@@ -19,6 +19,9 @@ from .base import MIN_RELATIVE_EFFECT, VALVE_SIDE, PhysicsHypothesis
 MAX_J_OVER_S = 2.0
 #: J/S of the grid that fits the valve on each side of a step
 SIDE_RATIOS = tuple(np.round(np.arange(0.0, MAX_J_OVER_S + 1e-9, 0.1), 2))
+#: the step grid keeps pairs (S before, S after) with the smaller at most 1/this and the larger at
+#: least this times the plain fit's S
+STEP_BRACKET = 0.75
 
 
 class TimeVaryingFriction(PhysicsHypothesis):
@@ -77,23 +80,34 @@ class TimeVaryingFriction(PhysicsHypothesis):
         return (b, c) if c < cost else (best, cost)
 
     def _step_search(self, stage, reference, centres):
-        """S and J changing in one step: a grid of the step's time (every 5 % of the fitted span)
-        x S before it (0.5-2 times the plain fit's) x S after it (0.5-2 times that; both geometric,
-        7 % steps) x two J/S, from the reference's start; the best few distinct steps get their
-        initial state fitted, the best two are polished (`_step_rounds`). A step is not a steep
+        """S and J changing in one step: a grid of the step's time (every 5 % of the scored
+        training span) x S before it (0.35-2.5 times the plain fit's) x S after it (0.37-2.7 times
+        that; both geometric, 7 % steps; only pairs that bracket the plain fit's S) x three J/S,
+        from the reference's start; the best few distinct steps get their initial state fitted,
+        the best two are polished (`_step_rounds`). A step is not a steep
         drift: the valve is the same before and after it, and a linear drift fitted to a step is
         wrong on both sides and worse beyond the fitted span."""
         ts = stage.ts_s
         T = max(stage.n_fit * ts, ts)
-        times = np.round(T * np.arange(0.05, 0.951, 0.05) / ts) * ts
-        # the plain fit sits near the friction of the longer side of the step: S before it can be
-        # half or twice that
-        m_start = np.exp(np.arange(math.log(0.5), math.log(2.0), 0.07))
-        q = np.exp(np.concatenate([np.arange(-0.7, -0.035, 0.07), np.arange(0.07, 0.71, 0.07)]))
+        # a step before the first scored sample cannot be told from the valve's start state
+        t_lo = float(np.argmax(stage.train)) * ts
+        times = np.round((t_lo + (T - t_lo) * np.arange(0.05, 0.951, 0.05)) / ts) * ts
+        # the plain fit sits between the friction before and after the step, near the longer
+        # side's: S before it from a third to two and a half times the plain fit's, S after it
+        # from a third to nearly three times that, the pair bracketing the plain fit's S (within a
+        # quarter either way)
+        m_start = np.exp(np.arange(math.log(0.35), math.log(2.5), 0.07))
+        q = np.exp(np.concatenate([np.arange(-1.0, -0.035, 0.07), np.arange(0.07, 1.01, 0.07)]))
+        mm, qm = (a.ravel() for a in np.meshgrid(m_start, q))
+        brackets = (np.minimum(mm, mm * qm) <= 1.0 / STEP_BRACKET) & (np.maximum(mm, mm * qm) >= STEP_BRACKET)
+        pairs = np.flatnonzero(brackets)
         r0 = min(reference.J_up_pct / max(reference.S_up_pct, 1e-9), MAX_J_OVER_S)
         parts = [reference]
         for Sc in centres:
-            t, s0, qq, r = mesh(times, Sc * m_start, q, sorted({round(r0, 3), 0.5}))
+            # a no-offset valve (J = S) among the J/S: a plain fit over both sides of a step
+            # compromises its J/S, and the polish rounds move J too little to get back
+            t, ip, r = mesh(times, pairs, sorted({round(r0, 3), 0.5, 1.0}))
+            s0, qq = Sc * mm[ip.astype(int)], qm[ip.astype(int)]
             parts.append(Candidates(reference, S_up_pct=s0, S_dn_pct=s0, J_up_pct=s0 * r, J_dn_pct=s0 * r,
                                     dS_pct_per_s=s0 * (qq - 1.0) / ts, dJ_pct_per_s=s0 * r * (qq - 1.0) / ts,
                                     drift_from_s=t, drift_for_s=ts))
