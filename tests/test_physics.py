@@ -19,6 +19,7 @@ from diagnose.physics.search import fit_initial_state, refine_plain
 from diagnose.physics.plant import (AsymmetricStictionValve, AugmentedValve, CharacteristicProcess,
                                     DriftingStictionValve, LaggedValve, equal_percentage)
 from diagnose.physics.valve import augmented_valve, characteristic
+from diagnose.plain import number
 from diagnose.process_model import ProcessModel
 from diagnose.simulate import make_process, simc_pi, simulate_loop
 from diagnose.stiction_model import stiction_batch
@@ -1031,12 +1032,29 @@ def test_a_step_in_friction_is_named_with_its_time_from_the_stem():
     assert 887.0 <= p["change_from_s"] <= 901.0
     assert p["S_start_pct"] == pytest.approx(5.0, rel=0.05) and p["S_end_pct"] == pytest.approx(2.5, rel=0.05)
     assert p["J_end_pct"] < p["J_start_pct"]
+    # the text gives the friction before and after the step and its time, not the one-sample rates
+    assert "dS_pct_per_h" not in ex.explanation and "change_for_s" not in ex.explanation
+    assert f"S_end_pct = {number(p['S_end_pct'])}" in ex.explanation and "change_from_s = " in ex.explanation
     # a linear drift over the whole record reports the record as the change's length
     drift = {x.name: x for x in explain(concealed_loop("time_varying_friction", 5001, n=3000, with_mv=True,
                                                        min_moves=(0.65, 10, 5))[0],
                                         target="mv", hypotheses=["time_varying_friction"]).hypotheses}
     d = drift["time_varying_friction"]
     assert d.n_extra == 2 and d.params["change_from_s"] == 0.0 and d.params["change_for_s"] == 3000.0
+
+
+def test_a_drift_shows_its_rates_and_a_step_its_sides_and_time():
+    from diagnose.physics.hypotheses import shown_params
+
+    drift = {"S_start_pct": 3.0, "J_start_pct": 1.0, "dS_pct_per_h": 1.2, "dJ_pct_per_h": 0.4, "S_end_pct": 4.0,
+             "J_end_pct": 1.33, "change_from_s": 0.0, "change_for_s": 3000.0}
+    assert shown_params("time_varying_friction", drift) == drift
+    step = dict(drift, dS_pct_per_h=-9000.0, dJ_pct_per_h=-3600.0, S_end_pct=0.5, J_end_pct=0.0,
+                change_from_s=900.0, change_for_s=1.0)
+    assert shown_params("time_varying_friction", step) == {
+        "S_start_pct": 3.0, "J_start_pct": 1.0, "S_end_pct": 0.5, "J_end_pct": 0.0, "change_from_s": 900.0}
+    assert shown_params("actuator_lag", {"tau_s": 2.0}) == {"tau_s": 2.0}
+    assert shown_params("not_registered", {"x": 1.0}) == {"x": 1.0}
 
 
 def test_a_step_that_more_than_doubles_the_friction_is_found():

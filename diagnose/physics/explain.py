@@ -637,7 +637,7 @@ _KIND_WORDS = {"foptd": "a first-order", "soptd": "a second-order", "integrating
 
 def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: str, base_rmse: float,
           improved_rmse: float) -> str:
-    from .hypotheses import REGISTRY
+    from .hypotheses import REGISTRY, shown_params
 
     run = runs[report_stage]
     what = "MV (stem position) from OP" if report_stage == "valve" else "PV from OP"
@@ -649,7 +649,8 @@ def _text(record: LoopRecord, winner, runs: dict[str, _StageRun], report_stage: 
     if winner:
         h = winner[3]
         desc = REGISTRY[h.name].description if h.name in REGISTRY else h.name
-        parts.append(f"Missing physics: {h.name} ({desc}; {_fmt_params(h.params)}). "
+        params = _fmt_params(shown_params(h.name, h.params))
+        parts.append(f"Missing physics: {h.name} ({desc}; {params}). "
                      f"With it the held-out RMSE falls to {improved_rmse:.4g} "
                      f"({percent_change(improved_rmse / base_rmse - 1.0 if base_rmse > 0 else 0.0)} against the baseline).")
     else:

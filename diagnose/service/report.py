@@ -417,13 +417,17 @@ def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
                              ["Held-out RMSE of the fitted model", f"{number(expl.baseline_rmse)} {unit}"],
                              ["Held-out RMSE with the missing physics", f"{number(expl.improved_rmse)} {unit}"]])]
     if expl.hypotheses:
+        from ..physics.hypotheses import shown_params
+
         # the change is signed, negative for a fall, as in the explanation's own text
         # hypotheses of the valve stage are judged on MV (% of span), the others on PV: each row
         # carries its own unit
         blocks.append(("table", ["Hypothesis", "Named", "Judged on", "Held-out RMSE", "Change", "Parameters"],
                        [[h.name, "yes" if h.accepted else "no", h.target.upper(),
                          f"{number(h.heldout_rmse, 4)} {'% of span' if h.target == 'mv' else 'PV units'}",
-                         percent_change(-h.reduction), _params_text(h.params)] for h in expl.hypotheses]))
+                         percent_change(-h.reduction),
+                         _params_text(shown_params(h.name, h.params))]
+                        for h in expl.hypotheses]))
     if "explanation" in figs:
         blocks.append(("figure", "explanation", FIGURE_CAPTIONS["explanation"]))
     return blocks

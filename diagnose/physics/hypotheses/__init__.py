@@ -12,7 +12,7 @@
 
 from __future__ import annotations
 
-from typing import Iterable
+from typing import Iterable, Mapping
 
 from ...errors import DataError
 from .actuator_lag import ActuatorLag
@@ -23,7 +23,7 @@ from .external_disturbance import ExternalDisturbance
 from .time_varying_friction import TimeVaryingFriction
 from .valve_characteristic import ValveCharacteristic
 
-__all__ = ["REGISTRY", "register", "get", "PhysicsHypothesis", "PlainModel", "Fitted", "VALVE_SIDE",
+__all__ = ["REGISTRY", "register", "get", "shown_params", "PhysicsHypothesis", "PlainModel", "Fitted", "VALVE_SIDE",
            "PROCESS_SIDE", "MIN_RELATIVE_EFFECT", "MIN_LOAD_SHARE", "ActuatorLag", "AsymmetricStiction",
            "ValveCharacteristic", "ExternalDisturbance", "TimeVaryingFriction"]
 
@@ -42,6 +42,12 @@ def register(hypothesis: PhysicsHypothesis) -> PhysicsHypothesis:
 
 for _h in (ActuatorLag(), AsymmetricStiction(), ValveCharacteristic(), ExternalDisturbance(), TimeVaryingFriction()):
     register(_h)
+
+
+def shown_params(name: str, params: Mapping[str, float]) -> dict[str, float]:
+    """The fitted parameters of hypothesis ``name`` a reader needs (`PhysicsHypothesis.shown`; all
+    of them for a name not registered here)."""
+    return REGISTRY[name].shown(params) if name in REGISTRY else dict(params)
 
 
 def get(names: Iterable[str] | None = None) -> list[PhysicsHypothesis]:

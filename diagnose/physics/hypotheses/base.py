@@ -185,6 +185,11 @@ class PhysicsHypothesis:
         ``residual_rms``: the plain model's training residual, RMS in target units."""
         return True
 
+    def shown(self, params: Mapping[str, float]) -> dict[str, float]:
+        """The fitted parameters a reader needs, for the explanation's text and the reports (the
+        JSON output keeps them all); default: all of them."""
+        return dict(params)
+
     def _params(self, struct: Structure, reference: Structure, stage: Stage, coef) -> dict:
         raise NotImplementedError
 

@@ -234,6 +234,15 @@ class TimeVaryingFriction(PhysicsHypothesis):
                 "dS_pct_per_h": struct.dS_pct_per_s * 3600.0, "dJ_pct_per_h": struct.dJ_pct_per_s * 3600.0,
                 "S_end_pct": S_end, "J_end_pct": J_end, "change_from_s": t0, "change_for_s": length}
 
+    def shown(self, params):
+        # a step's rates are those of its one sample (thousands of % per hour) and its length is
+        # that sample: the friction before and after it and its time say it all. A drift starts
+        # at the record's start, a step never does
+        if params.get("change_from_s", 0.0) > 0.0:
+            keep = ("S_start_pct", "J_start_pct", "S_end_pct", "J_end_pct", "change_from_s")
+            return {k: params[k] for k in keep if k in params}
+        return dict(params)
+
     def material(self, params, record_s, residual_rms):
         # S or J changes by at least MIN_RELATIVE_EFFECT of the starting S over the record (a step
         # by its size, however steep)
