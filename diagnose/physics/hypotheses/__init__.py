@@ -23,8 +23,8 @@ from .external_disturbance import ExternalDisturbance
 from .time_varying_friction import TimeVaryingFriction
 from .valve_characteristic import ValveCharacteristic
 
-__all__ = ["REGISTRY", "register", "get", "shown_params", "PhysicsHypothesis", "PlainModel", "Fitted", "VALVE_SIDE",
-           "PROCESS_SIDE", "MIN_RELATIVE_EFFECT", "MIN_LOAD_SHARE", "ActuatorLag", "AsymmetricStiction",
+__all__ = ["REGISTRY", "register", "get", "shown_params", "PhysicsHypothesis", "PlainModel", "Fitted",
+           "VALVE_SIDE", "PROCESS_SIDE", "MIN_RELATIVE_EFFECT", "MIN_LOAD_SHARE", "ActuatorLag", "AsymmetricStiction",
            "ValveCharacteristic", "ExternalDisturbance", "TimeVaryingFriction"]
 
 REGISTRY: dict[str, PhysicsHypothesis] = {}

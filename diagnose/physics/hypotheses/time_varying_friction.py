@@ -84,9 +84,9 @@ class TimeVaryingFriction(PhysicsHypothesis):
         training span) x S before it (0.35-2.5 times the plain fit's) x S after it (0.37-2.7 times
         that; both geometric, 7 % steps; only pairs that bracket the plain fit's S) x three J/S,
         from the reference's start; the best few distinct steps get their initial state fitted,
-        the best two are polished (`_step_rounds`). A step is not a steep
-        drift: the valve is the same before and after it, and a linear drift fitted to a step is
-        wrong on both sides and worse beyond the fitted span."""
+        the best two are polished (`_step_rounds`). A step is not a steep drift: the valve is the
+        same before and after it, and a linear drift fitted to a step is wrong on both sides and
+        worse beyond the fitted span."""
         ts = stage.ts_s
         T = max(stage.n_fit * ts, ts)
         # a step before the first scored sample cannot be told from the valve's start state
