@@ -61,6 +61,27 @@ def record(effect: str, seed: int, index: int, n: int, with_mv: bool, restricted
     return rec, loop.meta
 
 
+def _record_spec(spec: str) -> tuple[str, int, int]:
+    try:
+        e, seed, i = spec.split(":")
+        if e not in EFFECTS:
+            raise ValueError(f"unknown effect {e!r}")
+        return e, int(seed), int(i)
+    except ValueError as exc:
+        raise SystemExit(f"--records {spec}: expected EFFECT:SET:INDEX with EFFECT one of "
+                         f"{', '.join(EFFECTS)} ({exc})")
+
+
+def step_records(first: int, last: int, per_effect: int, n: int, restricted: bool) -> list[str]:
+    """Every time_varying_friction record of sets ``first``..``last`` (indices below ``per_effect``)
+    whose friction changes in one step (plantsim draws a step for 30 % of them), as --records specs."""
+    from benchmarks.plantsim import concealed
+
+    kw = RESTRICTED if restricted else {}
+    return [f"time_varying_friction:{s}:{i}" for s in range(first, last + 1) for i in range(per_effect)
+            if concealed("time_varying_friction", s * 1000 + i, n=n, **kw).meta.get("tvf_shape") == "step"]
+
+
 def run_one(job: tuple) -> dict:
     effect, seed, index, n, with_mv, restricted, mv_noise, threads = job
     from benchmarks.validate_physics import hypothesis_numbers
@@ -170,15 +191,33 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--baseline", default="", help="also run each record with this tree's explain")
+    ap.add_argument("--records", nargs="+", default=None, metavar="EFFECT:SET:INDEX",
+                    help="run these records instead of a set (each from OP/PV, and with MV where the effect is "
+                         "judged on the stem), e.g. time_varying_friction:60:0")
+    ap.add_argument("--list-steps", default="", metavar="FIRST-LAST",
+                    help="print, as --records arguments, every friction-step record of sets FIRST..LAST "
+                         "(indices below --per-effect) and exit")
     ap.add_argument("--jsonl", default="")
     ap.add_argument("--md", default="")
     args = ap.parse_args(argv)
-    jsonl = args.jsonl or f"benchmarks/_physics_plantsim_{args.seed}{'_restricted' if args.restricted else ''}.jsonl"
+    if args.list_steps:
+        print(" ".join(step_records(*(int(v) for v in args.list_steps.split("-", 1)), args.per_effect, args.n,
+                                    args.restricted)))
+        return 0
+    run_label = "records" if args.records else str(args.seed)
+    jsonl = args.jsonl or f"benchmarks/_physics_plantsim_{run_label}{'_restricted' if args.restricted else ''}.jsonl"
     threads = args.threads if args.threads is not None else (1 if args.jobs > 1 else None)
-    jobs = [(e, args.seed, i, args.n, False, args.restricted, args.mv_noise, threads)
-            for e in EFFECTS for i in range(args.per_effect)]
-    jobs += [(e, args.seed, i, args.n, True, args.restricted, args.mv_noise, threads)
-             for e in MV_SETS for i in range(args.per_effect)]
+    if args.records:
+        jobs = []
+        for spec in args.records:
+            e, seed, i = _record_spec(spec)
+            jobs += [(e, seed, i, args.n, mv, args.restricted, args.mv_noise, threads)
+                     for mv in (False, True) if not mv or e in MV_SETS]
+    else:
+        jobs = [(e, args.seed, i, args.n, False, args.restricted, args.mv_noise, threads)
+                for e in EFFECTS for i in range(args.per_effect)]
+        jobs += [(e, args.seed, i, args.n, True, args.restricted, args.mv_noise, threads)
+                 for e in MV_SETS for i in range(args.per_effect)]
     t_all = time.perf_counter()
     if args.jobs > 1:
         import multiprocessing as mp
@@ -210,8 +249,11 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - t_all
     what = "two-parameter and Kano valves on FOPTD/SOPTD processes" if args.restricted else \
         "two-parameter, Kano and force-balance valves on FOPTD, SOPTD and third-order processes"
-    md = [f"`python benchmarks/validate_physics_plantsim.py --seed {args.seed} --per-effect {args.per_effect}"
-          + (" --restricted" if args.restricted else "") + f"`: plantsim concealed set {args.seed} "
+    what_run = f"--records ({len(args.records)} records)" if args.records else \
+        f"--seed {args.seed} --per-effect {args.per_effect}"
+    md = [f"`python benchmarks/validate_physics_plantsim.py {what_run}"
+          + (" --restricted" if args.restricted else "")
+          + f"`: plantsim concealed {'records' if args.records else 'set ' + run_label} "
           f"({len(jobs)} explains of {args.n}-sample records at 1 s; {what}; MV with {args.mv_noise:g} % noise). "
           f"Per-record results in `{jsonl}`.", ""]
     for label, rs in [("this tree", rows)] + ([("baseline tree", base_rows)] if args.baseline else []):

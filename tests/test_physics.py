@@ -949,6 +949,22 @@ def test_physics_benchmark_scripts_print_their_help(script, capsys):
     assert "usage:" in capsys.readouterr().out
 
 
+def test_plantsim_validation_lists_friction_steps_and_reads_record_specs(capsys):
+    # --list-steps prints the friction-step records of a range of sets as --records arguments: each
+    # is a time_varying_friction record whose friction changes in one step
+    _repo_on_path()
+    from benchmarks.plantsim import concealed
+    from benchmarks.validate_physics_plantsim import _record_spec, main
+
+    assert main(["--list-steps", "60-62", "--per-effect", "2", "--n", "1000"]) == 0
+    specs = capsys.readouterr().out.split()
+    assert specs == ["time_varying_friction:60:0", "time_varying_friction:62:1"]
+    assert concealed("time_varying_friction", 60001, n=1000).meta["tvf_shape"] == "drift"
+    assert _record_spec("asymmetric_stiction:57:2") == ("asymmetric_stiction", 57, 2)
+    with pytest.raises(SystemExit, match="EFFECT:SET:INDEX"):
+        _record_spec("asymmetric:57:2")
+
+
 def test_explain_benchmark_times_a_tree_without_the_independent_simulator(tmp_path):
     # a baseline tree may predate benchmarks/plantsim: the record is drawn by this checkout's
     root = _repo_on_path()
