@@ -20,7 +20,9 @@ twin's control error); the score is also given for the records where it is at le
 
 ``--restricted``: draw only the laws and processes the baseline can model (two-parameter and Kano
 valves on FOPTD and SOPTD processes). ``--baseline TREE`` runs the same records with the explain of
-another checkout (its own process per record, PYTHONPATH=TREE) and scores both.
+another checkout (its own process per record, PYTHONPATH=TREE) and scores both. ``--records
+EFFECT:SET:INDEX ...`` runs those records instead of a set; ``--list-steps FIRST-LAST`` prints every
+friction-step record of sets FIRST..LAST in that form (e.g. to compare two trees on steps alone).
 """
 
 from __future__ import annotations
