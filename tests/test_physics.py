@@ -1136,6 +1136,9 @@ def test_the_plain_projections_of_a_step_are_the_valve_before_and_after_it():
                      drift_from_s=700.0, drift_for_s=1.0, process=proc)
     sides = [(p.S_up_pct, p.J_up_pct, p.dS_pct_per_s) for p in _plain_projections(step, n_mid=1000, ts_s=1.0)]
     assert sides == [(3.0, 1.0, 0.0), (5.0, 1.5, 0.0)]
+    # plain: without the step's window too
+    assert all(p.drift_from_s == 0.0 and p.drift_for_s == math.inf
+               for p in _plain_projections(step, n_mid=1000, ts_s=1.0))
     drift = step.replace(dS_pct_per_s=0.001, dJ_pct_per_s=0.0, drift_from_s=0.0, drift_for_s=math.inf)
     mids = [p.S_up_pct for p in _plain_projections(drift, n_mid=1000, ts_s=1.0)]
     assert mids == pytest.approx([3.0, 4.0])
