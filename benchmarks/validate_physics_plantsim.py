@@ -203,8 +203,10 @@ def main(argv=None) -> int:
     ap.add_argument("--md", default="")
     args = ap.parse_args(argv)
     if args.list_steps:
-        print(" ".join(step_records(*(int(v) for v in args.list_steps.split("-", 1)), args.per_effect, args.n,
-                                    args.restricted)))
+        first, _, last = args.list_steps.partition("-")
+        if not (first.isdigit() and last.isdigit()):
+            raise SystemExit(f"--list-steps {args.list_steps}: expected FIRST-LAST, two set numbers, e.g. 60-89")
+        print(" ".join(step_records(int(first), int(last), args.per_effect, args.n, args.restricted)))
         return 0
     run_label = "records" if args.records else str(args.seed)
     jsonl = args.jsonl or f"benchmarks/_physics_plantsim_{run_label}{'_restricted' if args.restricted else ''}.jsonl"

@@ -963,6 +963,8 @@ def test_plantsim_validation_lists_friction_steps_and_reads_record_specs(capsys)
     assert _record_spec("asymmetric_stiction:57:2") == ("asymmetric_stiction", 57, 2)
     with pytest.raises(SystemExit, match="EFFECT:SET:INDEX"):
         _record_spec("asymmetric:57:2")
+    with pytest.raises(SystemExit, match="FIRST-LAST"):
+        main(["--list-steps", "60"])
 
 
 def test_explain_benchmark_times_a_tree_without_the_independent_simulator(tmp_path):
