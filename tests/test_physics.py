@@ -1031,16 +1031,23 @@ def _stem_loop(valve, *, gain: float, tau_s: float, rng_seed: int, seed: int, mv
     return rec.replace(mv=rec.mv + rng.normal(0.0, mv_noise, n))
 
 
+def _step_stem_loop(S_pct: float, J_pct: float, dS_pct: float, dJ_pct: float, at_s: float, **loop):
+    """`_stem_loop` around a valve whose S and J change by ``dS_pct`` and ``dJ_pct`` in one step
+    ``at_s`` seconds into the record (after the warm-up)."""
+    ts, warmup = 1.0, 300
+    valve = AugmentedValve(S_pct, J_pct, dS_pct_per_s=dS_pct / ts, dJ_pct_per_s=dJ_pct / ts, ts_s=ts,
+                           drift_from_s=at_s + warmup, drift_for_s=ts)
+    return _stem_loop(valve, **loop)
+
+
 def test_a_step_in_friction_is_named_with_its_time_from_the_stem():
     # friction that changes in one step (a valve repacked or re-tightened mid-record: S 5 -> 2.5 %,
     # J 2 -> 1 % at 900 s of the record) is neither the plain valve nor a linear drift: a drift
     # fitted to it is wrong on both sides of the step and worse beyond the fitted span. The step's
     # time and the friction before and after it are found, and the held-out part (after 1950 s)
     # is predicted better than by the plain valve
-    ts, warmup = 1.0, 300
-    valve = AugmentedValve(5.0, 2.0, dS_pct_per_s=-2.5, dJ_pct_per_s=-1.0, ts_s=ts, drift_from_s=900.0 + warmup,
-                           drift_for_s=ts)
-    rec = _stem_loop(valve, gain=1.2, tau_s=15.0, rng_seed=11, seed=4, mv_noise=0.1)
+    ts = 1.0
+    rec = _step_stem_loop(5.0, 2.0, -2.5, -1.0, 900.0, gain=1.2, tau_s=15.0, rng_seed=11, seed=4, mv_noise=0.1)
     ex = explain(rec, target="mv", hypotheses=["time_varying_friction"])
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses
@@ -1080,10 +1087,8 @@ def test_a_step_that_more_than_doubles_the_friction_is_found():
     # fitted): S after the step is more than twice S before it, beyond a grid of half to twice the
     # friction before. The plain fit follows the longer side before the step and predicts the
     # held-out part, all after it, badly; the step is found to the stem's slips
-    ts, warmup = 1.0, 300
-    valve = AugmentedValve(2.0, 0.2, dS_pct_per_s=3.0, dJ_pct_per_s=0.3, ts_s=ts, drift_from_s=1400.0 + warmup,
-                           drift_for_s=ts)
-    rec = _stem_loop(valve, gain=1.2, tau_s=15.0, rng_seed=11, seed=4, mv_noise=0.1)
+    ts = 1.0
+    rec = _step_stem_loop(2.0, 0.2, 3.0, 0.3, 1400.0, gain=1.2, tau_s=15.0, rng_seed=11, seed=4, mv_noise=0.1)
     ex = explain(rec, target="mv", hypotheses=["time_varying_friction"])
     assert ex.missing_physics == "time_varying_friction"
     p = ex.hypotheses[0].params
@@ -1098,10 +1103,8 @@ def test_a_step_on_a_valve_that_overshoots_far_is_found_to_the_stems_precision()
     # noise-free stem: the valve on each side of the step is fitted on its own side, J/S up to 2
     # with the valve's start state fitted at each value, so that the model trains at the stem's
     # noise
-    ts, warmup = 1.0, 300
-    valve = AugmentedValve(3.0, 5.7, dS_pct_per_s=2.1, dJ_pct_per_s=3.99, ts_s=ts, drift_from_s=1100.0 + warmup,
-                           drift_for_s=ts)
-    rec = _stem_loop(valve, gain=1.0, tau_s=10.0, rng_seed=23, seed=5, mv_noise=0.02)
+    ts = 1.0
+    rec = _step_stem_loop(3.0, 5.7, 2.1, 3.99, 1100.0, gain=1.0, tau_s=10.0, rng_seed=23, seed=5, mv_noise=0.02)
     ex = explain(rec, target="mv", hypotheses=["time_varying_friction"])
     assert ex.missing_physics == "time_varying_friction"
     (h,) = ex.hypotheses

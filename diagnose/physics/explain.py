@@ -222,10 +222,9 @@ def _reference(stage: Stage, base: Baseline) -> tuple[Stage, Structure, float]:
 
 def _plain_projections(s: Structure, n_mid: int = 0, ts_s: float = 1.0) -> list[Structure]:
     """The plain models nearest to an augmented one (extra physics removed)."""
-    # a plain model has no drift window either: a step's time carried into a reference would make
-    # a later drift polished from it a step, and a reference that wins back reports that time
-    base = s.replace(tau_lag_s=0.0, char_c=0.0, period_s=None, dS_pct_per_s=0.0, dJ_pct_per_s=0.0,
-                     drift_from_s=0.0, drift_for_s=math.inf)
+    # without the drift window too: a step's time carried into a reference would make a later
+    # drift polished from it a step, and a reference that wins back reports that time
+    base = s.plain_part()
     out = []
     if s.S_up_pct != s.S_dn_pct or s.J_up_pct != s.J_dn_pct:
         for S, J in ((s.S_up_pct, s.J_up_pct), (s.S_dn_pct, s.J_dn_pct),

@@ -101,6 +101,12 @@ class Structure:
         dJ = self.dJ_pct_per_s * t if self.dJ_pct_per_s else 0.0
         return max(self.S_up_pct + dS, 0.0), max(self.J_up_pct + dJ, 0.0)
 
+    def plain_part(self) -> "Structure":
+        """The plain valve and process of this structure: no lag, characteristic, load, drift or
+        drift window (S and J those at the first sample)."""
+        return self.replace(tau_lag_s=0.0, char_c=0.0, period_s=None, dS_pct_per_s=0.0, dJ_pct_per_s=0.0,
+                            drift_from_s=0.0, drift_for_s=math.inf)
+
     def replace(self, **kw) -> "Structure":
         # hot path of the searches (hundreds of thousands of candidates): a plain copy of the
         # fields instead of dataclasses.replace (no __post_init__ to run)

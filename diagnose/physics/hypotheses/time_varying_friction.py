@@ -274,7 +274,7 @@ def _side_fits(stage: Stage, step: Structure) -> Structure | None:
     margin = max(int(0.03 * stage.n_fit), 1)
     idx = np.arange(stage.n)
     n_tr = int(stage.train.sum())
-    plain = step.replace(dS_pct_per_s=0.0, dJ_pct_per_s=0.0, drift_from_s=0.0, drift_for_s=math.inf)
+    plain = step.plain_part()
     fitted = []
     for side in (idx < k - margin, idx > k + margin):
         train = stage.train & side
