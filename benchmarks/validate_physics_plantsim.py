@@ -22,7 +22,8 @@ twin's control error); the score is also given for the records where it is at le
 valves on FOPTD and SOPTD processes). ``--baseline TREE`` runs the same records with the explain of
 another checkout (its own process per record, PYTHONPATH=TREE) and scores both. ``--records
 EFFECT:SET:INDEX ...`` runs those records instead of a set; ``--list-steps FIRST-LAST`` prints every
-friction-step record of sets FIRST..LAST in that form (e.g. to compare two trees on steps alone).
+friction-step record of sets FIRST..LAST in that form (e.g. to compare two trees on steps alone);
+``--stem-only`` runs only the records with the stem recorded (a change to the valve-stage fits).
 """
 
 from __future__ import annotations
@@ -183,6 +184,23 @@ def score(rows: list[dict], title: str, min_change: float = 0.0) -> tuple[list[s
     return out, stats
 
 
+def make_jobs(args: argparse.Namespace, threads) -> list[tuple]:
+    """The explains to run: each record of ``--records`` (or of the set) from OP/PV and, where its
+    effect is judged on the stem, with MV; with ``--stem-only`` only the latter."""
+    if args.records:
+        jobs = []
+        for spec in args.records:
+            e, seed, i = _record_spec(spec)
+            jobs += [(e, seed, i, args.n, mv, args.restricted, args.mv_noise, threads)
+                     for mv in (False, True) if not mv or e in MV_SETS]
+    else:
+        jobs = [(e, args.seed, i, args.n, False, args.restricted, args.mv_noise, threads)
+                for e in EFFECTS for i in range(args.per_effect)]
+        jobs += [(e, args.seed, i, args.n, True, args.restricted, args.mv_noise, threads)
+                 for e in MV_SETS for i in range(args.per_effect)]
+    return [j for j in jobs if j[4]] if args.stem_only else jobs
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=41, help="plantsim set seed (records seed*1000 + i)")
@@ -199,6 +217,8 @@ def main(argv=None) -> int:
     ap.add_argument("--list-steps", default="", metavar="FIRST-LAST",
                     help="print, as --records arguments, every friction-step record of sets FIRST..LAST "
                          "(indices below --per-effect) and exit")
+    ap.add_argument("--stem-only", action="store_true",
+                    help="only the records with the stem position recorded (for a change to the valve-stage fits)")
     ap.add_argument("--jsonl", default="")
     ap.add_argument("--md", default="")
     args = ap.parse_args(argv)
@@ -211,17 +231,7 @@ def main(argv=None) -> int:
     run_label = "records" if args.records else str(args.seed)
     jsonl = args.jsonl or f"benchmarks/_physics_plantsim_{run_label}{'_restricted' if args.restricted else ''}.jsonl"
     threads = args.threads if args.threads is not None else (1 if args.jobs > 1 else None)
-    if args.records:
-        jobs = []
-        for spec in args.records:
-            e, seed, i = _record_spec(spec)
-            jobs += [(e, seed, i, args.n, mv, args.restricted, args.mv_noise, threads)
-                     for mv in (False, True) if not mv or e in MV_SETS]
-    else:
-        jobs = [(e, args.seed, i, args.n, False, args.restricted, args.mv_noise, threads)
-                for e in EFFECTS for i in range(args.per_effect)]
-        jobs += [(e, args.seed, i, args.n, True, args.restricted, args.mv_noise, threads)
-                 for e in MV_SETS for i in range(args.per_effect)]
+    jobs = make_jobs(args, threads)
     t_all = time.perf_counter()
     if args.jobs > 1:
         import multiprocessing as mp
@@ -256,7 +266,7 @@ def main(argv=None) -> int:
     what_run = f"--records ({len(args.records)} records)" if args.records else \
         f"--seed {args.seed} --per-effect {args.per_effect}"
     md = [f"`python benchmarks/validate_physics_plantsim.py {what_run}"
-          + (" --restricted" if args.restricted else "")
+          + (" --restricted" if args.restricted else "") + (" --stem-only" if args.stem_only else "")
           + f"`: plantsim concealed {'records' if args.records else 'set ' + run_label} "
           f"({len(jobs)} explains of {args.n}-sample records at 1 s; {what}; MV with {args.mv_noise:g} % noise). "
           f"Per-record results in `{jsonl}`.", ""]

@@ -289,6 +289,149 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     return S_lo, S_hi, J_lo, J_hi, half
 
 
+def stem_slips(y, tol_sigmas: float = 5.0) -> np.ndarray:
+    """Samples a recorded stem slipped to: steps larger than ``tol_sigmas`` times the noise of its
+    sample-to-sample changes (a robust scale: most samples of a sticky stem hold still), one per
+    motion (a step right after another the same way continues it).
+
+    Parameters
+    ----------
+    y : array (n,)
+        Recorded stem position, % of span.
+    tol_sigmas : float
+        Slip threshold in noise standard deviations of the stem's steps.
+    """
+    y = np.asarray(y, float)
+    if y.shape[0] < 3:
+        return np.empty(0, np.intp)
+    dy = np.diff(y)
+    scale = 1.4826 * float(np.median(np.abs(dy - np.median(dy))))
+    tol = max(tol_sigmas * scale, 1e-9 * (float(np.ptp(y)) or 1.0))
+    slips = np.flatnonzero(np.abs(dy) > tol) + 1
+    if slips.shape[0] == 0:
+        return slips
+    f = np.sign(dy[slips - 1])
+    keep = np.r_[True, (np.diff(slips) > 1) | (f[1:] != f[:-1])]
+    return slips[keep]
+
+
+@dataclass(frozen=True)
+class SlipReading:
+    """Friction bands per direction read off a noisy stem record by `slip_reading` (% of span;
+    NaN where the record shows too few events of that kind).
+
+    ``S_up_pct`` / ``S_dn_pct``: the band a reversal into opening / closing crossed (median over
+    reversals); ``J_up_pct`` / ``J_dn_pct``: the band a restart in that direction crossed (median over
+    restarts); ``half_up_pct`` / ``half_dn_pct``: the moving stem's lag behind OP, (S - J) / 2 of that
+    direction (median over moving samples); ``n_*``: how many events each median rests on.
+    """
+
+    S_up_pct: float
+    S_dn_pct: float
+    J_up_pct: float
+    J_dn_pct: float
+    half_up_pct: float
+    half_dn_pct: float
+    n_reversals: tuple[int, int]
+    n_restarts: tuple[int, int]
+
+    def valves(self) -> list[tuple[float, float, float, float]]:
+        """(S_up, J_up, S_dn, J_dn) readings: J from the restarts and from the moving offsets, each
+        where the record shows it; none without both reversal bands."""
+        if not (math.isfinite(self.S_up_pct) and math.isfinite(self.S_dn_pct)):
+            return []
+        out = []
+        for J_up, J_dn in ((self.J_up_pct, self.J_dn_pct),
+                           (self.S_up_pct - 2.0 * self.half_up_pct, self.S_dn_pct - 2.0 * self.half_dn_pct)):
+            J_up = J_up if math.isfinite(J_up) else self.S_up_pct - 2.0 * self.half_up_pct
+            J_dn = J_dn if math.isfinite(J_dn) else self.S_dn_pct - 2.0 * self.half_dn_pct
+            if math.isfinite(J_up) and math.isfinite(J_dn):
+                v = (self.S_up_pct, max(J_up, 0.0), self.S_dn_pct, max(J_dn, 0.0))
+                if v not in out:
+                    out.append(v)
+        return out
+
+
+def slip_reading(u, y, *, min_events: int = 2, tol_sigmas: float = 5.0) -> SlipReading | None:
+    """Friction bands per direction read off a stem record with measurement noise.
+
+    `slip_brackets` needs a clean stem; this reading takes medians instead of intersections, so a
+    few misread events do not void it. A slip is a stem step larger than ``tol_sigmas`` times the
+    noise of the stem's sample-to-sample changes (robust scale). After a slip the model itself says
+    how long the stem moves: while the input goes on in the slip's direction (``u`` is OP, known
+    without noise), so the stuck point is the input where it stopped or turned. The next slip
+    crossed the band of a reversal (into the other direction: S of that direction) or of a restart
+    (J of the same direction); each crossing is read as the middle of the input's last step, past
+    everything the input did while the stem held. The first slip is skipped (the state before it is
+    not in the record).
+
+    Parameters
+    ----------
+    u : array (n,)
+        Valve input, % of span, aligned with the stem (OP shifted by any dead time).
+    y : array (n,)
+        Recorded stem position, % of span.
+    min_events : int
+        Events of one kind needed for its band (else NaN).
+    tol_sigmas : float
+        Slip threshold in noise standard deviations of the stem's steps.
+
+    Returns
+    -------
+    SlipReading or None
+        None when the stem shows fewer than three slips.
+
+    Notes
+    -----
+    Exact on the model's own stem up to the input's step size; a stem that moves in steps no larger
+    than its noise (a pure deadband valve under a slow input) shows few slips and reads poorly: the
+    reading is a start for a search, not a fit.
+    """
+    u = np.clip(np.asarray(u, float), 0.0, 100.0)
+    y = np.asarray(y, float)
+    if u.ndim != 1 or u.shape != y.shape:
+        raise ValueError(f"slip_reading: input and stem must be 1-D of one length, got {u.shape} and {y.shape}")
+    n = y.shape[0]
+    du = np.diff(u)
+    slips = stem_slips(y, tol_sigmas)
+    if slips.shape[0] < 3:
+        return None
+    f = np.sign(y[slips] - y[slips - 1])
+    bands: dict[tuple[str, int], list[float]] = {(k, d): [] for k in "SJ" for d in (1, -1)}
+    halves: dict[int, list[np.ndarray]] = {1: [], -1: []}
+    for i in range(slips.shape[0] - 1):
+        a, fa = int(slips[i]), int(f[i])
+        # the stem moves on while the input goes on in its direction (the model's own rule)
+        b = a
+        while b + 1 < n and du[b] * fa > 0.0 and b + 1 < slips[i + 1]:
+            b += 1
+        halves[fa].append(fa * (u[a:b + 1] - y[a:b + 1]))
+        if i == 0:
+            continue
+        j, fj = int(slips[i + 1]), int(f[i + 1])
+        xss = u[b]
+        held = u[b + 1:j]
+        sense = -fa if fj != fa else fa          # the direction the input had to go
+        lo = float(np.max(sense * (held - xss), initial=0.0))
+        hi = float(sense * (u[j] - xss))
+        if hi <= lo:
+            continue                             # noise or a lag: not readable
+        bands[("S" if fj != fa else "J", fj)].append(0.5 * (lo + hi))
+
+    def med(v) -> float:
+        return float(np.median(v)) if len(v) >= min_events else math.nan
+
+    def med_half(parts) -> float:
+        v = np.concatenate(parts) if parts else np.empty(0)
+        return float(np.median(v)) if v.shape[0] >= 3 else math.nan
+
+    return SlipReading(S_up_pct=med(bands[("S", 1)]), S_dn_pct=med(bands[("S", -1)]),
+                       J_up_pct=med(bands[("J", 1)]), J_dn_pct=med(bands[("J", -1)]),
+                       half_up_pct=med_half(halves[1]), half_dn_pct=med_half(halves[-1]),
+                       n_reversals=(len(bands[("S", 1)]), len(bands[("S", -1)])),
+                       n_restarts=(len(bands[("J", 1)]), len(bands[("J", -1)])))
+
+
 def slip_candidates(obj: Objective, lim: Limits) -> list[Candidate]:
     """Valves read off the stem record by `slip_brackets` at each dead time (no lag): S and J
     inside their bounds, consistent with the moving offset where it can be. Unscored."""

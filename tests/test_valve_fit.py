@@ -7,7 +7,8 @@ import pytest
 
 from diagnose.simulate import make_process, random_walk, simc_pi, simulate_loop, sticky_loop
 from diagnose.stiction_model import stiction_batch, stiction_class
-from diagnose.valve_fit import ValveFit, fit_valve, slip_brackets
+from diagnose.physics.valve import augmented_valve
+from diagnose.valve_fit import ValveFit, fit_valve, slip_brackets, slip_reading
 from kano import KanoValve, kano_valve
 
 
@@ -73,6 +74,29 @@ def test_slip_brackets_hold_the_truth_and_refuse_a_noisy_stem():
     assert S_hi - S_lo < 0.3
     noisy = mv + rng.normal(0, 0.05, mv.shape[0])
     assert slip_brackets(x, noisy) is None
+
+
+def test_slip_reading_gives_each_directions_bands_and_survives_noise():
+    rng = np.random.default_rng(5)
+    x = 50 + np.cumsum(rng.normal(0, 0.4, 6000))
+    step = float(np.max(np.abs(np.diff(x))))
+    # opening sticks more than closing: S 4 / J 1.5 opening, S 2 / J 0.5 closing
+    mv = augmented_valve(x, S_up=4.0, J_up=1.5, S_dn=2.0, J_dn=0.5)
+    r = slip_reading(x, mv)
+    # on the model's own stem each band is read within the input's largest step
+    for got, want in ((r.S_up_pct, 4.0), (r.S_dn_pct, 2.0), (r.J_up_pct, 1.5), (r.J_dn_pct, 0.5)):
+        assert abs(got - want) < step
+    assert r.half_up_pct == pytest.approx(1.25) and r.half_dn_pct == pytest.approx(0.75)
+    assert min(r.n_reversals) >= 20 and min(r.n_restarts) >= 20
+    # slips far above a 0.1 % noise (no offset, J = S: 4.4 % opening, 1.6 % closing) are read from
+    # medians, where the clean stem's brackets (`slip_brackets`) contradict each other
+    mv = augmented_valve(x, S_up=4.4, J_up=4.4, S_dn=1.6, J_dn=1.6) + rng.normal(0, 0.1, x.shape[0])
+    assert slip_brackets(x, mv) is None
+    (S_up, J_up, S_dn, J_dn), *_ = slip_reading(x, mv).valves()
+    assert S_up == pytest.approx(4.4, rel=0.03) and S_dn == pytest.approx(1.6, rel=0.03)
+    assert J_dn == pytest.approx(1.6, rel=0.1)
+    # a stem that never slips has nothing to read
+    assert slip_reading(x, np.full(x.shape[0], 40.0) + rng.normal(0, 0.1, x.shape[0])) is None
 
 
 def test_noisy_and_lagged_stems_are_fitted_close():

@@ -79,6 +79,9 @@ class HypothesisResult:
         Parameters added to the plain model.
     refused : str
         The first acceptance rule it failed, in words; empty when accepted.
+    evidence : {"heldout", "training"}
+        What it was judged on: the held-out part, or (a friction step inside the training part,
+        after which the valve is the plain valve the held-out part confirms) the training part.
     """
 
     name: str
@@ -92,6 +95,7 @@ class HypothesisResult:
     n_extra: int
     train_delta_bic: float = float("nan")
     refused: str = ""
+    evidence: str = "heldout"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "params", MappingProxyType({str(k): float(v) for k, v in self.params.items()}))
@@ -107,7 +111,7 @@ class HypothesisResult:
                 "stage": self.stage, "target": self.target, "train_rmse": _num(self.train_rmse),
                 "heldout_reduction": _num(self.reduction), "delta_bic": _num(self.delta_bic),
                 "train_delta_bic": _num(self.train_delta_bic),
-                "n_extra_params": int(self.n_extra), "refused": self.refused}
+                "n_extra_params": int(self.n_extra), "refused": self.refused, "evidence": self.evidence}
 
 
 @dataclass(frozen=True)

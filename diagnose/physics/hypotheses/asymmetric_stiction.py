@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from ...valve_fit import slip_reading
 from ..model import Candidates, Stage, Structure, mesh, train_sse
 from ..search import (best_distinct, best_of, keyword_columns, polish, refit_dynamics, valve_dynamics_starts,
                       y0_options)
@@ -56,8 +57,11 @@ class AsymmetricStiction(PhysicsHypothesis):
         if stage.name == "valve":
             # OP -> MV: the cost is sharp in S on both sides and the scans step S by 1-2 %, so a
             # scan's result is no measure of its basin: every one is polished, and the best scan
-            # need not polish to the best fit
-            best = best_of(stage, [fine_asym(stage, b) for _, b in results])[0]
+            # need not polish to the best fit. The bands read off the stem's slips start polishes of
+            # their own: with a slip jump J near S the cost is a comb of basins a few tenths of a per
+            # cent wide in S on each side, which the grids step over
+            best = best_of(stage, [fine_asym(stage, b) for _, b in results]
+                           + [fine_asym(stage, r) for r in read_starts(stage, reference)])[0]
         else:
             # OP -> PV: the same fine polish around the process dynamics refit once between: an
             # unpolished scan can train worse than the plain reference and be refused although the
@@ -110,6 +114,22 @@ def _coarse_asym_starts(stage: Stage, reference: Structure, k: int = 3) -> list[
     valves = [{"S_up_pct": su, "S_dn_pct": su * r, "J_up_pct": su * jr, "J_dn_pct": su * r * jr}
               for su in S_grid for r in (0.35, 0.55, 0.8, 1.25, 1.8, 2.8) for jr in (0.3, 0.75)]
     return valve_dynamics_starts(stage, reference, valves, k)
+
+
+def read_starts(stage: Stage, reference: Structure) -> list[Structure]:
+    """Asymmetric valves read off the recorded stem's slips (`diagnose.valve_fit.slip_reading`, OP
+    shifted by the reference's dead time), from the reference's and from the recorded start state.
+    Valve stage only (the target is the stem)."""
+    if stage.name != "valve":
+        return []
+    d = int(round(reference.process.delay_s / stage.ts_s))
+    n = stage.n_fit
+    u = np.r_[np.full(d, stage.x[0]), stage.x[: n - d]] if d > 0 else stage.x[:n]
+    reading = slip_reading(u, stage.y[:n])
+    if reading is None:
+        return []
+    return [reference.replace(S_up_pct=su, J_up_pct=ju, S_dn_pct=sd, J_dn_pct=jd, **kw)
+            for su, ju, sd, jd in reading.valves() for kw in y0_options(stage, reference)]
 
 
 def fine_asym(stage: Stage, struct: Structure) -> Structure:
