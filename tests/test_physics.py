@@ -1124,6 +1124,13 @@ def test_a_step_inside_the_training_part_is_named_on_the_training_evidence():
     # the held-out part is reported as well as the plain valve after the step predicts it
     assert ex.improved_rmse <= ex.mismatch.reference_rmse
     assert "judged on the training part" in ex.explanation
+    # the command's summary and the report's table say so on the hypothesis's own row
+    from diagnose.service.commands.explain import summary
+    from diagnose.service.report import _named_text
+
+    (row,) = [ln for ln in summary(ex.to_dict()).splitlines() if ln.startswith("  * time_varying_friction")]
+    assert "judged on the training part" in row
+    assert _named_text(h) == "yes, on the training part"
     # the same loop without the step: nothing to name
     plain = _step_stem_loop(3.0, 1.5, 0.0, 0.0, 700.0, gain=1.2, tau_s=15.0, rng_seed=11, seed=4, mv_noise=0.1)
     ex0 = explain(plain, target="mv", hypotheses=["time_varying_friction"])

@@ -423,7 +423,7 @@ def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
         # hypotheses of the valve stage are judged on MV (% of span), the others on PV: each row
         # carries its own unit
         blocks.append(("table", ["Hypothesis", "Named", "Judged on", "Held-out RMSE", "Change", "Parameters"],
-                       [[h.name, "yes" if h.accepted else "no", h.target.upper(),
+                       [[h.name, _named_text(h), h.target.upper(),
                          f"{number(h.heldout_rmse, 4)} {'% of span' if h.target == 'mv' else 'PV units'}",
                          percent_change(-h.reduction),
                          _params_text(shown_params(h.name, h.params))]
@@ -431,6 +431,13 @@ def _explanation_blocks(diag: Diagnosis, figs: set[str]) -> list[Block]:
     if "explanation" in figs:
         blocks.append(("figure", "explanation", FIGURE_CAPTIONS["explanation"]))
     return blocks
+
+
+def _named_text(h: Any) -> str:
+    """Whether a hypothesis passed, and on which part a friction step inside the training part did."""
+    if not h.accepted:
+        return "no"
+    return "yes, on the training part" if h.evidence == "training" else "yes"
 
 
 def _runs_note(runs: Any) -> str:

@@ -63,8 +63,9 @@ def summary(d: dict[str, Any]) -> str:
         change = "" if red is None else f"change {percent_change(-red)}"
         # each hypothesis in its own stage's units: MV rows in % of span, PV rows in PV units
         h_unit = "% of span" if h.get("target") == "mv" else "PV units"
+        on_training = " judged on the training part;" if h.get("evidence") == "training" else ""
         lines.append(f"  {mark} {h['name']:<22} [{h.get('target', '')}] held-out {number(h['heldout_rmse'], 4)}"
-                     f" {h_unit} ({change})  {params}")
+                     f" {h_unit} ({change}){on_training}  {params}")
     m = d.get("mismatch") or {}
     for w in (m.get("windows") or [])[:3]:
         lines.append(f"  mismatch window {duration(w['start_s'])} to {duration(w['end_s'])}: RMS {number(w['rms'])} "
