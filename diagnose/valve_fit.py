@@ -361,9 +361,9 @@ def slip_reading(u, y, *, min_events: int = 2, tol_sigmas: float = 5.0) -> SlipR
     how long the stem moves: while the input goes on in the slip's direction (``u`` is OP, known
     without noise), so the stuck point is the input where it stopped or turned. The next slip
     crossed the band of a reversal (into the other direction: S of that direction) or of a restart
-    (J of the same direction); each crossing is read as the middle of the input's last step, past
-    everything the input did while the stem held. The first slip is skipped (the state before it is
-    not in the record).
+    (J of the same direction); each crossing is read as the middle between the furthest the input
+    went while the stem held and where it stood at the slip. The first slip is skipped (the state
+    before it is not in the record).
 
     Parameters
     ----------
