@@ -289,6 +289,12 @@ def slip_brackets(u: np.ndarray, y: np.ndarray, tol: float = 1e-9) -> tuple | No
     return S_lo, S_hi, J_lo, J_hi, half
 
 
+def delayed(x: np.ndarray, d: int) -> np.ndarray:
+    """The input ``x`` as a valve behind ``d`` samples of dead time sees it (held at its first value
+    before that), aligned with the stem."""
+    return np.r_[np.full(d, x[0]), x[: x.shape[0] - d]] if d > 0 else np.asarray(x)
+
+
 def stem_slips(y, tol_sigmas: float = 5.0) -> np.ndarray:
     """Samples a recorded stem slipped to: steps larger than ``tol_sigmas`` times the noise of its
     sample-to-sample changes (a robust scale: most samples of a sticky stem hold still), one per
@@ -439,7 +445,7 @@ def slip_candidates(obj: Objective, lim: Limits) -> list[Candidate]:
     x, y = obj.x, obj.y
     span = float(np.ptp(y)) or 1.0
     for d in range(lim.dmin, lim.dmax + 1):
-        u = np.r_[np.full(d, x[0]), x[: x.shape[0] - d]]
+        u = delayed(x, d)
         res = slip_brackets(u, y, 1e-9 * span)
         if res is None:
             continue

@@ -428,9 +428,7 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
                  f"the valve after the step is not the refit plain valve, and its held-out RMSE is "
                  f"{percent_change(change)} against that valve's (point predictions), "
                  f"{percent_change(min_reduction)} or less allowed"),
-                (all(math.isfinite(v) for v in fitted.params.values()), "parameters not finite"),
-                (h.material(fitted.params, stage.n * stage.ts_s, ref_tr_rms), "too small to matter"),
-            ]
+            ] + checks[-2:]   # finite and material, as for every hypothesis
             step_failed = [why for passed, why in step_checks if not passed]
             if step_failed:
                 failed = [f"{failed[0]}; as a step inside the training part: {step_failed[0]}"]

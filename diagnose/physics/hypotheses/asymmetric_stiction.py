@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ...valve_fit import slip_reading
+from ...valve_fit import delayed, slip_reading
 from ..model import Candidates, Stage, Structure, mesh, train_sse
 from ..search import (best_distinct, best_of, keyword_columns, polish, refit_dynamics, valve_dynamics_starts,
                       y0_options)
@@ -122,10 +122,8 @@ def read_starts(stage: Stage, reference: Structure) -> list[Structure]:
     Valve stage only (the target is the stem)."""
     if stage.name != "valve":
         return []
-    d = int(round(reference.process.delay_s / stage.ts_s))
     n = stage.n_fit
-    u = np.r_[np.full(d, stage.x[0]), stage.x[: n - d]] if d > 0 else stage.x[:n]
-    reading = slip_reading(u, stage.y[:n])
+    reading = slip_reading(delayed(stage.x[:n], int(round(reference.process.delay_s / stage.ts_s))), stage.y[:n])
     if reading is None:
         return []
     return [reference.replace(S_up_pct=su, J_up_pct=ju, S_dn_pct=sd, J_dn_pct=jd, **kw)
