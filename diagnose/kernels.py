@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import StictionError
 
-ABI = 7
+ABI = 8
 
 
 class KernelsMissingError(StictionError, ImportError):
@@ -55,6 +55,7 @@ for _name, _args, _res in (
                         _C, _P, _P, _D, _P], _C),
     ("valve_step1", [_P, _P, _D], _D),
     ("valve_start1", [_P, _P, _D, _D, _D, _D], _D),
+    ("valve_friction1", [_P, _D, _P], None),
     ("lag_filter", [_P, _I, _D, _D, _I, _C, _D, _P], None),
     ("hp_filter_2d", [_P, _I, _I, _I, _D, _P], None),
     ("sosfilt", [_P, _I, _P, _I, _P], None),
@@ -244,16 +245,22 @@ def hp_filter(v, a: float) -> np.ndarray:
 
 
 class ValveState:
-    """One valve stepped one sample at a time (the simulator's valves), by the compiled step.
+    """One valve stepped one sample at a time (the simulators' valves), by the compiled step.
 
-    ``params`` (S_up, J_up, S_dn, J_dn) can be changed between steps (a drifting valve).
+    The valve of `valve_run` for one candidate: stiction opening (``S_up``, ``J_up``) and closing
+    (``S_dn``, ``J_dn``), % of span (>= 0); drift ``dS``, ``dJ`` per second from ``drift_from_s``
+    for ``drift_for_s`` seconds (one sample period: a step); actuator lag pole ``a_lag`` (0: none);
+    sample period ``ts_s``. `step` returns the stem position after the lag.
     """
 
     __slots__ = ("state", "params", "_sp", "_pp")
 
-    def __init__(self) -> None:
-        self.state = np.zeros(6)
-        self.params = np.zeros(4)
+    def __init__(self, S_up: float, J_up: float, S_dn: float, J_dn: float, *, dS: float = 0.0, dJ: float = 0.0,
+                 drift_from_s: float = 0.0, drift_for_s: float = float("inf"), a_lag: float = 0.0,
+                 ts_s: float = 1.0) -> None:
+        self.state = np.zeros(8)
+        self.params = np.array([S_up, J_up, S_dn, J_dn, dS, dJ, drift_from_s, drift_for_s, a_lag, ts_s],
+                               dtype=np.float64)
         self._sp = ctypes.c_void_p(self.state.ctypes.data)
         self._pp = ctypes.c_void_p(self.params.ctypes.data)
 
@@ -271,6 +278,16 @@ class ValveState:
     @property
     def direction(self) -> float:
         return float(self.state[4])
+
+
+def valve_friction(S_up: float, J_up: float, S_dn: float, J_dn: float, dS: float, dJ: float, drift_from_s: float,
+                   drift_for_s: float, t_s: float) -> tuple[float, float, float, float]:
+    """(S_up, J_up, S_dn, J_dn) ``t_s`` seconds after the first sample under the drift schedule the
+    valve kernels run (see `ValveState`); ``t_s`` may be infinite (after a drift window or step)."""
+    p = np.array([S_up, J_up, S_dn, J_dn, dS, dJ, drift_from_s, drift_for_s], dtype=np.float64)
+    out = np.empty(4)
+    _lib.valve_friction1(_ptr(p), float(t_s), _ptr(out))
+    return float(out[0]), float(out[1]), float(out[2]), float(out[3])
 
 
 def sosfilt(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -59,8 +59,7 @@ class StictionValve:
         self.S_pct = float(S_pct)
         self.J_pct = float(J_pct)
         self.f0 = int(f0)
-        self._valve = kernels.ValveState()
-        self._valve.params[:] = (self.S_pct, self.J_pct, self.S_pct, self.J_pct)
+        self._valve = kernels.ValveState(self.S_pct, self.J_pct, self.S_pct, self.J_pct)
         self.reset(0.0)
 
     def reset(self, x0_pct: float) -> float:

@@ -174,6 +174,42 @@ def test_augmented_valve_batch_and_stepped_valve_are_the_same_kernel_at_every_va
         assert np.array_equal(outs[0][i], np.asarray(y))
 
 
+def test_the_friction_schedule_drifts_within_its_window_steps_and_clips_at_zero():
+    # the one schedule every valve path runs (valve_step.h); values written out by hand
+    f = kernels.valve_friction
+    inf = math.inf
+    # S drifts +0.01 %/s from 100 s for 50 s, closing side 1 % below, J still
+    for t, S in ((0.0, 3.0), (100.0, 3.0), (120.0, 3.2), (150.0, 3.5), (1e6, 3.5), (inf, 3.5)):
+        su, ju, sd, jd = f(3.0, 1.0, 2.0, 1.0, 0.01, 0.0, 100.0, 50.0, t)
+        assert su == pytest.approx(S, abs=1e-12) and sd == pytest.approx(S - 1.0, abs=1e-12) and ju == jd == 1.0
+    # a step: one second long at 700 s, 1.5 %/s
+    assert f(3.0, 1.0, 3.0, 1.0, 1.5, 0.5, 700.0, 1.0, 700.0)[:2] == (3.0, 1.0)
+    assert f(3.0, 1.0, 3.0, 1.0, 1.5, 0.5, 700.0, 1.0, 701.0)[:2] == (4.5, 1.5)
+    assert f(3.0, 1.0, 3.0, 1.0, 1.5, 0.5, 700.0, 1.0, inf)[:2] == (4.5, 1.5)
+    # a falling drift stops at zero; a zero rate leaves its value at any time (no 0 * inf)
+    assert f(1.0, 1.0, 1.0, 1.0, -0.1, 0.0, 0.0, inf, 20.0) == (0.0, 1.0, 0.0, 1.0)
+    assert f(1.0, 1.0, 1.0, 1.0, -0.1, 0.0, 0.0, inf, inf) == (0.0, 1.0, 0.0, 1.0)
+    assert f(2.0, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0, inf, inf) == (2.0, 1.0, 2.0, 1.0)
+
+
+def test_the_stepped_valve_runs_the_kernels_drift_and_lag():
+    # a friction step at 700 s in the simulator's stepped valve is the plain valve with the new
+    # friction from then on: the same stem as a valve_run candidate with that step, and different
+    # from the valve without it once the valve slips after the step
+    rng = np.random.default_rng(11)
+    x = _walk(rng, 1500)
+    step = kernels.ValveState(2.0, 1.0, 2.0, 1.0, dS=1.5, dJ=0.5, drift_from_s=700.0, drift_for_s=1.0,
+                              a_lag=0.6, ts_s=1.0)
+    plain = kernels.ValveState(2.0, 1.0, 2.0, 1.0, a_lag=0.6, ts_s=1.0)
+    ys = np.array([step.start(x[0], 1.0)] + [step.step(v) for v in x[1:]])
+    yp = np.array([plain.start(x[0], 1.0)] + [plain.step(v) for v in x[1:]])
+    out = np.empty((1, x.shape[0]))
+    kernels.valve_run(x, [2.0], [1.0], [2.0], [1.0], [1.5], [0.5], [1.0], [0.6], [math.nan], [math.nan], 1.0, out,
+                      t0=[700.0], tw=[1.0])
+    assert np.array_equal(ys, out[0])
+    assert np.array_equal(ys[:701], yp[:701]) and not np.array_equal(ys, yp)
+
+
 @pytest.mark.parametrize("kind,a2,d,integ", [("foptd", -1.0, 0, False), ("soptd", 0.7, 3, False),
                                               ("integrating", -1.0, 2, True)])
 def test_lag_filter_equals_the_simulators_process_stepper(kind, a2, d, integ):

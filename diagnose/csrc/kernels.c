@@ -26,7 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNELS_ABI 7
+#define KERNELS_ABI 8
 
 static inline double nmax(double a, double b) { return b > a ? b : a; }
 static inline double nmin(double a, double b) { return b < a ? b : a; }
@@ -317,19 +317,23 @@ static void characteristic_row(double *row, int64_t n, int64_t stride, double c)
 typedef double vec1 __attribute__((vector_size(8)));
 typedef long long mask1 __attribute__((vector_size(8)));
 #define VSTEP valve_step_1
+#define VFRICTION valve_friction_1
 #define VT vec1
 #define MT mask1
 #define VATTR
 #include "valve_step.h"
 #undef VSTEP
+#undef VFRICTION
 #undef VT
 #undef MT
 #undef VATTR
 
 /*
- * One sample of one valve, for stepping from Python (the simulator). state = [x_prev, up (0/1),
- * stuck (0/1), x_ss, f, y]; params = [S_up, J_up, S_dn, J_dn] (already drifted, >= 0).
- * Returns the new stem position.
+ * One valve stepped one sample at a time from Python (the simulators' valves), with the operations
+ * of valve_core: params = [S_up, J_up, S_dn, J_dn, dS, dJ, t0, tw, a_lag, ts] (S and J >= 0; drift
+ * per second from t0 for tw seconds, actuator lag pole a_lag, sample period ts); state = [x_prev,
+ * up (0/1), stuck (0/1), x_ss, f, y (stem before the lag), k (samples since the start), z (stem
+ * after the lag)]. Returns z.
  */
 double valve_step1(double *state, const double *params, double x)
 {
@@ -338,17 +342,25 @@ double valve_step1(double *state, const double *params, double x)
     double v = xk - xp;
     int up_k = v > 0.0;
     int up = state[1] != 0.0;
+    double k = state[6] + 1.0;
     mask1 stuck = {state[2] != 0.0 ? -1 : 0};
     vec1 xss = {state[3]}, f = {state[4]}, yp = {state[5]};
     vec1 su = {params[0]}, ju = {params[1]}, sd = {params[2]}, jd = {params[3]};
+    if (params[4] != 0.0 || params[5] != 0.0)
+        valve_friction_1((vec1){k * params[9]}, (vec1){params[6]}, (vec1){params[7]}, su, ju, sd, jd,
+                         (vec1){params[4]}, (vec1){params[5]}, &su, &ju, &sd, &jd);
     valve_step_1(xk, xp, v == 0.0 || up_k != up, &stuck, &xss, &f, &yp, su, ju, sd, jd);
+    double a = params[8];
+    double z = a != 0.0 ? a * state[7] + (1.0 - a) * yp[0] : yp[0];
     state[0] = xk;
     state[1] = up_k;
     state[2] = stuck[0] ? 1.0 : 0.0;
     state[3] = xss[0];
     state[4] = f[0];
     state[5] = yp[0];
-    return yp[0];
+    state[6] = k;
+    state[7] = z;
+    return z;
 }
 
 /* The start state of valve_step1: at rest at the first input x0, or stuck at y0 (not NaN) after a
@@ -367,7 +379,24 @@ double valve_start1(double *state, const double *params, double x0, double f0, d
     state[3] = s;
     state[4] = f0;
     state[5] = y;
+    state[6] = 0.0;
+    state[7] = y;
     return y;
+}
+
+/* S and J of both directions (out: S_up, J_up, S_dn, J_dn) t_s seconds after the first sample, for
+ * params = [S_up, J_up, S_dn, J_dn, dS, dJ, t0, tw] as valve_step1's (t_s may be infinite: the
+ * friction after a drift window or step). */
+void valve_friction1(const double *params, double t_s, double *out)
+{
+    vec1 su, ju, sd, jd;
+    valve_friction_1((vec1){t_s}, (vec1){params[6]}, (vec1){params[7]}, (vec1){params[0]}, (vec1){params[1]},
+                     (vec1){params[2]}, (vec1){params[3]}, (vec1){params[4]}, (vec1){params[5]}, &su, &ju, &sd,
+                     &jd);
+    out[0] = su[0];
+    out[1] = ju[0];
+    out[2] = sd[0];
+    out[3] = jd[0];
 }
 
 /* ---- process filters --------------------------------------------------------------------------- */

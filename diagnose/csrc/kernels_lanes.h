@@ -15,9 +15,11 @@ typedef double VT __attribute__((vector_size(8 * LANES)));
 typedef long long MT __attribute__((vector_size(8 * LANES)));
 
 #define VSTEP V(valve_step_, SFX)
+#define VFRICTION V(valve_friction_, SFX)
 #define VATTR KATTR
 #include "valve_step.h"
 #undef VSTEP
+#undef VFRICTION
 #undef VATTR
 
 /* clip each lane to >= 0 (S and J are never negative, also while drifting) */
@@ -103,15 +105,9 @@ static inline __attribute__((always_inline)) KATTR void V(valve_core_, SFX)(
         int stop = v == 0.0 || up_k != up;
         for (int u = 0; u < nv; u++) {
             if (drift[u]) {
-                /* time into the drift window: 0 before t0, tw after its end (t itself for a
-                 * drift from the start for ever, bit for bit) */
-                VT t = ((VT){0.0} + (double)k * ts) - t0[u];
-                t = V(nonneg_, SFX)(t);
-                t = (VT)(((MT)tw[u] & (tw[u] < t)) | ((MT)t & ~(tw[u] < t)));
-                su[u] = V(nonneg_, SFX)(su0[u] + ds[u] * t);
-                sd[u] = V(nonneg_, SFX)(sd0[u] + ds[u] * t);
-                ju[u] = V(nonneg_, SFX)(ju0[u] + dj[u] * t);
-                jd[u] = V(nonneg_, SFX)(jd0[u] + dj[u] * t);
+                /* the friction at this sample */
+                V(valve_friction_, SFX)((VT){0.0} + (double)k * ts, t0[u], tw[u], su0[u], ju0[u], sd0[u], jd0[u],
+                                        ds[u], dj[u], &su[u], &ju[u], &sd[u], &jd[u]);
             }
             V(valve_step_, SFX)(xk, xp, stop, &stuck[u], &xss[u], &f[u], &yp[u], su[u], ju[u], sd[u], jd[u]);
             z[u] = lag[u] ? a[u] * z[u] + (1.0 - a[u]) * yp[u] : yp[u];

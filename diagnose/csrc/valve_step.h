@@ -13,8 +13,10 @@
  *     elif stuck and f (x - x_ss) > J_f:    moving                (restart must beat J)
  *     if moving: y = clip(x - f (S_f - J_f) / 2)  else y = y_prev
  *
- * Template: included with VSTEP (function name), VT (vector of doubles), MT (mask of the same
- * width, from comparisons of VT) and VATTR (function attributes: the ISA) defined. The step is
+ * The friction may drift or step in time (VFRICTION below, the one schedule of both).
+ *
+ * Template: included with VSTEP and VFRICTION (function names), VT (vector of doubles), MT (mask of
+ * the same width, from comparisons of VT) and VATTR (function attributes: the ISA) defined. The step is
  * branch free per lane so that any number of candidate valves driven by the same input run in one
  * vector (lanes); a one-lane vector is the scalar valve. Every lane performs the same IEEE
  * operations in the same order at any width, so results do not depend on the CPU.
@@ -54,4 +56,28 @@ void VSTEP(double xk, double xp, int stop, MT *stuck, VT *xss, VT *f, VT *yp,
     yn = (VT)(((MT)hi & (hi < yn)) | ((MT)yn & ~(hi < yn)));
     *yp = (VT)(((MT)yn & move) | ((MT)*yp & ~move));
     *f = fv;
+}
+
+/*
+ * S and J of both directions t_s seconds after the first sample: each drifts at ds (S) or dj (J)
+ * per second from t0 for tw seconds (one sample period: a step) and is clipped at 0. A rate of 0
+ * leaves its value as it is at any time, also for t_s or tw infinite (no 0 * inf).
+ */
+static inline __attribute__((always_inline)) VATTR
+void VFRICTION(VT t_s, VT t0, VT tw, VT su0, VT ju0, VT sd0, VT jd0, VT ds, VT dj,
+               VT *su, VT *ju, VT *sd, VT *jd)
+{
+    const VT zero = (VT){0.0} * 0.0;
+    VT t = t_s - t0;
+    t = (VT)(((MT)zero & (zero > t)) | ((MT)t & ~(zero > t)));
+    t = (VT)(((MT)tw & (tw < t)) | ((MT)t & ~(tw < t)));
+    VT dsv = (VT)((MT)(ds * t) & (ds != zero));
+    VT djv = (VT)((MT)(dj * t) & (dj != zero));
+    VT v[4] = {su0 + dsv, ju0 + djv, sd0 + dsv, jd0 + djv};
+    for (int i = 0; i < 4; i++)
+        v[i] = (VT)(((MT)zero & (zero > v[i])) | ((MT)v[i] & ~(zero > v[i])));
+    *su = v[0];
+    *ju = v[1];
+    *sd = v[2];
+    *jd = v[3];
 }

@@ -93,13 +93,12 @@ class Structure:
                    process=process)
 
     def friction_at(self, t_s: float) -> tuple[float, float]:
-        """Opening S and J ``t_s`` seconds after the first sample: the drift within its window
-        (after a step, the friction after it), clipped at 0 as the valve kernel clips them."""
-        t = min(max(t_s - self.drift_from_s, 0.0), self.drift_for_s)
-        # a rate of 0 leaves S or J as they are at any time, also for ever (0 * inf is NaN)
-        dS = self.dS_pct_per_s * t if self.dS_pct_per_s else 0.0
-        dJ = self.dJ_pct_per_s * t if self.dJ_pct_per_s else 0.0
-        return max(self.S_up_pct + dS, 0.0), max(self.J_up_pct + dJ, 0.0)
+        """Opening S and J ``t_s`` seconds after the first sample (``inf``: after the drift window
+        or step), as the valve kernel computes them (`diagnose.kernels.valve_friction`)."""
+        su, ju, _, _ = kernels.valve_friction(self.S_up_pct, self.J_up_pct, self.S_dn_pct, self.J_dn_pct,
+                                              self.dS_pct_per_s, self.dJ_pct_per_s, self.drift_from_s,
+                                              self.drift_for_s, t_s)
+        return su, ju
 
     def plain_part(self) -> "Structure":
         """The plain valve and process of this structure: no lag, characteristic, load, drift or

@@ -5,8 +5,9 @@ process has ``reset(u0_pct, ts_s)`` and ``step(u_pct)``), so ``simulate_loop(val
 produces a record whose plant has the effect while the baseline model does not. A sinusoidal
 external load needs no part: pass ``load=diagnose.simulate.sinusoid(...)`` to `simulate_loop`.
 
-`AugmentedValve` steps the same compiled valve step as `diagnose.physics.valve.augmented_valve` (the
-kernel the hypotheses fit) one sample at a time; the tests check that both agree sample for sample.
+`AugmentedValve` runs the compiled valve of `diagnose.physics.valve.augmented_valve` (the kernel the
+hypotheses fit: the valve step, the friction's drift or step and the actuator lag) one sample at a
+time (`diagnose.kernels.ValveState`); the tests check that both agree sample for sample.
 """
 
 from __future__ import annotations
@@ -64,26 +65,14 @@ class AugmentedValve:
         self.reset(0.0)
 
     def reset(self, x0_pct: float) -> float:
-        self.k = 0
-        self._valve = kernels.ValveState()
-        self._valve.params[:] = self._sj()
-        self.y = self._valve.start(x0_pct, self.f0)
-        self.z = self.y
+        # the drift, the step and the lag are the kernel's own (valve_step1), not a copy of them
+        self._valve = kernels.ValveState(self.S_up, self.J_up, self.S_dn, self.J_dn, dS=self.dS, dJ=self.dJ,
+                                         drift_from_s=self.t0, drift_for_s=self.tw, a_lag=self.a, ts_s=self.ts_s)
+        self.z = self._valve.start(x0_pct, self.f0)
         return self.z
 
-    def _sj(self) -> tuple[float, float, float, float]:
-        # the kernel's operations in its order: time since the drift began, within its length
-        t = min(max(self.k * self.ts_s - self.t0, 0.0), self.tw)
-        return (max(self.S_up + self.dS * t, 0.0), max(self.J_up + self.dJ * t, 0.0),
-                max(self.S_dn + self.dS * t, 0.0), max(self.J_dn + self.dJ * t, 0.0))
-
     def step(self, x_pct: float) -> float:
-        self.k += 1
-        if self.dS or self.dJ:
-            self._valve.params[:] = self._sj()
-        self.y = self._valve.step(x_pct)
-        # the actuator lag after the friction element
-        self.z = self.a * self.z + (1.0 - self.a) * self.y
+        self.z = self._valve.step(x_pct)
         return self.z
 
 
