@@ -920,6 +920,30 @@ def test_an_asymmetric_valve_with_slips_near_s_is_read_off_the_stem():
     assert h.heldout_rmse < 0.3 * ex.mismatch.reference_rmse
 
 
+def test_a_completed_friction_step_outranks_an_asymmetry_on_the_training_part():
+    # plantsim's concealed friction step 75000 with the stem recorded (0.1 % noise): a force-balance
+    # stem whose friction changes in one step inside the training part. Both the step (judged on the
+    # training part) and an asymmetry (on the held-out part) are accepted. The held-out part lies
+    # after the step, where an asymmetry between the two friction levels predicts the valve as well,
+    # so ranking on it named the asymmetry; on the training part the step explains far more
+    _repo_on_path()
+    from benchmarks.plantsim import concealed
+    from diagnose.record import LoopRecord
+
+    loop = concealed("time_varying_friction", 75000, n=8000)
+    assert loop.meta["law"] == "force_balance" and loop.meta["tvf_shape"] == "step"
+    mv = loop.mv + np.random.default_rng([75, 0, 5, 7]).normal(0.0, 0.1, loop.n)
+    rec = LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp, mv=mv)
+    ex = explain(rec, target="mv", hypotheses=["asymmetric_stiction", "time_varying_friction"])
+    h = {x.name: x for x in ex.hypotheses}
+    step, asym = h["time_varying_friction"], h["asymmetric_stiction"]
+    assert step.accepted and asym.accepted
+    # held-out ranking favours the asymmetry, training ranking the step
+    assert asym.delta_bic < step.delta_bic and step.train_delta_bic < asym.train_delta_bic
+    assert ex.missing_physics == "time_varying_friction"
+    assert step.params["change_for_s"] == 1.0
+
+
 def test_an_external_load_far_below_the_residual_is_not_named():
     # clean 1003: a 413 s sinusoid of amplitude 0.03 (noise 0.13) fitted to the slow random-walk
     # load was named with a held-out fall of 41 % that came from the predictive mean, not the load

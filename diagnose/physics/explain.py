@@ -22,7 +22,9 @@ position):
    held-out BIC at most `STRONG_BIC`, training BIC negative, a material effect); a friction step
    inside the valve stage's training part, after which the valve is the plain valve the held-out
    part confirms, is judged on the training part (`_completed_step`). The
-   accepted one with the lowest held-out BIC (one ``n_eff`` per stage, the reference's) is named;
+   accepted one with the lowest held-out BIC (one ``n_eff`` per stage, the reference's) is named,
+   or, on a stage where an accepted friction step lies inside the training part, the lowest
+   training BIC (`_StageRun.best_accepted`);
    none accepted -> ``missing_physics = None``.
 """
 
@@ -160,7 +162,10 @@ class _StageRun:
     loc_hat: np.ndarray
     loc_stem: np.ndarray
     n_eff: float = 1.0   # effective number of independent held-out residuals of the reference
+    n_eff_train: float = 1.0   # the same on the training part
+    ref_train_rmse: float = float("nan")
     fitted: list = field(default_factory=list)   # (Fitted, y_hat, HypothesisResult)
+    steps: set = field(default_factory=set)   # accepted friction steps completed in the training part
 
     def rank_bic(self, res: HypothesisResult) -> float:
         """Held-out BIC difference of an accepted hypothesis for ranking: the same form as
@@ -170,6 +175,24 @@ class _StageRun:
         n = max(self.n_eff, 1.0)
         ratio = max(res.heldout_rmse, 1e-300) / max(self.ref_rmse, 1e-300)
         return 2.0 * n * math.log(ratio) + res.n_extra * math.log(n)
+
+    def rank_train_bic(self, res: HypothesisResult) -> float:
+        """`rank_bic` on the training part (one ``n_eff`` for the stage, the reference's)."""
+        n = max(self.n_eff_train, 1.0)
+        ratio = max(res.train_rmse, 1e-300) / max(self.ref_train_rmse, 1e-300)
+        return 2.0 * n * math.log(ratio) + res.n_extra * math.log(n)
+
+    def best_accepted(self, accepted: list) -> tuple | None:
+        """The stage's accepted hypothesis to name (``accepted``: its (stage, Fitted, y_hat,
+        HypothesisResult) tuples): the one that explains the held-out part best for its parameters,
+        or, where a friction step completed inside the training part is accepted, the training part:
+        the held-out part then lies after the step, where any effect that mimics the valve after it
+        (an asymmetry between the two friction levels) does as well as the step."""
+        if not accepted:
+            return None
+        if any(t[3].name in self.steps for t in accepted):
+            return min(accepted, key=lambda t: self.rank_train_bic(t[3]))
+        return min(accepted, key=lambda t: self.rank_bic(t[3]))
 
 
 def _without_start(stage: Stage, k: int) -> Stage:
@@ -352,6 +375,7 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
     n_eff = effective_n(e_ref)
     run.n_eff = n_eff
     ref_tr_rms = math.sqrt(ref_sse / max(int(stage.train.sum()), 1))   # for the materiality rules
+    run.n_eff_train, run.ref_train_rmse = n_eff_tr, ref_tr_rms
     # a reference that reproduces the held-out part to rounding (a noise-free stem) leaves nothing
     # to improve: changes are taken against at least a thousandth of the signal's spread, not
     # against the rounding error itself
@@ -439,6 +463,8 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
                                delta_bic=dbic, n_extra=fitted.n_extra, train_delta_bic=dbic_tr,
                                refused=failed[0] if failed else "", evidence=evidence)
         run.fitted.append((fitted, y_hat, res))
+        if res.accepted and _completed_step(stage, fitted, stem_point):
+            run.steps.add(fitted.name)
 
 
 def _completed_step(stage: Stage, fitted: Fitted, stem: np.ndarray) -> bool:
@@ -585,7 +611,10 @@ def _assemble(record: LoopRecord, runs: dict[str, _StageRun], hyps: Sequence[Phy
     all_results = [(sn, f, yh, res) for sn, r in runs.items() for f, yh, res in r.fitted]
     accepted = [t for t in all_results if t[3].accepted]
     # two accepted on one stage: the one that explains the held-out data best for its parameters
-    winner = min(accepted, key=lambda t: runs[t[0]].rank_bic(t[3])) if accepted else None
+    # (the training data after a completed friction step, `_StageRun.best_accepted`); between the
+    # stages, the held-out data
+    best = [b for b in (r.best_accepted([t for t in accepted if t[0] == sn]) for sn, r in runs.items()) if b]
+    winner = min(best, key=lambda t: runs[t[0]].rank_bic(t[3])) if best else None
     report_stage = winner[0] if winner else ("loop" if "loop" in runs else "valve")
     run = runs[report_stage]
     stage = run.stage
