@@ -942,6 +942,9 @@ def test_a_completed_friction_step_outranks_an_asymmetry_on_the_training_part():
     assert asym.delta_bic < step.delta_bic and step.train_delta_bic < asym.train_delta_bic
     assert ex.missing_physics == "time_varying_friction"
     assert step.params["change_for_s"] == 1.0
+    # the warning says why the better held-out prediction did not win
+    (amb,) = [w for w in ex.warnings if w.code == "physics.ambiguous"]
+    assert "after the friction step" in amb.message and "asymmetric_stiction" in amb.message
 
 
 def test_an_external_load_far_below_the_residual_is_not_named():

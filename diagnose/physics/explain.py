@@ -637,7 +637,16 @@ def _assemble(record: LoopRecord, runs: dict[str, _StageRun], hyps: Sequence[Phy
                 "lag in the process; the stem position (MV) would tell them apart"))
         close = [t[3] for t in accepted if t is not winner and t[3].heldout_rmse <= w.heldout_rmse * 1.05
                  and t[0] == winner[0]]
+        wrun = runs[winner[0]]
         for c in close:
+            if w.name in wrun.steps:
+                warn.append(ExplainWarning(
+                    "physics.ambiguous",
+                    f"{c.name} predicts the held-out part as well as or better than {w.name} (RMSE "
+                    f"{c.heldout_rmse:.4g} vs {w.heldout_rmse:.4g}), but that part lies after the friction step, "
+                    f"where an effect that imitates the valve after it does as well; on the training part the step "
+                    f"explains more (training BIC {wrun.rank_train_bic(w):+.1f} vs {wrun.rank_train_bic(c):+.1f})"))
+                continue
             warn.append(ExplainWarning(
                 "physics.ambiguous",
                 f"{c.name} explains the held-out data almost as well as {w.name} (RMSE {c.heldout_rmse:.4g} vs "
