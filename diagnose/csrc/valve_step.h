@@ -13,7 +13,7 @@
  *     elif stuck and f (x - x_ss) > J_f:    moving                (restart must beat J)
  *     if moving: y = clip(x - f (S_f - J_f) / 2)  else y = y_prev
  *
- * The friction may drift or step in time (VFRICTION below, the one schedule of both).
+ * The friction may drift or step in time: VFRICTION below is the one schedule every valve path runs.
  *
  * Template: included with VSTEP and VFRICTION (function names), VT (vector of doubles), MT (mask of
  * the same width, from comparisons of VT) and VATTR (function attributes: the ISA) defined. The step is
