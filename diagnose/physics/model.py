@@ -57,6 +57,9 @@ class Structure:
         Starting direction of the valve.
     tau_lag_s : float
         Actuator lag after the friction, seconds.
+    tau_pre_s : float
+        Actuator lag before the friction, seconds: OP reaches the friction element through a
+        first-order lag (a pneumatic actuator's pressure, which the friction then resists).
     char_c : float
         Installed characteristic exponent c = ln R (0: linear).
     process : ProcessModel
@@ -86,6 +89,7 @@ class Structure:
     period_s: float | None = None
     y0_pct: float | None = None
     xs0_pct: float | None = None
+    tau_pre_s: float = 0.0
 
     @classmethod
     def plain(cls, S_pct: float, J_pct: float, f0: int, process: ProcessModel) -> "Structure":
@@ -103,7 +107,7 @@ class Structure:
     def plain_part(self) -> "Structure":
         """The plain valve and process of this structure: no lag, characteristic, load, drift or
         drift window (S and J those at the first sample)."""
-        return self.replace(tau_lag_s=0.0, char_c=0.0, period_s=None, dS_pct_per_s=0.0, dJ_pct_per_s=0.0,
+        return self.replace(tau_lag_s=0.0, tau_pre_s=0.0, char_c=0.0, period_s=None, dS_pct_per_s=0.0, dJ_pct_per_s=0.0,
                             drift_from_s=0.0, drift_for_s=math.inf)
 
     def replace(self, **kw) -> "Structure":
@@ -203,10 +207,23 @@ def stems(stage: Stage, structs, n: int | None = None) -> np.ndarray:
     over the stage's input."""
     n = stage.n if n is None else n
     P = Pool(structs).table()[0]
-    return augmented_valve(stage.x[:n], S_up=P[:, 0], J_up=P[:, 1], S_dn=P[:, 2], J_dn=P[:, 3],
-                           dS_pct_per_s=P[:, 4], dJ_pct_per_s=P[:, 5], f0=P[:, 6], tau_lag_s=P[:, 7],
-                           y0_pct=P[:, 12], xs0_pct=P[:, 13], drift_from_s=P[:, 14], drift_for_s=P[:, 15],
-                           ts_s=stage.ts_s)
+    out = np.empty((P.shape[0], n))
+    for tau in np.unique(P[:, 16]):
+        idx = np.flatnonzero(P[:, 16] == tau)
+        Q = P[idx]
+        out[idx] = augmented_valve(prefiltered(stage.x[:n], float(tau), stage.ts_s), S_up=Q[:, 0], J_up=Q[:, 1],
+                                   S_dn=Q[:, 2], J_dn=Q[:, 3], dS_pct_per_s=Q[:, 4], dJ_pct_per_s=Q[:, 5],
+                                   f0=Q[:, 6], tau_lag_s=Q[:, 7], y0_pct=Q[:, 12], xs0_pct=Q[:, 13],
+                                   drift_from_s=Q[:, 14], drift_for_s=Q[:, 15], ts_s=stage.ts_s)
+    return out
+
+
+def prefiltered(x: np.ndarray, tau_s: float, ts_s: float) -> np.ndarray:
+    """The valve's input behind an actuator lag before the friction (`Structure.tau_pre_s`): a
+    first-order lag of ``tau_s`` seconds, at rest at the first sample (0: ``x`` itself)."""
+    if tau_s <= 0:
+        return x
+    return kernels.lag_filter(x, math.exp(-ts_s / tau_s), -1.0, 0, False, ts_s)
 
 
 def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):
@@ -259,11 +276,11 @@ def _row(s: Structure) -> tuple:
     return _VALVE_FIELDS(s) + (p.tau_s, p.tau2_s if p.kind == "soptd" else -1.0, p.delay_s,
                                np.nan if s.y0_pct is None else s.y0_pct,
                                np.nan if (s.xs0_pct is None or s.y0_pct is None) else s.xs0_pct,
-                               s.drift_from_s, s.drift_for_s)
+                               s.drift_from_s, s.drift_for_s, s.tau_pre_s)
 
 
 #: Columns of a parameter row (`_row`).
-ROW_WIDTH = 16
+ROW_WIDTH = 17
 
 
 #: The fields a `Candidates` column may set, and their column in the kernels' parameter rows
@@ -271,7 +288,7 @@ ROW_WIDTH = 16
 _ROW_COLUMN = {"S_up_pct": 0, "J_up_pct": 1, "S_dn_pct": 2, "J_dn_pct": 3, "dS_pct_per_s": 4,
                "dJ_pct_per_s": 5, "f0": 6, "tau_lag_s": 7, "char_c": 8, "tau_s": 9, "tau2_s": 10,
                "delay_s": 11, "y0_pct": 12, "xs0_pct": 13, "drift_from_s": 14, "drift_for_s": 15,
-               "period_s": None}
+               "tau_pre_s": 16, "period_s": None}
 
 
 class Candidates(Sequence[Structure]):
@@ -437,16 +454,18 @@ def train_sse(stage: Stage, structs: Iterable[Union[Structure, Candidates]]) -> 
     """
     n = stage.n_fit
     P_all, load_all, integ_all, freq_all = Pool(structs).table()
-    x = np.ascontiguousarray(stage.x[:n], dtype=np.float64)
+    x0 = np.ascontiguousarray(stage.x[:n], dtype=np.float64)
     tr = np.ascontiguousarray(stage.train[:n], dtype=np.float64)
     yv = np.ascontiguousarray(stage.y[:n], dtype=np.float64)
     ts = float(stage.ts_s)
     out = np.empty(P_all.shape[0])
     # candidates with a load take its sine and cosine per candidate (a search over periods, or the
-    # posterior's draws, would otherwise be one call per period)
-    for load in (False, True):
-        for integ in (False, True):
-            idx = np.flatnonzero((load_all == load) & (integ_all == integ))
+    # posterior's draws, would otherwise be one call per period); those with an actuator lag before
+    # the friction share one filtered input per lag
+    for tau_pre in np.unique(P_all[:, 16]):
+        x = np.ascontiguousarray(prefiltered(x0, float(tau_pre), ts))
+        for load, integ in ((False, False), (False, True), (True, False), (True, True)):
+            idx = np.flatnonzero((load_all == load) & (integ_all == integ) & (P_all[:, 16] == tau_pre))
             if idx.size == 0:
                 continue
             P = P_all[idx]

@@ -245,7 +245,7 @@ def fine_valve(stage: Stage, struct: Structure, extra: str | None = None, *, pro
 
     First J/S over its whole range with the initial state refit at each value (`profile_ratio`).
     Then S(t) scaled in 0.5 % steps over +-12 % with J(t)/S(t) over its whole range (and ``extra``,
-    ``tau_lag_s`` or ``dS_pct_per_s``, +-30 %), then S in 0.1 % and J in 1 % steps, then the
+    ``tau_lag_s``, ``tau_pre_s`` or ``dS_pct_per_s``, +-30 %), then S in 0.1 % and J in 1 % steps, then the
     initial state; twice. Last S (+-1 %), J (+-30 %) and the extra (+-10 %) on one grid, then the
     initial state; twice. A drift is scaled with S (J drifts in proportion). ``profile=False``
     leaves out the profile (for a start whose J/S was profiled already)."""
@@ -317,9 +317,9 @@ def profile_ratio(stage: Stage, struct: Structure, extra: str | None, max_ratio:
 
 
 def _extra_scale(extra: str | None, e0: float, em: float) -> tuple[dict, float]:
-    """For ``extra``'s value ``e0`` scaled by ``em``: the lag to set (``tau_lag_s``) and the factor
-    on the drift rates (``dS_pct_per_s``; 1 otherwise)."""
-    lag = {"tau_lag_s": e0 * em} if extra == "tau_lag_s" and e0 else {}
+    """For ``extra``'s value ``e0`` scaled by ``em``: the lag to set (``tau_lag_s`` or ``tau_pre_s``)
+    and the factor on the drift rates (``dS_pct_per_s``; 1 otherwise)."""
+    lag = {extra: e0 * em} if extra in ("tau_lag_s", "tau_pre_s") and e0 else {}
     return lag, (em if extra == "dS_pct_per_s" else 1.0)
 
 
