@@ -76,9 +76,8 @@ class ActuatorLag(PhysicsHypothesis):
                                          for m in (0.8, 0.9, 1.0, 1.12, 1.25)])[0]
                     st, c = best_of(stage, [with_delay(st, d) for d in delays])
                     if field == "tau_pre_s" and k == 0:
-                        # the best placement is chosen on polished fits: the cost is a comb in S
-                        # whose teeth the grid's 3 % steps straddle, and the lag after the friction
-                        # gets its polish anyway
+                        # polished before the placements are compared: behind a lag before the
+                        # friction the cost is a comb in S whose teeth the grid's 3 % steps straddle
                         st = fine_valve(stage, st, field, profile=False)
                         c = best_of(stage, [st])[1]
                     results.append((c, st))
