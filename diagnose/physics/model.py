@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import kernels
 from ..errors import DataError
-from ..process_model import ProcessModel
+from ..process_model import ProcessModel, lag_coefficient
 from .valve import augmented_valve, characteristic
 
 IDENTITY = ProcessModel(kind="foptd", gain=1.0, tau_s=0.0, delay_s=0.0, bias=0.0)
@@ -223,7 +223,7 @@ def prefiltered(x: np.ndarray, tau_s: float, ts_s: float) -> np.ndarray:
     first-order lag of ``tau_s`` seconds, at rest at the first sample (0: ``x`` itself)."""
     if tau_s <= 0:
         return x
-    return kernels.lag_filter(x, math.exp(-ts_s / tau_s), -1.0, 0, False, ts_s)
+    return kernels.lag_filter(x, lag_coefficient(tau_s, ts_s), -1.0, 0, False, ts_s)
 
 
 def _linear_fit(stage: Stage, struct: Structure, stem: np.ndarray, n: int):

@@ -16,7 +16,7 @@ import math
 
 from .. import kernels
 from ..errors import DataError
-from ..process_model import ProcessModel
+from ..process_model import ProcessModel, lag_coefficient
 
 
 class AugmentedValve:
@@ -60,7 +60,7 @@ class AugmentedValve:
         self.dS, self.dJ = float(dS_pct_per_s), float(dJ_pct_per_s)
         self.ts_s = float(ts_s)
         self.tau_lag_s = float(tau_lag_s)
-        self.a = math.exp(-ts_s / tau_lag_s) if tau_lag_s > 0 else 0.0
+        self.a = lag_coefficient(tau_lag_s, ts_s)
         self.f0 = int(f0)
         self.reset(0.0)
 
