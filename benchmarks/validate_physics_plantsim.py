@@ -23,7 +23,8 @@ valves on FOPTD and SOPTD processes). ``--baseline TREE`` runs the same records 
 another checkout (its own process per record, PYTHONPATH=TREE) and scores both. ``--records
 EFFECT:SET:INDEX ...`` runs those records instead of a set; ``--list-steps FIRST-LAST`` prints every
 friction-step record of sets FIRST..LAST in that form (e.g. to compare two trees on steps alone);
-``--stem-only`` runs only the records with the stem recorded (a change to the valve-stage fits).
+``--stem-only`` runs only the records with the stem recorded (a change to the valve-stage fits),
+``--pv-only`` only those from OP/PV alone (a change to the loop-stage fits).
 """
 
 from __future__ import annotations
@@ -186,7 +187,8 @@ def score(rows: list[dict], title: str, min_change: float = 0.0) -> tuple[list[s
 
 def make_jobs(args: argparse.Namespace, threads) -> list[tuple]:
     """The explains to run: each record of ``--records`` (or of the set) from OP/PV and, where its
-    effect is judged on the stem, with MV; with ``--stem-only`` only the latter."""
+    effect is judged on the stem, with MV; with ``--stem-only`` only the latter, with ``--pv-only``
+    only the former."""
     if args.records:
         jobs = []
         for spec in args.records:
@@ -198,7 +200,9 @@ def make_jobs(args: argparse.Namespace, threads) -> list[tuple]:
                 for e in EFFECTS for i in range(args.per_effect)]
         jobs += [(e, args.seed, i, args.n, True, args.restricted, args.mv_noise, threads)
                  for e in MV_SETS for i in range(args.per_effect)]
-    return [j for j in jobs if j[4]] if args.stem_only else jobs
+    if args.stem_only:
+        return [j for j in jobs if j[4]]
+    return [j for j in jobs if not j[4]] if args.pv_only else jobs
 
 
 def main(argv=None) -> int:
@@ -219,6 +223,8 @@ def main(argv=None) -> int:
                          "(indices below --per-effect) and exit")
     ap.add_argument("--stem-only", action="store_true",
                     help="only the records with the stem position recorded (for a change to the valve-stage fits)")
+    ap.add_argument("--pv-only", action="store_true",
+                    help="only the records from OP/PV alone (for a change to the loop-stage fits)")
     ap.add_argument("--jsonl", default="")
     ap.add_argument("--md", default="")
     args = ap.parse_args(argv)

@@ -979,6 +979,52 @@ def test_a_completed_friction_step_outranks_an_asymmetry_on_the_training_part():
     assert "after the friction step" in amb.message and "asymmetric_stiction" in amb.message
 
 
+def test_a_friction_step_early_in_the_training_part_is_named_from_op_and_pv():
+    # plantsim's concealed friction step 94000 from OP and PV alone: a Kano valve whose friction
+    # grows 2.14-fold (S 2.67 -> 5.70 %) at 30 % of the record. The plain valve fitted on the whole
+    # training part is the valve after the step; it stays stuck through the smaller cycles before
+    # the step, and that stretch was dropped as an unknown initial state (up to half the training
+    # part), so the step left no trace to fit. Dropped now only for a few of the loop's cycles,
+    # the step is found, and with the held-out part lying after it, judged on the training part
+    _repo_on_path()
+    from benchmarks.plantsim import concealed
+    from diagnose.record import LoopRecord
+
+    loop = concealed("time_varying_friction", 94000, n=8000)
+    m = loop.meta
+    assert m["law"] == "kano" and m["tvf_shape"] == "step" and m["tvf_step_at_fraction"] < 0.65 * 0.5
+    S0, S1, at_s = m["S_pct"], m["S_pct"] * (1.0 + m["tvf_change"]), m["tvf_step_at_fraction"] * loop.n * loop.ts_s
+    rec = LoopRecord(name=loop.name, ts_s=loop.ts_s, op=loop.op, pv=loop.pv, sp=loop.sp)
+    ex = explain(rec, target="pv", hypotheses=["time_varying_friction"])
+    assert ex.missing_physics == "time_varying_friction"
+    (h,) = ex.hypotheses
+    p = h.params
+    assert h.evidence == "training" and p["change_for_s"] == loop.ts_s
+    assert p["S_start_pct"] == pytest.approx(S0, rel=0.02) and p["S_end_pct"] == pytest.approx(S1, rel=0.02)
+    assert abs(p["change_from_s"] - at_s) <= 30.0
+    # the scored training part starts within the first cycles, well before the step
+    assert ex.figure_data()["train_start_s"] < 0.2 * at_s
+
+
+def test_the_loop_stages_start_is_forgotten_after_a_few_cycles_of_its_valve():
+    from diagnose.physics.explain import FORGET_PERIODS, _state_forgotten
+
+    ts, n = 2.0, 3000
+    t = np.arange(n) * ts
+    op = 50.0 + 3.0 * np.sin(2 * np.pi * t / 80.0)
+    train = np.zeros(n, bool)
+    train[: int(0.65 * n)] = True
+    stage = Stage(name="loop", x=op, y=op.copy(), ts_s=ts, train=train, gain_sign=1)
+    proc = ProcessModel(kind="foptd", gain=1.0, tau_s=10.0, delay_s=4.0, bias=0.0)
+    s = Structure(S_up_pct=1.0, J_up_pct=0.5, S_dn_pct=1.0, J_dn_pct=0.5, process=proc)
+    # a valve that reverses every half of an 80 s cycle: three cycles and the process's response
+    cycling = np.round(op)
+    assert _state_forgotten(stage, cycling, s) == pytest.approx(FORGET_PERIODS * 80.0 / ts + (4.0 + 20.0) / ts, abs=2)
+    # a valve that reverses fewer than five times is no cycle to count: the start is not capped
+    still = np.where(t < 1000.0, 50.0, np.where(t < 2000.0, 52.0, 51.0))
+    assert _state_forgotten(stage, still, s) == n
+
+
 def test_a_force_balance_stems_pressure_lag_is_named_before_the_friction():
     # plantsim's concealed actuator lag 42000 with the stem recorded (0.1 % noise): a force-balance
     # stem whose actuator pressure lags OP by 2.7 s (its own 0.25 s and the hidden 2.4 s), before the
@@ -1070,16 +1116,20 @@ def test_plantsim_validation_lists_friction_steps_and_reads_record_specs(capsys)
         _record_spec("asymmetric:57:2")
     with pytest.raises(SystemExit, match="FIRST-LAST"):
         main(["--list-steps", "60"])
-    # --stem-only keeps the explains with the stem recorded: valve-side effects and clean records
+    # --stem-only keeps the explains with the stem recorded: valve-side effects and clean records;
+    # --pv-only those from OP/PV alone, every effect
     from argparse import Namespace
 
     from benchmarks.validate_physics_plantsim import MV_SETS, make_jobs
 
-    args = Namespace(records=None, seed=90, per_effect=2, n=1000, restricted=False, mv_noise=0.1, stem_only=False)
+    args = Namespace(records=None, seed=90, per_effect=2, n=1000, restricted=False, mv_noise=0.1, stem_only=False,
+                     pv_only=False)
     every = make_jobs(args, 1)
     stem = make_jobs(Namespace(**{**vars(args), "stem_only": True}), 1)
+    pv = make_jobs(Namespace(**{**vars(args), "pv_only": True}), 1)
     assert len(every) == 2 * (6 + len(MV_SETS)) and len(stem) == 2 * len(MV_SETS)
     assert all(j[4] and j[0] in MV_SETS for j in stem) and set(stem) < set(every)
+    assert len(pv) == 2 * 6 and not any(j[4] for j in pv) and set(pv) == set(every) - set(stem)
     args.records, args.stem_only = ["valve_characteristic:90:0", "none:90:1"], True
     assert [j[:5] for j in make_jobs(args, 1)] == [("none", 90, 1, 1000, True)]
 

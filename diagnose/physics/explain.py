@@ -20,8 +20,8 @@ position):
    (held-out RMSE at least ``min_reduction`` below the reference's and half that below the
    baseline's, a third of both where held-out and training BIC are both at most `DECISIVE_BIC`;
    held-out BIC at most `STRONG_BIC`, training BIC negative, a material effect); a friction step
-   inside the valve stage's training part, after which the valve is the plain valve the held-out
-   part confirms, is judged on the training part (`_completed_step`). The
+   inside a stage's training part, after which the valve is the plain valve the held-out part
+   confirms, is judged on the training part (`_completed_step`). The
    accepted one with the lowest held-out BIC (one ``n_eff`` per stage, the reference's) is named,
    or, on a stage where an accepted friction step lies inside the training part, the lowest
    training BIC (`_StageRun.best_accepted`);
@@ -47,7 +47,7 @@ from ..record import LoopRecord
 from ..valve_fit import stem_slips
 from .baseline import Baseline, from_hammerstein, from_valve_fit, make_baseline
 from .hypotheses import PROCESS_SIDE, VALVE_SIDE, ExternalDisturbance, Fitted, PhysicsHypothesis, PlainModel, get
-from .locate import Mismatch, locate, slips_and_reversals
+from .locate import Mismatch, limit_cycle_period, locate, slips_and_reversals
 from .model import Stage, Structure, effective_n, predict, rmse
 from .posterior import predictive_mean
 from .result import (TARGETS, ExplainWarning, Explanation, FigureData, HypothesisResult, OtherStage, StageMismatch,
@@ -101,6 +101,28 @@ def _burn_in(base: Baseline, stage: Stage) -> int:
     return int(min(max(first + resp, 0.05 * stage.n), 0.5 * n_tr))
 
 
+#: oscillation periods of the loop after which its valve's and process's initial state no longer
+#: show in PV
+FORGET_PERIODS = 3
+
+
+def _state_forgotten(stage: Stage, stem: np.ndarray, struct: Structure) -> int:
+    """Samples after which the loop stage's unknown initial state no longer matters: `FORGET_PERIODS`
+    periods of the loop's oscillation (from the reversals of ``stem``, the plain model's simulated
+    valve) plus the process response; the whole stage where that valve reverses fewer than five
+    times. A loop that cycles from the start moves its valve every half-cycle, so where a plain
+    valve stays stuck through the first cycles (its friction too large for the small cycles before
+    a friction step) the misfit is the valve, not the start."""
+    n_fit = stage.n_fit
+    _, revs = slips_and_reversals(stem[:n_fit])
+    period = limit_cycle_period(stem[:n_fit], stage.x[:n_fit], stage.ts_s) if revs.size >= 5 else None
+    if period is None or not math.isfinite(period) or period <= 0:
+        return stage.n
+    p = struct.process
+    resp = round((p.delay_s + 2.0 * (p.tau_s + p.tau2_s)) / stage.ts_s)
+    return int(FORGET_PERIODS * period / stage.ts_s + resp)
+
+
 def _response_burn(base: Baseline, stage: Stage) -> int:
     """Samples at the start that depend on the process's unknown initial state (its response time;
     on the valve stage 1 % of the record)."""
@@ -119,12 +141,13 @@ def _leading_misfit(stage: Stage, struct: Structure) -> int:
     are counted from the start (at most half of the training part). On the valve stage the run ends
     by the recorded stem's third slip: after a slip the valve's state follows from OP alone, so a
     plain valve that still cannot follow is another valve (friction that stepped or drifted), and
-    its evidence stays in the training part.
+    its evidence stays in the training part. On the loop stage, where the stem is not recorded, the
+    run ends by `_state_forgotten`: a few cycles of the loop's oscillation after the start.
     """
     n_fit = stage.n_fit
     half = np.zeros(stage.n, bool)
     half[n_fit // 2:n_fit] = True
-    y_hat, _, _ = predict(dataclasses.replace(stage, train=half), struct)
+    y_hat, stem_hat, _ = predict(dataclasses.replace(stage, train=half), struct)
     e = stage.y - y_hat
     w = max(20, stage.n // 60)
     rms = np.array([float(np.sqrt(np.mean(e[a:a + w] ** 2))) for a in range(0, n_fit, w)])
@@ -137,6 +160,8 @@ def _leading_misfit(stage: Stage, struct: Structure) -> int:
         slips = stem_slips(stage.y[:n_fit])
         if np.count_nonzero(slips < cut) >= 3:
             cut = int(slips[2])
+    elif cut:
+        cut = min(cut, _state_forgotten(stage, stem_hat, struct))
     return cut
 
 
@@ -468,11 +493,12 @@ def _judge(run: _StageRun, fits: list[Fitted], by_name: Mapping[str, PhysicsHypo
 
 
 def _completed_step(stage: Stage, fitted: Fitted, stem: np.ndarray) -> bool:
-    """A friction step (a change one sample long) on the valve stage, inside the scored training
-    part, with the fitted valve slipping at least `MIN_SLIPS_TRAIN` times in the training part on
-    each side of it: the recorded stem shows the valve before and after the change."""
+    """A friction step (a change one sample long) inside the scored training part, with the fitted
+    valve slipping at least `MIN_SLIPS_TRAIN` times in the training part on each side of it: the
+    target (the recorded stem, or PV through the process) shows the valve before and after the
+    change."""
     s = fitted.structure
-    if stage.name != "valve" or not (s.dS_pct_per_s or s.dJ_pct_per_s) or s.drift_for_s != stage.ts_s:
+    if not (s.dS_pct_per_s or s.dJ_pct_per_s) or s.drift_for_s != stage.ts_s:
         return False
     k = int(round(s.drift_from_s / stage.ts_s))
     slips, _ = slips_and_reversals(np.asarray(stem, float), eps=0.01)
