@@ -30,6 +30,7 @@ friction-step record of sets FIRST..LAST in that form (e.g. to compare two trees
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import subprocess
@@ -143,6 +144,14 @@ def run_baseline(job: tuple, tree: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def run_pair(job: tuple, baseline: str = "") -> tuple[dict, dict | None]:
+    """`run_one`, then (``baseline``: a tree) `run_baseline` on the same record, in the same worker:
+    each worker runs one explain at a time, so the two trees' seconds are measured under the same
+    load (a baseline run after the workers, while they run ahead, would share the cores with them)."""
+    r = run_one(job)
+    return r, (run_baseline(job, baseline) if baseline else None)
+
+
 def score(rows: list[dict], title: str, min_change: float = 0.0) -> tuple[list[str], dict]:
     """Confusion tables (OP/PV, with MV) and the headline numbers of ``rows``."""
     def exercised(r):
@@ -239,20 +248,20 @@ def main(argv=None) -> int:
     threads = args.threads if args.threads is not None else (1 if args.jobs > 1 else None)
     jobs = make_jobs(args, threads)
     t_all = time.perf_counter()
+    run = functools.partial(run_pair, baseline=args.baseline)
     if args.jobs > 1:
         import multiprocessing as mp
 
         pool = mp.get_context("spawn").Pool(args.jobs)
-        results = pool.imap(run_one, jobs)
+        results = pool.imap(run, jobs)
     else:
         pool = None
-        results = map(run_one, jobs)
+        results = map(run, jobs)
     rows, base_rows = [], []
     with open(jsonl, "w") as fh:
         for k, job in enumerate(jobs):
-            r = next(results)
-            if args.baseline:
-                b = run_baseline(job, args.baseline)
+            r, b = next(results)
+            if b is not None:
                 r["baseline_tree"] = {"named": b["named"], "seconds": b["seconds"]}
                 base_rows.append(b)
             rows.append(r)

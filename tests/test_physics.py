@@ -1134,6 +1134,22 @@ def test_plantsim_validation_lists_friction_steps_and_reads_record_specs(capsys)
     assert [j[:5] for j in make_jobs(args, 1)] == [("none", 90, 1, 1000, True)]
 
 
+def test_plantsim_validation_runs_the_baseline_tree_in_the_same_worker(monkeypatch):
+    # the baseline tree's explain runs right after this tree's, in the same worker, so that the
+    # two are timed under the same load
+    _repo_on_path()
+    import benchmarks.validate_physics_plantsim as v
+
+    calls = []
+    monkeypatch.setattr(v, "run_one", lambda job: calls.append(("this", job)) or {"named": "none"})
+    monkeypatch.setattr(v, "run_baseline", lambda job, tree: calls.append((tree, job)) or {"named": "x"})
+    job = ("none", 90, 0, 1000, False, False, 0.1, 1)
+    assert v.run_pair(job) == ({"named": "none"}, None) and calls == [("this", job)]
+    calls.clear()
+    assert v.run_pair(job, baseline="/tree") == ({"named": "none"}, {"named": "x"})
+    assert calls == [("this", job), ("/tree", job)]
+
+
 def test_explain_benchmark_times_a_tree_without_the_independent_simulator(tmp_path):
     # a baseline tree may predate benchmarks/plantsim: the record is drawn by this checkout's
     root = _repo_on_path()
