@@ -96,9 +96,14 @@ def _burn_in(base: Baseline, stage: Stage) -> int:
     n_tr = int(stage.train.sum())
     _, revs = slips_and_reversals(base.stem_hat)
     first = int(revs[0]) if revs.size else 0
-    p = base.structure.process
-    resp = 0 if stage.name == "valve" else int(round((p.delay_s + 2.0 * (p.tau_s + p.tau2_s)) / stage.ts_s))
+    resp = 0 if stage.name == "valve" else _response_samples(base.structure, stage.ts_s)
     return int(min(max(first + resp, 0.05 * stage.n), 0.5 * n_tr))
+
+
+def _response_samples(struct: Structure, ts_s: float) -> int:
+    """Samples the process of ``struct`` takes to respond: its dead time and twice its lags."""
+    p = struct.process
+    return int(round((p.delay_s + 2.0 * (p.tau_s + p.tau2_s)) / ts_s))
 
 
 #: oscillation periods of the loop after which its valve's and process's initial state no longer
@@ -118,9 +123,7 @@ def _state_forgotten(stage: Stage, stem: np.ndarray, struct: Structure) -> int:
     period = limit_cycle_period(stem[:n_fit], stage.x[:n_fit], stage.ts_s) if revs.size >= 5 else None
     if period is None or not math.isfinite(period) or period <= 0:
         return stage.n
-    p = struct.process
-    resp = round((p.delay_s + 2.0 * (p.tau_s + p.tau2_s)) / stage.ts_s)
-    return int(FORGET_PERIODS * period / stage.ts_s + resp)
+    return int(FORGET_PERIODS * period / stage.ts_s + _response_samples(struct, stage.ts_s))
 
 
 def _response_burn(base: Baseline, stage: Stage) -> int:
@@ -128,8 +131,7 @@ def _response_burn(base: Baseline, stage: Stage) -> int:
     on the valve stage 1 % of the record)."""
     if stage.name == "valve":
         return int(max(0.01 * stage.n, 1))
-    p = base.structure.process
-    resp = int(round((p.delay_s + 2.0 * (p.tau_s + p.tau2_s)) / stage.ts_s))
+    resp = _response_samples(base.structure, stage.ts_s)
     return int(min(max(resp, 0.02 * stage.n), 0.5 * int(stage.train.sum())))
 
 
